@@ -1,0 +1,42 @@
+"""pgdcli: Proper Generalized Decomposition codebooks for parametric dynamical systems.
+
+Python API
+----------
+- :func:`load_spec` -- YAML spec file -> validated :class:`~pgdcli.spec.Problem`
+- :func:`solve` -- problem -> :class:`~pgdcli.solver.SolveResult` (``.codebook``, ``.converged``, ``.residuals``)
+- :class:`Codebook` -- ``Codebook.load(path)``; ``codebook(t=..., k=...)`` -> {unknown: ndarray}
+
+Submodules are imported lazily so that evaluating a codebook does not pay for
+scipy or yaml.
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+__all__ = ["__version__", "load_spec", "parse_spec", "solve", "Codebook", "PgdError"]
+
+_LAZY = {
+    "load_spec": ("spec", "load_spec"),
+    "parse_spec": ("spec", "parse_spec"),
+    "Problem": ("spec", "Problem"),
+    "solve": ("solver", "solve"),
+    "SolveResult": ("solver", "SolveResult"),
+    "Codebook": ("codebook", "Codebook"),
+    "PgdError": ("errors", "PgdError"),
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        value = getattr(importlib.import_module(f"{__name__}.{module}"), attr)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -1,0 +1,705 @@
+"""PGD solver for linear parametric initial-value problems (the seed paper's Algorithm 1).
+
+The problem ``sum_s A_rs(x) du_s/dt + B_rs(x) u_s = f_r(x)`` with ``u_s(t0) = u0_s``
+is lifted (``u = u0 + v``, ``v(t0) = 0``) and discretized coordinate by
+coordinate (:mod:`pgdcli.basis`), which turns it into one tensor equation
+``A v = F`` over the modes ``(field, x_1, ..., x_d)``. The *field* mode, of size
+the number of unknowns, carries the coupling between equations, so coupled
+linear systems are solved as one separated problem.
+
+Before the enrichment the time rows are multiplied by the inverse of the
+discrete ``d/dt`` (an integration matrix) and every mode by the square roots of
+its quadrature weights: the residual minimized is then the L2 norm of the
+*integrated* equation (u - u0 - int rhs), which is well conditioned and close
+to the error itself, so the tolerance means what it says.
+
+Algorithm (free functions below):
+
+1. :func:`enrich` finds a rank-one term by an alternating-directions fixed
+   point, solving for one mode with the others frozen. ``minres`` minimizes the
+   residual norm (always a descent, never stalls); ``galerkin`` is the paper's
+   Galerkin condition (eq. 12).
+2. :func:`project_alphas` recomputes every weight (eq. 15 for Galerkin, a
+   least-squares problem for minres, solved through an orthogonal sweep).
+3. :func:`update_mode` optionally re-solves all modes of one coordinate jointly,
+   which keeps the rank low.
+4. The relative residual (eq. 16) is computed in separated form by an orthogonal
+   sweep (:func:`pgdcli.separated.orthogonal_sweep`), accurate to rounding.
+"""
+
+from __future__ import annotations
+
+import time as _time
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import scipy.linalg
+
+from .basis import Basis1D, make_basis
+from .errors import SolverError
+from .separated import CPTensor, SeparatedOperator, orthogonal_sweep
+
+__all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
+
+STATE = "<state>"
+
+
+# ----------------------------------------------------------------------------------------------
+# discretization: problem -> separated operator and source
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class Discretization:
+    """The discrete separated system of a problem.
+
+    Mode 0 is the *state* mode: the unknowns stacked over the free time nodes
+    (size ``q * (n_t - 1)``), so each rank-one term carries its own time
+    function for every unknown while the parameter factors are shared; the
+    coupling between equations lives in this mode's matrices. Modes 1.. are
+    the parameter coordinates in spec order.
+
+    Attributes
+    ----------
+    names : list of str
+        ``STATE`` then the parameter coordinate names.
+    bases : dict
+        Coordinate name -> :class:`~pgdcli.basis.Basis1D`.
+    operator : SeparatedOperator
+        Preconditioned operator; ``terms[k][j]`` of shape (n_j, n_j).
+    source : CPTensor
+        Preconditioned right-hand side.
+    lift : dict
+        Unknown name -> CPTensor of the initial value over all coordinates
+        (spec order, time factor 1), in nodal values.
+    unknowns : list of str
+    coordinates : list of str
+        All coordinate names in spec order.
+    time : str
+    """
+
+    names: list[str]
+    bases: dict[str, Basis1D]
+    operator: SeparatedOperator
+    source: CPTensor
+    lift: dict[str, CPTensor]
+    unknowns: list[str]
+    coordinates: list[str]
+    time: str
+
+    def nodal_factors(self, factors: list[np.ndarray]) -> dict[str, list[np.ndarray]]:
+        """Solver factors -> per unknown, nodal mode matrices over the coordinates (spec order)."""
+        nt = self.bases[self.time].nodes.size
+        state = factors[0].reshape(len(self.unknowns), nt - 1, -1)
+        params = dict(zip(self.names[1:], factors[1:]))
+        out = {}
+        for s, u in enumerate(self.unknowns):
+            tf = np.vstack([np.zeros((1, state.shape[2])), state[s]])  # v(t0) = 0
+            out[u] = [tf if c == self.time else params[c] for c in self.coordinates]
+        return out
+
+
+def _factor_values(term, basis_of: dict[str, Basis1D]) -> dict[str, np.ndarray]:
+    """Values at the nodes of every coordinate factor of a SepTerm (absent coordinates: ones)."""
+    values = {name: np.ones(b.nodes.size) for name, b in basis_of.items()}
+    for coord, func in term.factors:
+        nodes = basis_of[coord].nodes
+        v = np.broadcast_to(np.asarray(func(nodes), dtype=float), nodes.shape)
+        if not np.all(np.isfinite(v)):
+            raise SolverError(f"coefficient {func} is not finite at some nodes of coordinate {coord!r}")
+        values[coord] = np.array(v)
+    return values
+
+
+def _merge_terms(terms: list[tuple[np.ndarray, ...]]) -> list[tuple[np.ndarray, ...]]:
+    """Sum Kronecker terms that differ in at most one mode (fewer terms, cheaper sweeps)."""
+    merged: list[list[np.ndarray]] = []
+    for term in terms:
+        for other in merged:
+            differ = [j for j, (a, b) in enumerate(zip(term, other)) if not np.array_equal(a, b)]
+            if len(differ) <= 1:
+                if differ:
+                    other[differ[0]] = other[differ[0]] + term[differ[0]]
+                else:
+                    other[0] = 2.0 * other[0]
+                break
+        else:
+            merged.append(list(term))
+    return [tuple(t) for t in merged]
+
+
+def discretize(problem) -> Discretization:
+    """Assemble the separated operator, source and lift of a linear problem.
+
+    Parameters
+    ----------
+    problem : pgdcli.spec.Problem
+
+    Returns
+    -------
+    Discretization
+    """
+    coords = list(problem.coordinates)
+    tname = problem.time
+    unknowns = [u.name for u in problem.unknowns]
+    q = len(unknowns)
+    index = {name: s for s, name in enumerate(unknowns)}
+    bases = {c.name: make_basis(c.discretization, c.domain, c.nodes) for c in coords}
+    tb = bases[tname]
+    nt = tb.nodes.size
+    params = [c.name for c in coords if c.name != tname]
+    names = [STATE] + params
+
+    # left preconditioners: sqrt(weights) * (integration matrix in time), per unknown
+    integrate = np.linalg.inv(tb.time_stiffness(np.ones(nt))[:, 1:])
+    p_time = np.sqrt(tb.time_weights())[:, None] * integrate
+    p_param = {c: np.sqrt(bases[c].weights) for c in params}
+
+    def unit(r: int) -> np.ndarray:
+        e = np.zeros(q)
+        e[r] = 1.0
+        return e
+
+    op_terms: list[tuple[np.ndarray, ...]] = []
+    src_w: list[float] = []
+    src_f: list[list[np.ndarray]] = []
+
+    def add_source(r: int, coef: float, time_vec: np.ndarray, vals: dict[str, np.ndarray]):
+        src_w.append(coef)
+        src_f.append([np.kron(unit(r), p_time @ time_vec)] + [p_param[c] * vals[c] for c in params])
+
+    for eq in problem.equations:
+        r = eq.index
+        for monomial, sep in eq.polynomial.items():
+            if len(monomial) == 0:
+                for term in sep.terms:
+                    vals = _factor_values(term, bases)
+                    add_source(r, -term.coef, tb.time_load(vals[tname]), vals)
+                continue
+            if len(monomial) != 1:
+                raise SolverError(f"equations[{r}]: nonlinear term; the linear solver needs equations linear in the unknowns")
+            atom = monomial[0]
+            s = index[atom.unknown]
+            is_der = atom.order == 1 and atom.coordinate == tname
+            if atom.order != 0 and not is_der:
+                raise SolverError(f"equations[{r}]: derivative der({atom.unknown}, {atom.coordinate}) is not supported")
+            for term in sep.terms:
+                vals = _factor_values(term, bases)
+                tmat = tb.time_stiffness(vals[tname]) if is_der else tb.time_mass(vals[tname])
+                coupling = np.zeros((q, q))
+                coupling[r, s] = term.coef
+                op_terms.append(
+                    (np.kron(coupling, p_time @ tmat[:, 1:]),)
+                    + tuple(np.diag(p_param[c] * vals[c]) for c in params)
+                )
+                if not is_der:
+                    # the lift u0 (constant in time) moves to the right-hand side
+                    for init in problem.unknowns[s].initial.terms:
+                        ivals = _factor_values(init, bases)
+                        pv = {n: vals[n] * ivals[n] for n in vals}
+                        add_source(r, -term.coef * init.coef, tmat @ np.ones(nt), pv)
+
+    if not op_terms:
+        raise SolverError("the equations have no term in the unknowns")
+    op_terms = _merge_terms(op_terms)
+    sizes = [m.shape[0] for m in op_terms[0]]
+    source = CPTensor(np.array(src_w), [np.column_stack([f[j] for f in src_f]) if src_f else np.zeros((sizes[j], 0))
+                                        for j in range(len(names))])
+    lift = {}
+    for u in problem.unknowns:
+        ws, fs = [], []
+        for init in u.initial.terms:
+            vals = _factor_values(init, bases)
+            ws.append(init.coef)
+            fs.append([vals[c.name] for c in coords])
+        lift[u.name] = CPTensor(
+            np.array(ws), [np.column_stack([f[j] for f in fs]) if fs else np.zeros((bases[c.name].nodes.size, 0))
+                           for j, c in enumerate(coords)])
+    return Discretization(names, bases, SeparatedOperator(tuple(op_terms)), source, lift, unknowns,
+                          [c.name for c in coords], tname)
+
+
+# ----------------------------------------------------------------------------------------------
+# the algorithm
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class _State:
+    """Current approximation ``U = sum_i alpha_i (x)_j U_j[:, i]`` and its images ``A_k U``."""
+
+    op: SeparatedOperator
+    source: CPTensor
+    alphas: np.ndarray
+    factors: list[np.ndarray]
+    images: list[np.ndarray]  # images[j]: (K, m_j, n) = A_kj @ U_j
+
+    @classmethod
+    def empty(cls, op: SeparatedOperator, source: CPTensor) -> "_State":
+        sizes = [op.terms[0][j].shape for j in range(op.order)]
+        return cls(
+            op,
+            source,
+            np.zeros(0),
+            [np.zeros((n, 0)) for _, n in sizes],
+            [np.zeros((op.n_terms, m, 0)) for m, _ in sizes],
+        )
+
+    @property
+    def rank(self) -> int:
+        return self.alphas.size
+
+    def append(self, columns: list[np.ndarray], alpha: float) -> None:
+        self.alphas = np.append(self.alphas, alpha)
+        for j, col in enumerate(columns):
+            self.factors[j] = np.column_stack([self.factors[j], col])
+            image = np.einsum("kab,b->ka", self.op.mode_stack(j), col)
+            self.images[j] = np.concatenate([self.images[j], image[:, :, None]], axis=2)
+
+    def set_mode(self, j: int, factor: np.ndarray) -> None:
+        self.factors[j] = factor
+        self.images[j] = np.einsum("kab,bn->kan", self.op.mode_stack(j), factor)
+
+    def residual(self) -> tuple[np.ndarray, list[np.ndarray]]:
+        """``F - A U`` as weights (C,) and factors (m_j, C); source columns first."""
+        K = self.op.n_terms
+        w = np.concatenate([self.source.weights, -np.tile(self.alphas, K)])
+        fs = [
+            np.hstack([self.source.factors[j], self.images[j].transpose(1, 0, 2).reshape(self.images[j].shape[1], -1)])
+            for j in range(self.op.order)
+        ]
+        return w, fs
+
+
+def _others_product(mats: list[np.ndarray], j: int) -> np.ndarray:
+    out = None
+    for m, a in enumerate(mats):
+        if m != j:
+            out = a.copy() if out is None else out * a
+    return out
+
+
+def enrich(
+    op: SeparatedOperator,
+    res_w: np.ndarray,
+    res_f: list[np.ndarray],
+    *,
+    formulation: str = "minres",
+    tolerance: float = 1e-8,
+    max_iterations: int = 30,
+    start: list[np.ndarray] | None = None,
+) -> tuple[list[np.ndarray], int]:
+    """Rank-one correction ``R_1 (x) ... (x) R_d`` of the residual by alternating directions.
+
+    Parameters
+    ----------
+    op : SeparatedOperator
+        ``K`` terms, ``d`` modes.
+    res_w : ndarray, shape (C,)
+    res_f : list of ndarray, each shape (m_j, C)
+        The current residual ``r`` in separated form.
+    formulation : {'minres', 'galerkin'}
+        ``minres`` minimizes ``||A R - r||`` over each factor in turn;
+        ``galerkin`` imposes ``<A R - r, R*> = 0`` (the paper's eq. 12).
+    tolerance : float
+        Stop when the relative change of the rank-one tensor is below this.
+    max_iterations : int
+    start : list of ndarray, optional
+        Initial factors.
+
+    Returns
+    -------
+    factors : list of ndarray, each shape (n_j,)
+    iterations : int
+    """
+    d = op.order
+    stacks = [op.mode_stack(j) for j in range(d)]
+    R = [np.ones(s.shape[2]) if start is None else np.array(start[j], dtype=float) for j, s in enumerate(stacks)]
+    R = [r / np.linalg.norm(r) for r in R]
+    if formulation == "minres":
+        gram_ops = [np.einsum("kam,lan->klmn", s, s) for s in stacks]  # A_kj^T A_lj
+        V = [np.einsum("kab,b->ka", stacks[j], R[j]) for j in range(d)]
+        G = [v @ v.T for v in V]
+        H = [V[j] @ res_f[j] for j in range(d)]
+    else:
+        P = [np.einsum("a,kab,b->k", R[j], stacks[j], R[j]) for j in range(d)]
+        H = [R[j] @ res_f[j] for j in range(d)]
+
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        previous = [r.copy() for r in R]
+        for j in range(d):
+            h = _others_product(H, j) * res_w  # (K, C) or (C,)
+            if formulation == "minres":
+                c = _others_product(G, j)
+                M = np.einsum("kl,klmn->mn", c, gram_ops[j])
+                b = np.einsum("kam,ka->m", stacks[j], h @ res_f[j].T)
+            else:
+                c = _others_product(P, j)
+                M = np.einsum("k,kab->ab", c, stacks[j])
+                b = res_f[j] @ h
+            R[j] = _solve_small(M, b, symmetric=formulation == "minres")
+            if formulation == "minres":
+                V[j] = np.einsum("kab,b->ka", stacks[j], R[j])
+                G[j] = V[j] @ V[j].T
+                H[j] = V[j] @ res_f[j]
+            else:
+                P[j] = np.einsum("a,kab,b->k", R[j], stacks[j], R[j])
+                H[j] = R[j] @ res_f[j]
+        if _relative_change(previous, R) < tolerance:
+            break
+    return R, iterations
+
+
+def _solve_small(M: np.ndarray, b: np.ndarray, *, symmetric: bool) -> np.ndarray:
+    # Normal equations of nearly dependent modes are ill-conditioned by nature; the
+    # caller checks that the residual decreases, so the warning carries no news.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+        try:
+            if symmetric:
+                return scipy.linalg.solve(M, b, assume_a="pos", check_finite=False)
+            return scipy.linalg.solve(M, b, check_finite=False)
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, ValueError):
+            return np.linalg.lstsq(M, b, rcond=None)[0]
+
+
+def _relative_change(old: list[np.ndarray], new: list[np.ndarray]) -> float:
+    """``||x_old - x_new|| / ||x_new||`` for rank-one tensors, from their factors."""
+    n_old = np.prod([a @ a for a in old])
+    n_new = np.prod([a @ a for a in new])
+    cross = np.prod([a @ b for a, b in zip(old, new)])
+    if n_new == 0.0:
+        return 0.0 if n_old == 0.0 else np.inf
+    return float(np.sqrt(max(n_old + n_new - 2.0 * cross, 0.0) / n_new))
+
+
+def project_alphas(state: _State, formulation: str = "minres") -> tuple[np.ndarray, float, float]:
+    """Recompute all weights (the projection step) and the residual norm.
+
+    Returns
+    -------
+    alphas : ndarray, shape (n,)
+    residual : float
+        ``||F - A U||`` with the new weights.
+    source_norm : float
+        ``||F||``.
+    """
+    K, n, nF = state.op.n_terms, state.rank, state.source.rank
+    cols = [
+        np.hstack([state.source.factors[j], state.images[j].transpose(1, 0, 2).reshape(state.images[j].shape[1], -1)])
+        for j in range(state.op.order)
+    ]
+    Z = orthogonal_sweep(cols)
+    zF = Z[:, :nF] @ state.source.weights
+    phi = Z[:, nF:].reshape(Z.shape[0], K, n).sum(axis=1)
+    if formulation == "minres":
+        alphas = np.linalg.lstsq(phi, zF, rcond=None)[0]
+    else:
+        alphas = _galerkin_alphas(state)
+    return alphas, float(np.linalg.norm(zF - phi @ alphas)), float(np.linalg.norm(zF))
+
+
+def _galerkin_alphas(state: _State) -> np.ndarray:
+    """Paper's eq. (15): ``B alpha = H`` with ``B_il = <U_i, A U_l>``, ``H_i = <U_i, F>``."""
+    d = state.op.order
+    B = None
+    Hv = None
+    for j in range(d):
+        u = state.factors[j]
+        bj = np.einsum("ai,kal->kil", u, state.images[j])
+        hj = u.T @ state.source.factors[j]
+        B = bj if B is None else B * bj
+        Hv = hj if Hv is None else Hv * hj
+    return _solve_small(B.sum(axis=0), Hv @ state.source.weights, symmetric=False)
+
+
+def residual_norm(op: SeparatedOperator, source: CPTensor, approx: CPTensor) -> float:
+    """``||F - A U||`` in separated form (orthogonal sweep), never forming a full tensor."""
+    return (source + op.apply(approx).scaled(-1.0)).norm()
+
+
+def update_mode(state: _State, j: int, *, cg_iterations: int = 40) -> None:
+    """Re-solve all factors of mode ``j`` jointly (minres), the others frozen.
+
+    Minimizes ``||F - sum_i alpha_i A (x)_m U_im||`` over ``U_j`` (``n_j * n``
+    unknowns) through its normal equations; the new columns are normalized
+    into the weights. Called after an enrichment, it lets earlier modes adapt
+    to later ones, which keeps the rank low. When every operator matrix of
+    the mode is diagonal (parameter coordinates) the normal equations split
+    into ``n_j`` independent ``n x n`` systems, one per node, solved exactly.
+    Otherwise (the state mode, dense in time) the ``n n_j`` normal equations
+    are a sum of ``K^2`` Kronecker products: a direct solve would cost
+    ``(n n_j)^3``, so a few block-Jacobi preconditioned conjugate-gradient
+    steps are taken from the current factors instead. CG decreases the
+    least-squares objective monotonically, so every step is an improvement.
+    """
+    op, K, n = state.op, state.op.n_terms, state.rank
+    stack = op.mode_stack(j)
+    a = state.alphas
+    T = np.ones((K, n, K, n))
+    rhs_c = np.ones((K, n, state.source.rank))
+    for m in range(op.order):
+        if m == j:
+            continue
+        img = state.images[m].transpose(1, 0, 2).reshape(state.images[m].shape[1], -1)  # (m_m, K n)
+        T *= (img.T @ img).reshape(K, n, K, n)
+        rhs_c *= (img.T @ state.source.factors[m]).reshape(K, n, -1)
+    T *= a[None, :, None, None] * a[None, None, None, :]
+    W = np.einsum("kic,c,ac->kia", rhs_c, state.source.weights, state.source.factors[j])  # (K, n, m_j)
+    if _is_diagonal(stack):
+        diag = np.einsum("kaa->ka", stack)  # (K, n_j)
+        N = np.einsum("kilp,ka,la->aip", T, diag, diag)  # (n_j, n, n)
+        rhs = np.einsum("ka,kia->ai", diag, W) * a[None, :]
+        X = _solve_batched(N, rhs)  # (n_j, n)
+    else:
+        gram = np.einsum("kam,lan->klmn", stack, stack)
+        rhs = np.einsum("kam,kia->im", stack, W) * a[:, None]  # (n, n_j)
+        X = _kronecker_pcg(T, gram, rhs, state.factors[j].T, iterations=cg_iterations).T  # (n_j, n)
+    norms = np.linalg.norm(X, axis=0)
+    keep = norms > 0
+    X[:, keep] /= norms[keep]
+    state.alphas = np.where(keep, a * norms, 0.0)
+    state.set_mode(j, X)
+
+
+def _kronecker_pcg(T: np.ndarray, G: np.ndarray, B: np.ndarray, X: np.ndarray, *, iterations: int) -> np.ndarray:
+    """Approximately solve ``sum_kl T_kl X G_kl^T = B`` for X, shape (n, m), by PCG.
+
+    ``T`` has shape (K, n, K, n) (``T_kl = T[k, :, l, :]``), ``G`` shape (K, K, m, m);
+    the operator is SPD (normal equations). Block-Jacobi preconditioner: one
+    ``m x m`` block per row of X.
+    """
+    def apply(Y):
+        Z = np.einsum("pb,klab->klpa", Y, G)
+        return np.einsum("kilp,klpa->ia", T, Z)
+
+    diag_T = np.einsum("kili->kli", T)  # (K, K, n)
+    blocks = np.einsum("kli,klab->iab", diag_T, G)  # (n, m, m)
+    try:
+        inv_blocks = np.linalg.inv(blocks)
+    except np.linalg.LinAlgError:
+        inv_blocks = np.linalg.pinv(blocks, hermitian=True)
+    precond = lambda R: np.einsum("iab,ib->ia", inv_blocks, R)
+    X = X.copy()
+    R = B - apply(X)
+    Zr = precond(R)
+    Pd = Zr.copy()
+    rz = np.vdot(R, Zr)
+    for _ in range(iterations):
+        if rz <= 0.0:
+            break
+        Q = apply(Pd)
+        pq = np.vdot(Pd, Q)
+        if pq <= 0.0:
+            break
+        step = rz / pq
+        X += step * Pd
+        R -= step * Q
+        Zr = precond(R)
+        rz_new = np.vdot(R, Zr)
+        Pd = Zr + (rz_new / rz) * Pd
+        rz = rz_new
+    return X
+
+
+def _is_diagonal(stack: np.ndarray) -> bool:
+    off = stack.copy()
+    idx = np.arange(stack.shape[1])
+    if stack.shape[1] != stack.shape[2]:
+        return False
+    off[:, idx, idx] = 0.0
+    return not off.any()
+
+
+def _solve_batched(N: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve ``N[a] x[a] = rhs[a]`` for SPD (possibly singular) ``N[a]``, shape (m, n, n) and (m, n)."""
+    try:
+        c = np.linalg.cholesky(N)
+        y = np.linalg.solve(c, rhs[:, :, None])
+        return np.linalg.solve(np.swapaxes(c, 1, 2), y)[:, :, 0]
+    except np.linalg.LinAlgError:
+        return np.stack([np.linalg.lstsq(N[a], rhs[a], rcond=None)[0] for a in range(N.shape[0])])
+
+
+# ----------------------------------------------------------------------------------------------
+# driver
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class SolveResult:
+    """Outcome of :func:`solve`.
+
+    Attributes
+    ----------
+    codebook : pgdcli.codebook.Codebook
+    converged : bool
+        True when the relative residual reached the tolerance.
+    status : int
+        0 converged, 1 ``max_modes`` reached, 2 stagnated.
+    message : str
+    residuals : ndarray, shape (n_modes + 1,)
+        Relative residual before the first mode and after each enrichment.
+    iterations : ndarray, shape (n_modes,)
+        Fixed-point iterations of each enrichment.
+    wall_time : float
+        Seconds.
+    """
+
+    codebook: object
+    converged: bool
+    status: int
+    message: str
+    residuals: np.ndarray
+    iterations: np.ndarray
+    wall_time: float
+
+    @property
+    def residual(self) -> float:
+        return float(self.residuals[-1])
+
+    @property
+    def n_modes(self) -> int:
+        return int(self.iterations.size)
+
+
+STAGNATION_WINDOW = 8
+
+
+def _blas_single_thread():
+    # Small dense products here run several times faster on one BLAS thread.
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a declared dependency
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def solve(problem, *, tolerance: float | None = None, max_modes: int | None = None,
+          callback: Callable[[dict], None] | None = None) -> SolveResult:
+    """Compute the PGD codebook of a problem.
+
+    Parameters
+    ----------
+    problem : pgdcli.spec.Problem or str or path
+        A validated problem, or the path of a YAML spec.
+    tolerance, max_modes : optional
+        Override ``problem.solver``.
+    callback : callable, optional
+        Called after each enrichment with a dict ``{"mode", "residual", "iterations"}``.
+
+    Returns
+    -------
+    SolveResult
+    """
+    from .spec import Problem, load_spec
+
+    if not isinstance(problem, Problem):
+        problem = load_spec(problem)
+    opts = problem.solver
+    tol = opts.tolerance if tolerance is None else float(tolerance)
+    nmax = opts.max_modes if max_modes is None else int(max_modes)
+    if not (0.0 < tol < 1.0):
+        raise SolverError(f"tolerance must be in (0, 1), got {tol}")
+    if nmax < 1:
+        raise SolverError(f"max_modes must be at least 1, got {nmax}")
+    started = _time.perf_counter()
+    with _blas_single_thread():
+        disc = discretize(problem)
+        state, history, iterations, status = _run(disc, opts, tol, nmax, callback)
+    wall = _time.perf_counter() - started
+    converged = status == 0
+    residual = history[-1]
+    if converged:
+        message = f"converged: relative residual {residual:.3g} <= tolerance {tol:.3g} with {state.rank} modes"
+    elif status == 1:
+        message = f"not converged: relative residual {residual:.3g} > tolerance {tol:.3g} after max_modes={nmax} modes"
+    else:
+        message = (f"not converged: relative residual stagnated at {residual:.3g} (tolerance {tol:.3g}) "
+                   f"after {state.rank} modes")
+    from .codebook import codebook_from_solution
+
+    report = {
+        "converged": converged,
+        "status": status,
+        "message": message,
+        "modes": state.rank,
+        "residual": residual,
+        "residual_history": np.array(history),
+        "iterations": np.array(iterations, dtype=int),
+        "wall_time": wall,
+        "tolerance": tol,
+        "max_modes": nmax,
+        "formulation": opts.formulation,
+        "update": bool(opts.update),
+    }
+    codebook = codebook_from_solution(problem, disc, state.alphas, state.factors, report)
+    return SolveResult(codebook, converged, status, message, np.array(history), np.array(iterations, dtype=int), wall)
+
+
+def _run(disc: Discretization, opts, tol: float, nmax: int, callback):
+    state = _State.empty(disc.operator, disc.source)
+    source_norm = disc.source.norm()
+    history = [1.0 if source_norm > 0 else 0.0]
+    iterations: list[int] = []
+    if source_norm == 0.0:
+        return state, history, iterations, 0
+    status = 1
+    for _ in range(nmax):
+        res_w, res_f = state.residual()
+        factors, its = None, 0
+        for start in (_dominant_term(res_w, res_f), _random_start(res_f, state.rank)):
+            factors, its = enrich(
+                disc.operator, res_w, res_f,
+                formulation=opts.formulation,
+                tolerance=opts.fixed_point_tolerance,
+                max_iterations=opts.max_fixed_point_iterations,
+                start=start,
+            )
+            norms = [np.linalg.norm(f) for f in factors]
+            if min(norms) > 0.0 and np.all(np.isfinite(norms)):
+                break
+        else:
+            status = 2
+            break
+        state.append([f / nf for f, nf in zip(factors, norms)], float(np.prod(norms)))
+        alphas, res, _ = project_alphas(state, opts.formulation)
+        state.alphas = alphas
+        if opts.update and opts.formulation == "minres":
+            res = _update_sweep(state, res)
+        rel = res / source_norm
+        history.append(rel)
+        iterations.append(its)
+        if callback is not None:
+            callback({"mode": state.rank, "residual": rel, "iterations": its})
+        if rel <= tol:
+            status = 0
+            break
+        if len(history) > STAGNATION_WINDOW and history[-1] > 0.99 * history[-1 - STAGNATION_WINDOW]:
+            status = 2
+            break
+    return state, history, iterations, status
+
+
+def _dominant_term(res_w: np.ndarray, res_f: list[np.ndarray]) -> list[np.ndarray]:
+    """Factors of the residual's largest rank-one term: a start that is never orthogonal to it."""
+    size = np.abs(res_w) * np.prod([np.linalg.norm(f, axis=0) for f in res_f], axis=0)
+    c = int(np.argmax(size))
+    return [f[:, c] + 0.0 for f in res_f]
+
+
+def _random_start(res_f: list[np.ndarray], seed: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)  # deterministic: the same spec gives the same codebook
+    return [rng.standard_normal(f.shape[0]) for f in res_f]
+
+
+def _update_sweep(state: _State, res: float) -> float:
+    """One update of every coordinate mode; keeps a mode's update only if it lowers the residual."""
+    for j in range(state.op.order):
+        saved = (state.alphas.copy(), state.factors[j].copy(), state.images[j].copy())
+        update_mode(state, j)
+        alphas, new_res, _ = project_alphas(state, "minres")
+        if new_res <= res:
+            state.alphas, res = alphas, new_res
+        else:
+            state.alphas, state.factors[j], state.images[j] = saved
+    return res

@@ -1,0 +1,698 @@
+"""YAML problem specification -> validated :class:`Problem`.
+
+This is the only module that imports yaml. A spec looks like::
+
+    name: relaxation
+    coordinates:
+      t: {domain: [0, 2], nodes: 32}
+      k: {domain: [0.5, 5], nodes: 24}
+    unknowns:
+      u: {initial: 0}
+    equations:
+      - "der(u) = -k*u"
+
+Every error is a :class:`~pgdcli.errors.SpecError` with a one-line message
+``"<source>: <key path>: <what was expected>, got <what was found>"``.
+Expressions are parsed by :mod:`pgdcli.expressions` (never evaluated by Python).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import keyword
+import math
+import pathlib
+import re
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+import yaml
+
+from .errors import SpecError
+from .expressions import (
+    BUILTIN_NAMES,
+    Polynomial,
+    Separable,
+    evaluate_constant,
+    format_monomial,
+    parse_equation,
+    parse_expression,
+)
+
+__all__ = [
+    "Coordinate",
+    "Unknown",
+    "Equation",
+    "SolverOptions",
+    "Problem",
+    "RESERVED_NAMES",
+    "load_spec",
+    "parse_spec",
+    "check_linear",
+]
+
+TOP_LEVEL_KEYS = ("name", "description", "coordinates", "time", "constants", "unknowns", "equations", "solver", "output")
+COORDINATE_KEYS = ("domain", "nodes", "discretization")
+UNKNOWN_KEYS = ("initial",)
+DISCRETIZATIONS = ("chebyshev", "linear")
+FORMULATIONS = ("minres", "galerkin")
+MAX_NODES = 2000
+
+#: Names that may not be used for coordinates, constants or unknowns: built-ins of
+#: expressions, and command-line option names (``pgd eval --k 1`` must not clash).
+RESERVED_NAMES = frozenset(
+    BUILTIN_NAMES
+    | {"format", "field", "points", "help", "version", "output", "seed", "samples", "jobs", "kind", "method"}
+)
+
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_PROBLEM_NAME = re.compile(r"[A-Za-z0-9_.-]+")
+
+
+# ----------------------------------------------------------------------------------------------
+# data model
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Coordinate:
+    """One coordinate of the problem: time or a parameter.
+
+    Attributes
+    ----------
+    name : str
+    domain : (float, float)
+        ``low < high``.
+    nodes : int
+        Number of discretization nodes, 2 to 2000.
+    discretization : str
+        ``'chebyshev'`` or ``'linear'``.
+    role : str
+        ``'time'`` or ``'parameter'``.
+    """
+
+    name: str
+    domain: tuple[float, float]
+    nodes: int
+    discretization: str = "chebyshev"
+    role: str = "parameter"
+
+
+@dataclass(frozen=True)
+class Unknown:
+    """An unknown with its initial value (a function of the non-time coordinates)."""
+
+    name: str
+    initial: Separable
+    initial_text: str
+
+
+@dataclass(frozen=True)
+class Equation:
+    """Equation ``index`` (0-based), as written and as ``lhs - rhs`` (= 0)."""
+
+    index: int
+    text: str
+    polynomial: Polynomial
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Solver settings; the defaults here are the only defaults."""
+
+    tolerance: float = 1e-8
+    max_modes: int = 100
+    formulation: str = "minres"
+    fixed_point_tolerance: float = 1e-4
+    max_fixed_point_iterations: int = 25
+    update: bool = True
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A validated problem specification.
+
+    Attributes
+    ----------
+    name, description : str
+    coordinates : tuple of Coordinate
+        In spec order, which is the dimension order of the codebook.
+    time : str
+        Name of the time coordinate.
+    constants : dict of str to float
+    unknowns : tuple of Unknown
+        In declared order, which is the output order.
+    equations : tuple of Equation
+    solver : SolverOptions
+    output : pathlib.Path
+    source_text : str
+        The YAML text as given.
+    source : str
+        File path or ``'<string>'``, used in messages.
+    """
+
+    name: str
+    description: str
+    coordinates: tuple[Coordinate, ...]
+    time: str
+    constants: dict[str, float] = field(hash=False)
+    unknowns: tuple[Unknown, ...]
+    equations: tuple[Equation, ...]
+    solver: SolverOptions
+    output: pathlib.Path
+    source_text: str
+    source: str
+
+    def coordinate(self, name: str) -> Coordinate:
+        """The coordinate called ``name`` (KeyError if there is none)."""
+        for coordinate in self.coordinates:
+            if coordinate.name == name:
+                return coordinate
+        raise KeyError(name)
+
+    @property
+    def coordinate_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.coordinates)
+
+    @property
+    def unknown_names(self) -> tuple[str, ...]:
+        return tuple(u.name for u in self.unknowns)
+
+    @property
+    def time_coordinate(self) -> Coordinate:
+        return self.coordinate(self.time)
+
+    @property
+    def parameter_coordinates(self) -> tuple[Coordinate, ...]:
+        return tuple(c for c in self.coordinates if c.name != self.time)
+
+
+# ----------------------------------------------------------------------------------------------
+# YAML loading
+# ----------------------------------------------------------------------------------------------
+class _StrictLoader(yaml.SafeLoader):
+    """SafeLoader that rejects duplicate mapping keys (PyYAML silently keeps the last)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        if isinstance(node, yaml.MappingNode):
+            first_line: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # '<<' merges may legitimately be overridden
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    seen = key in first_line
+                except TypeError:
+                    continue  # unhashable key: the base class reports it
+                if seen:
+                    raise yaml.constructor.ConstructorError(
+                        None,
+                        None,
+                        f"duplicate key {key!r} (first defined at line {first_line[key] + 1})",
+                        key_node.start_mark,
+                    )
+                first_line[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep=deep)
+
+
+def _load_yaml(text: str, source: str) -> Any:
+    """Parse YAML text; any YAML error becomes one line with its line number."""
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc)
+        problem = " ".join(str(problem).split())
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise SpecError(f"{source}: {where}invalid YAML: {problem}") from None
+    except RecursionError:
+        raise SpecError(f"{source}: invalid YAML: nested too deeply") from None
+
+
+# ----------------------------------------------------------------------------------------------
+# small validators: each raises SpecError("<source>: <path>: ...")
+# ----------------------------------------------------------------------------------------------
+def _show(value: Any) -> str:
+    """A found value for a message: YAML-like spelling, shortened."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "nothing (null)"
+    text = repr(value) if not isinstance(value, dict) else "a mapping " + repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+class _Checker:
+    """Builds messages prefixed with the source; one per parse."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def error(self, path: str, message: str) -> SpecError:
+        return SpecError(f"{self.source}: {path}: {message}" if path else f"{self.source}: {message}")
+
+    def mapping(self, value: Any, path: str, allowed: Iterable[str] | None = None, *, empty_ok: bool = True) -> dict:
+        """A mapping (None counts as empty), with only the allowed keys."""
+        if value is None:
+            value = {}
+        if not isinstance(value, dict):
+            raise self.error(path, f"expected a mapping, got {_show(value)}")
+        if not value and not empty_ok:
+            raise self.error(path, "expected a non-empty mapping, got an empty one")
+        if allowed is not None:
+            allowed = tuple(allowed)
+            for key in value:
+                if key not in allowed:
+                    hint = " (a YAML boolean: quote the key)" if isinstance(key, bool) else ""
+                    raise self.error(path, f"unknown key {_show(key)}{hint} (allowed: {', '.join(allowed)})")
+        return value
+
+    def require(self, mapping: dict, key: str, path: str) -> Any:
+        if key not in mapping:
+            raise self.error(path, f"missing required key '{key}'")
+        return mapping[key]
+
+    def number(self, value: Any, path: str) -> float:
+        """A finite number; numeric strings count (PyYAML reads 1e-8 as a string)."""
+        if isinstance(value, bool):
+            raise self.error(path, f"expected a number, got {_show(value)}")
+        if isinstance(value, (int, float)):
+            number = float(value)
+        elif isinstance(value, str):
+            try:
+                number = float(value.strip())
+            except ValueError:
+                raise self.error(path, f"expected a number, got {_show(value)}") from None
+        else:
+            raise self.error(path, f"expected a number, got {_show(value)}")
+        if not math.isfinite(number):
+            raise self.error(path, f"expected a finite number, got {_show(value)}")
+        return number
+
+    def integer(self, value: Any, path: str, low: int, high: int | None = None) -> int:
+        """An integer in [low, high]; integral floats and numeric strings count, 3.5 does not."""
+        expected = f"an integer >= {low}" if high is None else f"an integer from {low} to {high}"
+        if isinstance(value, bool):
+            raise self.error(path, f"expected {expected}, got {_show(value)}")
+        if isinstance(value, int):
+            result = value
+        else:
+            try:
+                number = self.number(value, path)
+            except SpecError:
+                raise self.error(path, f"expected {expected}, got {_show(value)}") from None
+            if not number.is_integer():
+                raise self.error(path, f"expected {expected}, got {_show(value)}")
+            result = int(number)
+        if result < low or (high is not None and result > high):
+            raise self.error(path, f"expected {expected}, got {_show(value)}")
+        return result
+
+    def choice(self, value: Any, path: str, choices: Iterable[str]) -> str:
+        choices = tuple(choices)
+        if not isinstance(value, str) or value not in choices:
+            raise self.error(path, f"expected one of {', '.join(choices)}, got {_show(value)}")
+        return value
+
+    def text(self, value: Any, path: str) -> str:
+        if not isinstance(value, str):
+            raise self.error(path, f"expected a string, got {_show(value)}")
+        return value
+
+
+class _Names:
+    """Validates names and keeps them unique across coordinates, constants and unknowns."""
+
+    def __init__(self, check: _Checker) -> None:
+        self.check = check
+        self.owner: dict[str, str] = {}
+
+    def add(self, key: Any, section: str) -> str:
+        check = self.check
+        if isinstance(key, bool):
+            raise check.error(
+                section,
+                f"name {_show(key)} is a YAML boolean (unquoted yes/no/on/off/true/false);"
+                " quote the name, e.g. 'on'",
+            )
+        if not isinstance(key, str):
+            raise check.error(section, f"expected a name, got {_show(key)}; quote it or start it with a letter")
+        path = f"{section}.{key}"
+        if not _NAME.fullmatch(key):
+            raise check.error(
+                path, f"invalid name '{key}': expected a letter or '_' followed by letters, digits or '_'"
+            )
+        if keyword.iskeyword(key):
+            raise check.error(path, f"'{key}' is a Python keyword and cannot be used in expressions; rename it")
+        if key in RESERVED_NAMES:
+            raise check.error(path, f"'{key}' is reserved (reserved names: {', '.join(sorted(RESERVED_NAMES))})")
+        if key in self.owner:
+            raise check.error(path, f"name '{key}' is already used by {self.owner[key]}")
+        self.owner[key] = path
+        return key
+
+
+# ----------------------------------------------------------------------------------------------
+# sections
+# ----------------------------------------------------------------------------------------------
+def _default_name(source: str, name: str | None) -> str:
+    if name is not None:
+        return name
+    if source.startswith("<"):
+        return "problem"
+    return pathlib.Path(source).stem
+
+
+def _parse_problem_name(check: _Checker, data: dict, default: str) -> str:
+    if "name" not in data:
+        if not _PROBLEM_NAME.fullmatch(default):
+            raise check.error(
+                "name", f"the default name '{default}' (from the file name) is not valid; add a 'name:' key"
+            )
+        return default
+    value = data["name"]
+    if not isinstance(value, str):
+        raise check.error("name", f"expected a string of letters, digits, '_', '.', '-', got {_show(value)}; quote it")
+    if not _PROBLEM_NAME.fullmatch(value):
+        raise check.error("name", f"expected letters, digits, '_', '.' or '-' only, got {_show(value)}")
+    return value
+
+
+def _parse_description(check: _Checker, value: Any) -> str:
+    if value is None:
+        return ""
+    return check.text(value, "description").strip()
+
+
+def _parse_coordinate_names(check: _Checker, names: _Names, value: Any) -> dict[str, dict]:
+    """Names and raw bodies of the coordinates (bodies need the constants)."""
+    section = check.mapping(value, "coordinates", empty_ok=False)
+    bodies = {}
+    for key, body in section.items():
+        name = names.add(key, "coordinates")
+        bodies[name] = check.mapping(body, f"coordinates.{name}", COORDINATE_KEYS)
+    return bodies
+
+
+def _parse_constants(check: _Checker, names: _Names, value: Any) -> dict[str, float]:
+    """Constants in order; each may use numbers, pi and the constants before it."""
+    constants: dict[str, float] = {}
+    for key, raw in check.mapping(value, "constants").items():
+        name = names.add(key, "constants")
+        path = f"constants.{name}"
+        if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
+            raise check.error(path, f"expected a number or an expression string, got {_show(raw)}")
+        constants[name] = evaluate_constant(raw, constants=constants, where=f"{check.source}: {path}")
+    return constants
+
+
+def _parse_bound(check: _Checker, value: Any, path: str, constants: dict[str, float]) -> float:
+    # numbers, numeric strings such as "1e-8", and expressions such as "2*pi" or "T/2"
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise check.error(path, f"expected a number, got {_show(value)}")
+    return evaluate_constant(value, constants=constants, where=f"{check.source}: {path}")
+
+
+def _parse_coordinate(check: _Checker, name: str, body: dict, time: str, constants: dict[str, float]) -> Coordinate:
+    path = f"coordinates.{name}"
+    domain = check.require(body, "domain", path)
+    if not isinstance(domain, list) or len(domain) != 2:
+        raise check.error(f"{path}.domain", f"expected [low, high], got {_show(domain)}")
+    low = _parse_bound(check, domain[0], f"{path}.domain", constants)
+    high = _parse_bound(check, domain[1], f"{path}.domain", constants)
+    if not low < high:
+        raise check.error(f"{path}.domain", f"expected [low, high] with low < high, got {_show(domain)}")
+    nodes = check.integer(check.require(body, "nodes", path), f"{path}.nodes", 2, MAX_NODES)
+    discretization = check.choice(body.get("discretization", "chebyshev"), f"{path}.discretization", DISCRETIZATIONS)
+    role = "time" if name == time else "parameter"
+    return Coordinate(name, (low, high), nodes, discretization, role)
+
+
+def _parse_time(check: _Checker, data: dict, coordinate_names: list[str]) -> str:
+    listing = ", ".join(coordinate_names)
+    if "time" not in data:
+        if "t" not in coordinate_names:
+            raise check.error(
+                "time", f"no coordinate is named 't'; add 'time: <name>' naming the time coordinate (coordinates: {listing})"
+            )
+        return "t"
+    value = data["time"]
+    if isinstance(value, bool):
+        raise check.error("time", f"got the YAML boolean {_show(value)}; quote the coordinate name")
+    if not isinstance(value, str) or value not in coordinate_names:
+        raise check.error("time", f"expected the name of a coordinate ({listing}), got {_show(value)}")
+    return value
+
+
+def _parse_unknown_names(check: _Checker, names: _Names, value: Any) -> dict[str, dict]:
+    section = check.mapping(value, "unknowns", empty_ok=False)
+    bodies = {}
+    for key, body in section.items():
+        name = names.add(key, "unknowns")
+        path = f"unknowns.{name}"
+        if not isinstance(body, dict):
+            raise check.error(path, f"expected a mapping with key 'initial', e.g. {{initial: 0}}, got {_show(body)}")
+        bodies[name] = check.mapping(body, path, UNKNOWN_KEYS)
+    return bodies
+
+
+def _parse_unknown(
+    check: _Checker, name: str, body: dict, *, coordinates: list[str], constants: dict[str, float], unknowns: list[str], time: str
+) -> Unknown:
+    path = f"unknowns.{name}.initial"
+    raw = check.require(body, "initial", f"unknowns.{name}")
+    if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
+        raise check.error(path, f"expected a number or an expression string, got {_show(raw)}")
+    text = raw if isinstance(raw, str) else repr(raw)
+    poly = parse_expression(
+        text,
+        coordinates=coordinates,
+        constants=constants,
+        unknowns=unknowns,
+        time=time,
+        where=f"{check.source}: {path}",
+        allow_der=False,
+    )
+    if poly.unknowns:
+        found = ", ".join(sorted(poly.unknowns))
+        raise check.error(path, f"the initial value of '{name}' must not depend on unknowns, found {found} in '{text}'")
+    initial = poly.coefficient(())
+    if time in initial.coordinates:
+        raise check.error(
+            path, f"the initial value of '{name}' must not depend on the time coordinate '{time}', got '{text}'"
+        )
+    return Unknown(name, initial, text if isinstance(raw, str) else str(raw))
+
+
+def _parse_equations(
+    check: _Checker, value: Any, *, coordinates: list[str], constants: dict[str, float], unknowns: list[str], time: str
+) -> tuple[Equation, ...]:
+    if not isinstance(value, list):
+        raise check.error("equations", f"expected a list of equation strings, got {_show(value)}")
+    if len(value) != len(unknowns):
+        raise check.error(
+            "equations",
+            f"expected {len(unknowns)} equation(s), one per unknown ({', '.join(unknowns)}), got {len(value)}",
+        )
+    equations = []
+    for index, text in enumerate(value):
+        path = f"equations[{index}]"
+        if isinstance(text, dict):
+            raise check.error(
+                path, f"expected an equation string, got {_show(text)}; quote equations that contain ': '"
+            )
+        if not isinstance(text, str):
+            raise check.error(path, f"expected an equation string like 'der(u) = -u', got {_show(text)}")
+        poly = parse_equation(
+            text,
+            coordinates=coordinates,
+            constants=constants,
+            unknowns=unknowns,
+            time=time,
+            where=f"{check.source}: {path}",
+        )
+        equations.append(Equation(index, text, poly))
+    _check_time_derivatives(check, equations, unknowns, time)
+    return tuple(equations)
+
+
+def _check_time_derivatives(check: _Checker, equations: list[Equation], unknowns: list[str], time: str) -> None:
+    """First-order time derivatives only; one in every equation, of every unknown somewhere."""
+    differentiated = set()
+    for equation in equations:
+        derivatives = [atom for atom in equation.polynomial.atoms if atom.order > 0]
+        for atom in derivatives:
+            if atom.order > 1:
+                raise check.error(
+                    f"equations[{equation.index}]",
+                    f"'{atom.text(time)}' in '{equation.text}': only first-order time derivatives are supported;"
+                    " write higher-order equations as first-order systems",
+                )
+        if not derivatives:
+            raise check.error(
+                f"equations[{equation.index}]",
+                f"no time derivative in '{equation.text}'; each equation must contain der(<unknown>)",
+            )
+        differentiated.update(atom.unknown for atom in derivatives)
+    for name in unknowns:
+        if name not in differentiated:
+            raise check.error(
+                "equations", f"unknown '{name}' never appears as der({name}); each unknown needs its time derivative"
+            )
+
+
+def _parse_solver(check: _Checker, value: Any) -> SolverOptions:
+    allowed = [f.name for f in dataclasses.fields(SolverOptions)]
+    section = check.mapping(value, "solver", allowed)
+    options: dict[str, Any] = {}
+    for key in ("tolerance", "fixed_point_tolerance"):
+        if key in section:
+            number = check.number(section[key], f"solver.{key}")
+            if not 0 < number < 1:
+                raise check.error(f"solver.{key}", f"expected a number in (0, 1), got {_show(section[key])}")
+            options[key] = number
+    for key in ("max_modes", "max_fixed_point_iterations"):
+        if key in section:
+            options[key] = check.integer(section[key], f"solver.{key}", 1)
+    if "formulation" in section:
+        options["formulation"] = check.choice(section["formulation"], "solver.formulation", FORMULATIONS)
+    if "update" in section:
+        if not isinstance(section["update"], bool):
+            raise check.error("solver.update", f"expected true or false, got {_show(section['update'])}")
+        options["update"] = section["update"]
+    return SolverOptions(**options)
+
+
+def _parse_output(check: _Checker, data: dict, name: str) -> pathlib.Path:
+    if data.get("output") is None:
+        return pathlib.Path("codebooks") / f"{name}.h5"
+    value = data["output"]
+    if not isinstance(value, str) or not value.strip():
+        raise check.error("output", f"expected a non-empty file path, got {_show(value)}")
+    return pathlib.Path(value.strip())
+
+
+# ----------------------------------------------------------------------------------------------
+# public API
+# ----------------------------------------------------------------------------------------------
+def check_linear(problem_or_equations: Problem | Iterable[Equation], *, source: str = "<string>") -> None:
+    """Reject equations that are nonlinear in the unknowns (the linear solver's limit).
+
+    Parameters
+    ----------
+    problem_or_equations : Problem or iterable of Equation
+    source : str
+        Message prefix when equations are given (a Problem brings its own).
+
+    Raises
+    ------
+    SpecError
+        Naming the first monomial of degree >= 2, e.g. ``u*v`` or ``der(u)*u``.
+    """
+    time = None
+    equations = problem_or_equations
+    if isinstance(problem_or_equations, Problem):
+        source, time, equations = problem_or_equations.source, problem_or_equations.time, problem_or_equations.equations
+    for equation in equations:
+        for monomial in equation.polynomial:
+            if len(monomial) >= 2:
+                raise SpecError(
+                    f"{source}: equations[{equation.index}]: nonlinear term '{format_monomial(monomial, time)}'"
+                    f" in '{equation.text}'; only equations linear in the unknowns are supported"
+                )
+
+
+def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, allow_nonlinear: bool = False) -> Problem:
+    """Validate a YAML problem specification.
+
+    Parameters
+    ----------
+    text : str
+        The YAML text.
+    source : str
+        File path or ``'<string>'``: the prefix of every error message.
+    name : str, optional
+        Problem name used when the spec has no ``name`` key (default: the stem
+        of ``source``, or ``'problem'`` if source is not a path).
+    allow_nonlinear : bool
+        Skip :func:`check_linear` (for a solver of nonlinear equations).
+
+    Returns
+    -------
+    Problem
+
+    Raises
+    ------
+    SpecError
+        For any invalid YAML, key, value or expression.
+    """
+    check = _Checker(source)
+    data = _load_yaml(text, source)
+    if not isinstance(data, dict):
+        found = "an empty document" if data is None else _show(data)
+        raise check.error("", f"expected a YAML mapping with keys {', '.join(TOP_LEVEL_KEYS)}, got {found}")
+    check.mapping(data, "", TOP_LEVEL_KEYS)
+    for key in ("coordinates", "unknowns", "equations"):
+        check.require(data, key, "")
+
+    problem_name = _parse_problem_name(check, data, _default_name(source, name))
+    names = _Names(check)
+    coordinate_bodies = _parse_coordinate_names(check, names, data["coordinates"])
+    coordinate_names = list(coordinate_bodies)
+    constants = _parse_constants(check, names, data.get("constants"))
+    time = _parse_time(check, data, coordinate_names)
+    coordinates = tuple(
+        _parse_coordinate(check, n, body, time, constants) for n, body in coordinate_bodies.items()
+    )
+    unknown_bodies = _parse_unknown_names(check, names, data["unknowns"])
+    unknown_names = list(unknown_bodies)
+    context = dict(coordinates=coordinate_names, constants=constants, unknowns=unknown_names, time=time)
+    unknowns = tuple(_parse_unknown(check, n, body, **context) for n, body in unknown_bodies.items())
+    equations = _parse_equations(check, data["equations"], **context)
+
+    problem = Problem(
+        name=problem_name,
+        description=_parse_description(check, data.get("description")),
+        coordinates=coordinates,
+        time=time,
+        constants=constants,
+        unknowns=unknowns,
+        equations=equations,
+        solver=_parse_solver(check, data.get("solver")),
+        output=_parse_output(check, data, problem_name),
+        source_text=text,
+        source=source,
+    )
+    if not allow_nonlinear:
+        check_linear(problem)
+    return problem
+
+
+def load_spec(path: str | pathlib.Path, *, allow_nonlinear: bool = False) -> Problem:
+    """Read and validate a YAML problem file.
+
+    Parameters
+    ----------
+    path : str or path-like
+    allow_nonlinear : bool
+        See :func:`parse_spec`.
+
+    Returns
+    -------
+    Problem
+
+    Raises
+    ------
+    SpecError
+        If the file cannot be read or the spec is invalid.
+    """
+    path = pathlib.Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError(f"{path}: cannot read problem file: no such file") from None
+    except IsADirectoryError:
+        raise SpecError(f"{path}: cannot read problem file: it is a directory") from None
+    except UnicodeDecodeError:
+        raise SpecError(f"{path}: cannot read problem file: not UTF-8 text") from None
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read problem file: {exc.strerror or exc}") from None
+    return parse_spec(text, source=str(path), name=path.stem, allow_nonlinear=allow_nonlinear)
