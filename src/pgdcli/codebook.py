@@ -203,7 +203,7 @@ class Codebook:
         slack = 1e-12 * max(1.0, abs(low), abs(high))  # rounding in user-side arithmetic (e.g. linspace)
         bad = ~((x >= low - slack) & (x <= high + slack))
         if bad.any():
-            v = x[bad][0]
+            v = float(x[bad][0])
             raise QueryError(f"coordinate {c.name!r}: value {v!r} is outside the domain [{low:g}, {high:g}]")
         return np.clip(x, low, high)
 
