@@ -182,17 +182,19 @@ def test_problem_is_frozen():
 NONLINEAR = spec(unknowns="\n  u: {initial: 0}\n  v: {initial: 1}", equations="\n  - der(u) = -u*v\n  - der(v) = u")
 
 
-def test_nonlinear_term_is_rejected():
-    assert error_of(NONLINEAR) == (
+def test_nonlinear_term_is_rejected_when_linear_is_required():
+    with pytest.raises(SpecError) as info:
+        parse_spec(NONLINEAR, source=SOURCE, allow_nonlinear=False)
+    assert str(info.value) == (
         f"{SOURCE}: equations[0]: nonlinear term 'u*v' in 'der(u) = -u*v';"
         " only equations linear in the unknowns are supported"
     )
 
 
-def test_derivative_times_unknown_is_nonlinear():
+def test_derivative_times_unknown_is_always_rejected():
     message = error_of(spec(equations="\n  - der(u)*u = 1"))
-    assert message.startswith(f"{SOURCE}: equations[0]: nonlinear term ")
-    assert "der(u)" in message
+    assert message.startswith(f"{SOURCE}: equations[0]: term ")
+    assert "der(u)" in message and "must appear linearly" in message
 
 
 def test_allow_nonlinear_accepts_degree_two():

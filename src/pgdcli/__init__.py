@@ -23,6 +23,7 @@ _LAZY = {
     "solve": ("solver", "solve"),
     "SolveResult": ("solver", "SolveResult"),
     "Codebook": ("codebook", "Codebook"),
+    "verify": ("verify", "verify"),
     "PgdError": ("errors", "PgdError"),
 }
 

@@ -168,14 +168,32 @@ class ChebyshevBasis(Basis1D):
 
     def interpolation_matrix(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float).reshape(-1)
-        diff = x[:, None] - self.nodes[None, :]
-        exact = diff == 0.0
+        n = self.nodes.size
+        return self._interpolation_rows(x, np.empty((x.size, n)), np.empty((x.size, n)))
+
+    def _interpolation_rows(self, x, out, work) -> np.ndarray:
+        """:meth:`interpolation_matrix` of ``x`` (shape (p,)) written into ``out`` (shape (p, n)).
+
+        ``work`` is scratch of the same shape. The arithmetic is the textbook
+        one, ``c = bary / (x - nodes)``, ``c / c.sum()`` row by row, with a
+        row that hits a node (``x == nodes[k]``) replaced by the unit vector
+        ``e_k``. Such a row is found through its row sum, which is not finite
+        (``bary / 0 = inf``), so no (p, n) comparison is made unless needed.
+        """
+        diff = np.subtract(x[:, None], self.nodes, out=work)
         with np.errstate(divide="ignore", invalid="ignore"):
-            c = self.bary / diff
-        hit = exact.any(axis=1)
-        if hit.any():
-            c[hit] = exact[hit].astype(float)
-        return c / c.sum(axis=1, keepdims=True)
+            c = np.divide(self.bary, diff, out=out)
+            s = np.add.reduce(c, axis=1, keepdims=True)
+        odd = ~np.isfinite(s[:, 0])
+        if odd.any():
+            rows = np.flatnonzero(odd)
+            exact = diff[rows] == 0.0
+            hit = exact.any(axis=1)
+            if hit.any():
+                rows = rows[hit]
+                c[rows] = exact[hit]
+                s[rows] = 1.0  # the sum of a unit row
+        return np.divide(c, s, out=c)
 
     def time_stiffness(self, c) -> np.ndarray:
         c = np.asarray(c, dtype=float)
@@ -216,15 +234,19 @@ class LinearBasis(Basis1D):
 
     def interpolation_matrix(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float).reshape(-1)
+        return self._interpolation_rows(x, np.empty((x.size, self.nodes.size)), None)
+
+    def _interpolation_rows(self, x, out, work=None) -> np.ndarray:
+        """:meth:`interpolation_matrix` of ``x`` (shape (p,)) written into ``out`` (shape (p, n))."""
         nodes = self.nodes
         n = nodes.size
         left = np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, n - 2)
         theta = (x - nodes[left]) / (nodes[left + 1] - nodes[left])
-        m = np.zeros((x.size, n))
+        out.fill(0.0)
         rows = np.arange(x.size)
-        m[rows, left] = 1.0 - theta
-        m[rows, left + 1] = theta
-        return m
+        out[rows, left] = 1.0 - theta
+        out[rows, left + 1] = theta
+        return out
 
     # cG(1): continuous piecewise-linear trial functions, one piecewise-constant
     # test function per element. For u' = f this is the trapezoidal rule

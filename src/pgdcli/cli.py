@@ -160,16 +160,24 @@ def _solve(spec, output, tolerance, max_modes, fmt, quiet):
 
 
 def _solve_with_progress(console, problem, tol, nmax, solve_problem, tolerance, max_modes):
+    """Enrichment: residual decades reached / decades asked; march: time reached / time domain."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[status]}"),
                TimeElapsedColumn())
     with Progress(*columns, console=console, transient=False) as progress:
-        start = -math.log10(1.0)
-        span = -math.log10(tol) - start
-        task = progress.add_task(f"solving {problem.name}", total=span, status=f"0 modes")
+        span = -math.log10(tol)
+        task = progress.add_task(f"solving {problem.name}", total=span, status="starting")
 
         def callback(info):
+            if "time" in info:  # separated time march
+                t0 = problem.time_coordinate.domain[0]
+                frac = (info["time"] - t0) / (info["end"] - t0)
+                rank = max((max(r) for r in info["ranks"] if r), default=1)
+                progress.update(task, completed=span * frac,
+                                status=f"t = {info['time']:.4g}/{info['end']:.4g}  {info['steps']} steps  "
+                                       f"max rank {rank}")
+                return
             r = info["residual"]
             done = min(span, -math.log10(r) if r > 0 else span)
             progress.update(task, completed=max(done, 0.0),
@@ -244,6 +252,7 @@ def query(ctx, codebook, fmt, fields, points):
       pgd query codebooks/parametric.h5 --t 5 --k 2
       pgd query codebooks/spring.h5 --t 0:4:41 --k 2 --c 0.3 --field x --format csv
     """
+    from . import _query
     from .codebook import Codebook
 
     cb = Codebook.load(codebook)
@@ -252,149 +261,21 @@ def query(ctx, codebook, fmt, fields, points):
         if f not in cb.fields:
             raise click.BadParameter(f"unknown field {f!r}; this codebook has {', '.join(cb.unknown_names)}",
                                      param_hint="'--field'")
-    if points is not None:
-        if ctx.args:
-            raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
-        coords = _read_points(points, cb)
-    else:
-        coords = _grid_from_args(ctx.args, cb)
-    values = cb.evaluate(coords, fields=selected)
-    _write_rows(sys.stdout, fmt, cb.coordinate_names, coords, selected, values)
-
-
-def _parse_coordinate_args(args: list[str], cb) -> dict[str, str]:
-    given: dict[str, str] = {}
-    i = 0
-    names = cb.coordinate_names
-    while i < len(args):
-        arg = args[i]
-        if not arg.startswith("--") or len(arg) == 2:
-            raise click.UsageError(f"unexpected argument {arg!r}; coordinates are given as --NAME VALUE "
-                                   f"({' '.join('--' + n for n in names)})")
-        name, eq, value = arg[2:].partition("=")
-        if not eq:
-            if i + 1 >= len(args):
-                raise click.UsageError(f"option '--{name}' needs a value")
-            value = args[i + 1]
-            i += 1
-        i += 1
-        if name not in names:
-            raise QueryError(f"unknown coordinate '--{name}'; this codebook has "
-                             f"{', '.join(_describe(c) for c in cb.coordinates)}")
-        if name in given:
-            raise click.UsageError(f"coordinate '--{name}' given twice")
-        given[name] = value
-    missing = [c for c in cb.coordinates if c.name not in given]
-    if missing:
-        raise QueryError("missing coordinate " + ", ".join(f"'--{c.name}' ({_describe(c)})" for c in missing))
-    return given
-
-
-def _describe(c) -> str:
-    return f"{c.name} in [{c.domain[0]:g}, {c.domain[1]:g}]"
-
-
-def _parse_values(name: str, text: str):
-    import numpy as np
-
-    text = text.strip()
     try:
-        if ":" in text:
-            parts = text.split(":")
-            if len(parts) != 3:
-                raise ValueError
-            start, stop, count = float(parts[0]), float(parts[1]), int(parts[2])
-            if count < 1:
-                raise ValueError
-            return np.linspace(start, stop, count)
-        return np.array([float(v) for v in text.split(",")], dtype=float)
-    except ValueError:
-        raise click.BadParameter(
-            f"{text!r} is not a number, a comma list or start:stop:count", param_hint=f"'--{name}'"
-        ) from None
-
-
-def _grid_from_args(args: list[str], cb) -> dict:
-    import numpy as np
-
-    given = _parse_coordinate_args(args, cb)
-    lists = [_parse_values(c.name, given[c.name]) for c in cb.coordinates]
-    for c, v in zip(cb.coordinates, lists):
-        _check_domain(c, v)
-    grids = np.meshgrid(*lists, indexing="ij")
-    return {c.name: g.reshape(-1) for c, g in zip(cb.coordinates, grids)}
-
-
-def _check_domain(c, values) -> None:
-    import numpy as np
-
-    bad = ~np.isfinite(values) | (values < c.domain[0]) | (values > c.domain[1])
-    if bad.any():
-        raise QueryError(f"coordinate '--{c.name}': value {float(values[bad][0])!r} is outside the domain "
-                         f"[{c.domain[0]:g}, {c.domain[1]:g}]")
-
-
-def _read_points(handle, cb) -> dict:
-    import csv
-
-    import numpy as np
-
-    source = getattr(handle, "name", "points")
-    source = "stdin" if source == "<stdin>" else source
-    reader = csv.reader(handle)
-    header = next(reader, None)
-    if header is None:
-        raise QueryError(f"{source}: empty points file; expected a CSV header naming the coordinates")
-    header = [h.strip() for h in header]
-    names = cb.coordinate_names
-    for h in header:
-        if h not in names:
-            raise QueryError(f"{source}: unknown column {h!r}; expected the coordinates {', '.join(names)}")
-    missing = [n for n in names if n not in header]
-    if missing:
-        raise QueryError(f"{source}: missing column(s) {', '.join(missing)}")
-    rows = []
-    for line, row in enumerate(reader, start=2):
-        if not row or all(not cell.strip() for cell in row):
-            continue
-        if len(row) != len(header):
-            raise QueryError(f"{source}: line {line}: expected {len(header)} values, got {len(row)}")
-        try:
-            rows.append([float(cell) for cell in row])
-        except ValueError:
-            raise QueryError(f"{source}: line {line}: not a number in {','.join(row)!r}") from None
-    data = np.array(rows, dtype=float).reshape(-1, len(header))
-    coords = {h: data[:, i] for i, h in enumerate(header)}
-    for c in cb.coordinates:
-        _check_domain(c, coords[c.name])
-    return {n: coords[n] for n in names}
-
-
-def _write_rows(out, fmt, coord_names, coords, selected, values) -> None:
-    import numpy as np
-
-    n = len(next(iter(coords.values()))) if coords else 0
-    cols = [np.asarray(values[f]).reshape(-1).tolist() for f in selected]
-    buf = io.StringIO()
-    if fmt == "plain":
-        for row in zip(*cols):
-            buf.write(" ".join(map(repr, row)))
-            buf.write("\n")
-    elif fmt == "csv":
-        ccols = [np.asarray(coords[c]).reshape(-1).tolist() for c in coord_names]
-        buf.write(",".join(coord_names + selected) + "\n")
-        for row in zip(*ccols, *cols):
-            buf.write(",".join(map(repr, row)))
-            buf.write("\n")
-    else:
-        ccols = [np.asarray(coords[c]).reshape(-1).tolist() for c in coord_names]
-        keys = coord_names + selected
-        records = [dict(zip(keys, row)) for row in zip(*ccols, *cols)]
-        buf.write(json.dumps(records))
-        buf.write("\n")
-    assert n == len(cols[0]) if cols else True
-    out.write(buf.getvalue())
-    out.flush()
+        if points is not None:
+            if ctx.args:
+                raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
+            coords = _query.read_points(points, cb)
+        else:
+            coords = _query.grid_from_args(ctx.args, cb)
+    except _query.UsageProblem as exc:
+        if exc.param_hint is not None:
+            raise click.BadParameter(exc.message, param_hint=exc.param_hint) from None
+        raise click.UsageError(exc.message) from None
+    values = cb.evaluate(coords, fields=selected)
+    _query.write_rows(sys.stdout, fmt, cb.coordinate_names, coords, selected, values)
+    # the parsing, checking and printing helpers live in pgdcli._query: `pgd query` runs there without
+    # click when it can (see main), and both paths must print the same bytes
 
 
 # ----------------------------------------------------------------------------------------------
@@ -432,9 +313,203 @@ def info(codebook, fmt):
     console.print(f"format: {summary['format']}, written by pgdcli {summary['pgdcli_version']}, {summary['created']}")
 
 
+# ----------------------------------------------------------------------------------------------
+# plot
+# ----------------------------------------------------------------------------------------------
+@cli.command("plot")
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--kind", type=click.Choice(["modes", "convergence", "solution", "error"]), default="modes",
+              show_default=True, help="What to draw.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="Image file, .png or .svg [default: <codebook dir>/<codebook stem>-<kind>.png].")
+@click.option("--field", metavar="NAME", help="Unknown to draw [default: the first].")
+@click.option("--count", type=int, metavar="N", help="modes: how many modes per coordinate [default: 6].")
+@click.option("--at", "at", multiple=True, metavar="NAME=V[,NAME=V]",
+              help="solution/error: a curve along time at this point (repeatable); unset non-time "
+                   "coordinates take their domain midpoints.")
+@click.option("--over", metavar="X,Y", help="solution/error: a heat map with X along x and Y along y.")
+@click.option("--fix", multiple=True, metavar="NAME=V[,NAME=V]",
+              help="With --over: values of the other coordinates [default: domain midpoints].")
+@click.option("--reference", is_flag=True,
+              help="solution: draw the independent reference (solve_ivp) on top, as markers or dashed contours.")
+@click.option("--points", type=int, metavar="N", help="Samples per curve [201] or per map axis [81].")
+@click.option("--dpi", type=int, default=150, show_default=True, metavar="N", help="PNG resolution (dots per inch).")
+@click.option("--size", metavar="WxH", help="Figure size in inches, e.g. 8x5 [default: per kind].")
+def plot_command(codebook, kind, output, field, count, at, over, fix, reference, points, dpi, size):
+    """Draw CODEBOOK's modes, convergence, solution or error as a PNG or SVG.
+
+    Prints the path of the written image on stdout.
+
+    \b
+      pgd plot codebooks/spring.h5                        # modes: the first 6 per coordinate
+      pgd plot codebooks/spring.h5 --kind convergence -o conv.svg
+      pgd plot codebooks/spring.h5 --kind solution --at k=1.5 --at k=3,c=0.1 --reference
+      pgd plot codebooks/spring.h5 --kind solution --over t,k --fix c=0.2
+      pgd plot codebooks/spring.h5 --kind error --over k,c --fix t=4
+    """
+    from . import plot as plotting
+
+    path = plotting.render(codebook, kind, output, field=field, count=count, at=at, over=over, fix=fix,
+                           reference=reference, points=points, dpi=dpi, size=size,
+                           warn=lambda message: click.echo(f"Warning: {message}", err=True))
+    click.echo(str(path))
+
+
+# ----------------------------------------------------------------------------------------------
+# verify
+# ----------------------------------------------------------------------------------------------
+_VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.reference.METHODS (no numpy import here)
+
+
+@cli.command("verify")
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--samples", type=click.IntRange(min=1), default=64, show_default=True, metavar="N",
+              help="Random points of the parameter box, checked in addition to all its corners.")
+@click.option("--sampling", type=click.Choice(["sobol", "lhs"]), default="sobol", show_default=True,
+              help="Scrambled Sobol or Latin hypercube sampling.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the samples and of the random times.")
+@click.option("--points", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE",
+              help="CSV file whose header names the non-time coordinates: check these points instead of "
+                   "the samples and corners.")
+@click.option("--times", "n_times", type=click.IntRange(min=0), default=16, show_default=True, metavar="N",
+              help="Random times, checked in addition to every node of the time coordinate.")
+@click.option("--method", type=click.Choice(_VERIFY_METHODS, case_sensitive=False), default="DOP853",
+              metavar="[" + "|".join(_VERIFY_METHODS) + "]", show_default=True, help="solve_ivp method of the reference (Radau, BDF or LSODA for stiff problems).")
+@click.option("--rtol", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=1e-12,
+              show_default=True, help="Relative tolerance of the reference.")
+@click.option("--atol", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=1e-12,
+              show_default=True, help="Absolute tolerance of the reference.")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), metavar="N",
+              help="Worker processes [default: all cores]; 1 runs in this process.")
+@click.option("--max-error", type=click.FloatRange(min=0), metavar="TOL",
+              help="Exit 1 when the max absolute error of an unknown exceeds TOL.")
+@click.option("--max-rel-error", type=click.FloatRange(min=0), metavar="TOL",
+              help="Exit 1 when the max relative error (max abs error / max |reference|) of an unknown exceeds TOL.")
+@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
+              help="text: table on stderr; json: the report as JSON on stdout (keys in docs/verify.md).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar or table on stderr.")
+def verify_command(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error,
+                   max_rel_error, fmt, quiet):
+    """Check CODEBOOK against an independent reference of its own problem.
+
+    The problem stored in the codebook is integrated again with scipy's
+    solve_ivp at sample points of the parameter box (scrambled Sobol plus
+    every corner), and the codebook is compared with it at every time node
+    and at random times. A table of the errors per unknown goes to stderr.
+
+    Exit status: 0 passed; 1 a reference integration failed or an error
+    exceeds --max-error / --max-rel-error (the CI gate); 2 invalid input.
+
+    \b
+      pgd verify codebooks/spring.h5
+      pgd verify codebooks/spring.h5 --max-error 1e-8 --format json > verify.json
+      pgd verify codebooks/spring.h5 --points points.csv --times 100 --method Radau
+    """
+    _run(_verify, codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error,
+         max_rel_error, fmt, quiet)
+
+
+def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error, max_rel_error,
+            fmt, quiet):
+    from .verify import verify as verify_codebook
+
+    for hint, value in (("'--max-error'", max_error), ("'--max-rel-error'", max_rel_error)):
+        if value is not None and not math.isfinite(value):
+            raise click.BadParameter(f"expected a finite number >= 0, got {value}", param_hint=hint)
+    method = next(m for m in _VERIFY_METHODS if m.lower() == method.lower())
+    options = dict(samples=samples, sampling=sampling, seed=seed, points=points, times=n_times, method=method,
+                   rtol=rtol, atol=atol, jobs=jobs, max_error=max_error, max_rel_error=max_rel_error)
+    console = None if quiet else _stderr_console()
+    if console is None:
+        report = verify_codebook(codebook, **options)
+    else:
+        report = _verify_with_progress(console, codebook, verify_codebook, options)
+        for renderable in _verify_tables(report, max_error, max_rel_error):
+            console.print(renderable)
+    if fmt == "json":
+        click.echo(json.dumps(report.to_dict(), indent=2))
+    reasons = report.violations(max_error, max_rel_error)
+    if reasons:
+        raise _Failed(f"{codebook}: verification failed: " + "; ".join(reasons))
+
+
+def _verify_with_progress(console, codebook, verify_codebook, options):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    # no refresh thread (auto_refresh=False): the worker pool may then fork this process safely
+    progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TextColumn("parameter points"), TimeElapsedColumn(), console=console, auto_refresh=False)
+    state = {}
+
+    def callback(done, total):
+        if "task" not in state:
+            progress.start()
+            state["task"] = progress.add_task(f"verifying {Path(codebook).name}", total=total)
+        progress.update(state["task"], completed=done)
+        progress.refresh()
+
+    try:
+        return verify_codebook(codebook, progress=callback, **options)
+    finally:
+        if "task" in state:
+            progress.stop()
+
+
+def _verify_tables(report, max_error, max_rel_error) -> list:
+    from rich.table import Table
+
+    def number(value):
+        return "n/a" if not math.isfinite(value) else f"{value:.3e}"
+
+    s = report.settings
+    if s["sampling"] == "points":
+        where = f"{s['parameter_points']} parameter points from {s['points_file'] or 'the given points'}"
+    else:
+        capped = f" (capped at {s['corners']})" if s["corners"] < s["corners_total"] else ""
+        where = (f"{s['parameter_points']} parameter points ({s['samples']} {s['sampling']} + "
+                 f"{s['corners_total']} corners{capped})")
+    caption = (f"{where} x {s['times']} times ({s['time_nodes']} nodes + {s['random_times']} random); "
+               f"reference {s['method']} rtol {s['rtol']:.0e} atol {s['atol']:.0e}, {s['jobs']} job(s), "
+               f"{report.wall_time:.2f} s. rel error = max abs error / max |reference| of the unknown.")
+    table = Table(title=f"pgd verify: {report.problem}", title_justify="left", caption=caption,
+                  caption_justify="left")
+    for column in ("unknown", "max abs error", "max rel error", "RMS error", "max |reference|", "worst at"):
+        table.add_column(column, justify="left" if column in ("unknown", "worst at") else "right")
+    for name, stats in report.unknowns.items():
+        at = ", ".join(f"{k}={v:.6g}" for k, v in stats.where.items()) if math.isfinite(stats.max_abs_error) else "n/a"
+        table.add_row(name, number(stats.max_abs_error), number(stats.max_rel_error), number(stats.rms_error),
+                      number(stats.reference_scale), at)
+    out: list = [table]
+    if report.failures:
+        failed = Table(title=f"reference failed at {len(report.failures)} of {s['parameter_points']} parameter points",
+                       title_justify="left", title_style="bold red")
+        failed.add_column("point")
+        failed.add_column("reason")
+        for failure in report.failures[:10]:
+            failed.add_row(", ".join(f"{k}={v:.6g}" for k, v in failure.point.items()) or "-", failure.message)
+        if len(report.failures) > 10:
+            failed.add_row(f"... {len(report.failures) - 10} more", "(all in --format json)")
+        out.append(failed)
+    gates = ["every reference integration succeeds"]
+    if max_error is not None:
+        gates.append(f"max abs error <= {max_error:.3g}")
+    if max_rel_error is not None:
+        gates.append(f"max rel error <= {max_rel_error:.3g}")
+    verdict = "[green]passed[/]" if report.passed(max_error, max_rel_error) else "[red]FAILED[/]"
+    out.append(f"{verdict} (gate: {', '.join(gates)})")
+    return out
+
+
 def main(argv=None) -> None:
-    """Console-script entry point."""
-    cli.main(args=argv, prog_name="pgd")
+    """Console-script entry point.
+
+    A plain ``pgd query`` runs in :mod:`pgdcli._query` (no click machinery); everything
+    else, and any query that fails or asks for help, runs through click as usual.
+    """
+    from ._query import main as query_first
+
+    query_first(argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

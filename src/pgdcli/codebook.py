@@ -17,10 +17,11 @@ on the query path: it imports numpy and h5py only (no scipy, no yaml).
 from __future__ import annotations
 
 import datetime as _dt
+import math
 import os
-import tempfile
+import threading
+from bisect import bisect_right
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -28,7 +29,9 @@ import numpy as np
 from .basis import KINDS, make_basis
 from .errors import CodebookError, QueryError
 
-__all__ = ["Codebook", "CoordinateInfo", "FieldModes", "FORMAT_NAME", "FORMAT_VERSION"]
+# pathlib and tempfile are imported by save() only: pgd query never writes
+
+__all__ = ["Codebook", "CoordinateInfo", "FieldModes", "FieldTT", "FORMAT_NAME", "FORMAT_VERSION"]
 
 FORMAT_NAME = "pgdcli-codebook"
 FORMAT_VERSION = "1.0"
@@ -67,7 +70,59 @@ class FieldModes:
         return int(self.alphas.size)
 
 
-def _validate(name: str, coordinates: Sequence[CoordinateInfo], fm: FieldModes) -> None:
+@dataclass(frozen=True, eq=False)
+class FieldTT:
+    """Tensor-train representation of one unknown (the nonlinear solver's codebooks).
+
+    ``u(x) = G_1[:, x_{o_1}, :] G_2[:, x_{o_2}, :] ... G_d[:, x_{o_d}, :]`` where the
+    cores are in the coordinate order ``mode_order`` and each core's middle
+    index runs over the nodes of its coordinate (interpolated like the CP modes).
+
+    Parameters
+    ----------
+    cores : tuple of ndarray, each shape (r_{k-1}, nodes, r_k), r_0 = r_d = 1
+    mode_order : tuple of int
+        Coordinate index of each core.
+    """
+
+    cores: tuple[np.ndarray, ...]
+    mode_order: tuple[int, ...]
+
+    @property
+    def rank(self) -> int:
+        """Largest tensor-train rank (reported as 'modes' for a quick comparison)."""
+        return int(max(c.shape[2] for c in self.cores[:-1])) if len(self.cores) > 1 else 1
+
+    @property
+    def ranks(self) -> tuple[int, ...]:
+        return tuple(int(c.shape[2]) for c in self.cores[:-1])
+
+    @property
+    def size(self) -> int:
+        return int(sum(c.size for c in self.cores))
+
+
+def _validate_tt(name: str, coordinates: Sequence[CoordinateInfo], fm: FieldTT) -> None:
+    if sorted(fm.mode_order) != list(range(len(coordinates))):
+        raise CodebookError(f"unknown {name!r}: tensor-train mode order {list(fm.mode_order)} is not a permutation "
+                            f"of the {len(coordinates)} coordinates")
+    left = 1
+    for k, (core, j) in enumerate(zip(fm.cores, fm.mode_order)):
+        c = coordinates[j]
+        if core.ndim != 3 or core.shape[0] != left or core.shape[1] != c.nodes:
+            raise CodebookError(f"unknown {name!r}: core {k} ({c.name!r}) has shape {core.shape}, expected "
+                                f"({left}, {c.nodes}, r)")
+        left = core.shape[2]
+        if not np.all(np.isfinite(core)):
+            raise CodebookError(f"unknown {name!r}: core {k} ({c.name!r}) contains non-finite values")
+    if left != 1:
+        raise CodebookError(f"unknown {name!r}: the last core's right rank is {left}, expected 1")
+
+
+def _validate(name: str, coordinates: Sequence[CoordinateInfo], fm) -> None:
+    if isinstance(fm, FieldTT):
+        _validate_tt(name, coordinates, fm)
+        return
     if fm.alphas.ndim != 1:
         raise CodebookError(f"unknown {name!r}: alphas must be 1D, got shape {fm.alphas.shape}")
     if len(fm.modes) != len(coordinates):
@@ -80,6 +135,123 @@ def _validate(name: str, coordinates: Sequence[CoordinateInfo], fm: FieldModes) 
             )
     if not (np.all(np.isfinite(fm.alphas)) and all(np.all(np.isfinite(m)) for m in fm.modes)):
         raise CodebookError(f"unknown {name!r}: alphas or modes contain non-finite values")
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluation machinery (measurements: benchmarks/README.md)
+# ----------------------------------------------------------------------------------------------
+# Batches are evaluated in chunks of points whose working set (two (chunk, total rank) blocks and
+# two (chunk, nodes) blocks per coordinate) stays in a per-core L2 cache. Chunk lengths are
+# multiples of _ROW_ALIGN: BLAS kernels handle rows in small blocks and round a block's leftover
+# rows differently, so aligned chunks give each point bitwise the value that one product over
+# all points gives (as before chunking), whatever the chunk length or the number of threads.
+_ROW_ALIGN = 64
+_CHUNK_BYTES = 1 << 20
+_MAX_CHUNK = 4096
+# BLAS thread policy per call site (measured: benchmarks/README.md). One point: BLAS as is (its
+# products are far below any threading threshold). Batches of at least _BLAS_LIMIT_MIN_POINTS:
+# BLAS limited to one thread (threadpoolctl) and chunks shared by up to _MAX_THREADS threads of
+# our own -- multi-threaded BLAS on these small products is slower, and much slower when another
+# process holds a core (its threads spin waiting for each other). Smaller batches keep the BLAS
+# as is, which spares pgd query the threadpoolctl import.
+_BLAS_LIMIT_MIN_POINTS = 4096
+_MAX_THREADS = 8
+_SCALAR_TYPES = frozenset({float, int, np.float64})
+_add_reduce = np.add.reduce
+_parallel_lock = threading.Lock()
+_blas_controller = None  # threadpoolctl.ThreadpoolController, built on first parallel batch; False: unavailable
+_basis_cache: dict = {}
+
+
+def _basis(c: CoordinateInfo):
+    """The (immutable, shared) basis of a coordinate: built once per process."""
+    key = (c.discretization, float(c.domain[0]), float(c.domain[1]), int(c.nodes))
+    basis = _basis_cache.get(key)
+    if basis is None:
+        if len(_basis_cache) >= 256:
+            _basis_cache.clear()
+        basis = _basis_cache.setdefault(key, c.basis())
+    return basis
+
+
+class _PointData:
+    """Constants of one coordinate for the one-point path of :meth:`Codebook.evaluate`."""
+
+    __slots__ = ("name", "domain", "low", "high", "lower", "upper", "chebyshev", "nodes", "node_list",
+                 "node_index", "bary", "unit", "modes")
+
+    def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
+        low, high = c.domain
+        slack = 1e-12 * max(1.0, abs(low), abs(high))  # as Codebook._checked
+        self.name, self.domain = c.name, c.domain
+        self.low, self.high = float(low), float(high)
+        self.lower, self.upper = low - slack, high + slack
+        self.chebyshev = basis.kind == "chebyshev"
+        self.nodes = basis.nodes
+        self.node_list = basis.nodes.tolist()
+        self.node_index = {v: k for k, v in enumerate(self.node_list)}
+        self.bary = getattr(basis, "bary", None)
+        self.unit = np.eye(basis.size)
+        self.modes = modes
+
+
+def _chunk_length(rank: int, nodes: int) -> int:
+    rows = _CHUNK_BYTES // (16 * (rank + nodes))
+    return min(_MAX_CHUNK, max(_ROW_ALIGN, rows // _ROW_ALIGN * _ROW_ALIGN))
+
+
+def _chunk_bounds(size: int, chunk: int) -> list[tuple[int, int]]:
+    """``[lo, hi)`` ranges of ``chunk`` points; a last range of one point joins the one before."""
+    edges = list(range(0, size, chunk)) + [size]
+    if len(edges) > 2 and edges[-1] - edges[-2] == 1:
+        del edges[-2]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def _threads() -> int:
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    return max(1, min(n, _MAX_THREADS))
+
+
+def _run_chunks(run, bounds: list[tuple[int, int]]) -> None:
+    """``run(iterator of bounds)``, shared by threads for large batches (see the BLAS policy above)."""
+    global _blas_controller
+    if bounds[-1][1] < _BLAS_LIMIT_MIN_POINTS:
+        run(iter(bounds))
+        return
+    if _blas_controller is None:
+        try:
+            from threadpoolctl import ThreadpoolController
+
+            _blas_controller = ThreadpoolController()
+        except Exception:  # pragma: no cover - threadpoolctl is a dependency
+            _blas_controller = False
+    if not _blas_controller:  # pragma: no cover
+        run(iter(bounds))
+        return
+    threads = min(_threads(), len(bounds))
+    todo = iter(bounds)  # shared: a thread takes the next chunk when it is done with one
+    errors = []
+
+    def guarded():
+        try:
+            run(todo)
+        except BaseException as exc:  # re-raised in the calling thread
+            errors.append(exc)
+
+    # BLAS thread limits are process-wide: one limited batch at a time
+    with _parallel_lock, _blas_controller.limit(limits=1, user_api="blas"):
+        workers = [threading.Thread(target=guarded, daemon=True) for _ in range(threads - 1)]
+        for w in workers:
+            w.start()
+        guarded()
+        for w in workers:
+            w.join()
+    if errors:
+        raise errors[0]
 
 
 class Codebook:
@@ -121,11 +293,15 @@ class Codebook:
         self.description = description
         self.report = dict(report or {})
         self.created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        self._bases = [c.basis() for c in self.coordinates]
+        self._bases = [_basis(c) for c in self.coordinates]
         # all unknowns' modes side by side: one interpolation per coordinate serves every unknown
-        self._stacked = [np.hstack([fm.modes[j] for fm in self.fields.values()]) for j in range(len(self.coordinates))]
-        bounds = np.cumsum([0] + [fm.rank for fm in self.fields.values()])
-        self._slices = {u: slice(bounds[i], bounds[i + 1]) for i, u in enumerate(self.fields)}
+        cp = {u: fm for u, fm in self.fields.items() if isinstance(fm, FieldModes)}
+        self._stacked = [np.hstack([fm.modes[j] for fm in cp.values()]) if cp else None
+                         for j in range(len(self.coordinates))]
+        bounds = np.cumsum([0] + [fm.rank for fm in cp.values()])
+        self._slices = {u: slice(bounds[i], bounds[i + 1]) for i, u in enumerate(cp)}
+        self._names = tuple(c.name for c in self.coordinates)
+        self._point = [_PointData(c, b, m) for c, b, m in zip(self.coordinates, self._bases, self._stacked)]
 
     # ------------------------------------------------------------------ introspection
     @property
@@ -173,7 +349,7 @@ class Codebook:
         QueryError
             Missing, unknown or out-of-domain coordinates, unknown fields.
         """
-        names = self.coordinate_names
+        names = self._names
         for key in coordinates:
             if key not in names:
                 raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
@@ -181,11 +357,50 @@ class Codebook:
             if c.name not in coordinates:
                 raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
         selected = self._select(fields)
-        arrays = np.broadcast_arrays(*[np.asarray(coordinates[n], dtype=float) for n in names])
+        if any(isinstance(self.fields[u], FieldTT) for u in selected):
+            return self._evaluate_mixed(coordinates, selected)
+        raw = [coordinates[n] for n in names]
+        if all(type(v) in _SCALAR_TYPES for v in raw):
+            # one point given as Python numbers: a handful of small numpy calls, no broadcasting
+            return self._evaluate_point([float(v) for v in raw], selected, ())
+        arrays = [np.asarray(v, dtype=float) for v in raw]
+        broadcast = np.broadcast_arrays(*arrays)
+        shape = broadcast[0].shape
+        size = math.prod(shape)
+        if self._stacked[0].shape[1] < 2:
+            # rank one: (points, nodes) @ (nodes, 1) is a matrix-vector product, whose rounding
+            # depends on a row's position; interpolate at every point as one batch, as always
+            arrays = broadcast
+        if size == 1:
+            return self._evaluate_point([float(a.reshape(-1)[0]) for a in arrays], selected, shape)
+        if size == 0:
+            return {u: np.empty(shape) for u in selected}
+        # every coordinate is checked and interpolated at its own (unbroadcast) values
+        flat = [self._checked(c, a.reshape(-1)) for c, a in zip(self.coordinates, arrays)]
+        # where each point finds the value of a coordinate given at fewer values (None: one per point)
+        index = [None if x.size == size or x.size == 1 else
+                 np.broadcast_to(np.arange(x.size).reshape(a.shape), shape).reshape(-1)
+                 for x, a in zip(flat, arrays)]
+        values = self._evaluate_flat(flat, selected, size, index)
+        return {u: v.reshape(shape) for u, v in values.items()}
+
+    def _evaluate_mixed(self, coordinates: Mapping[str, object], selected: list[str]) -> dict[str, np.ndarray]:
+        """Tensor-train unknowns (and any CP ones beside them)."""
+        tt = [u for u in selected if isinstance(self.fields[u], FieldTT)]
+        cp = [u for u in selected if u not in tt]
+        out = self.evaluate(coordinates, cp) if cp else {}
+        arrays = np.broadcast_arrays(*[np.asarray(coordinates[c.name], dtype=float) for c in self.coordinates])
         shape = arrays[0].shape
         flat = [self._checked(c, a.reshape(-1)) for c, a in zip(self.coordinates, arrays)]
-        values = self._evaluate_flat(flat, selected)
-        return {u: v.reshape(shape) for u, v in values.items()}
+        size = flat[0].size
+        values = {u: np.empty(size) for u in tt}
+        for lo in range(0, size, _TT_CHUNK):
+            hi = min(size, lo + _TT_CHUNK)
+            mats = [b.interpolation_matrix(x[lo:hi]) for b, x in zip(self._bases, flat)]
+            for u in tt:
+                values[u][lo:hi] = _contract_tt(self.fields[u], mats)
+        out.update({u: v.reshape(shape) for u, v in values.items()})
+        return {u: out[u] for u in selected}
 
     def _select(self, fields: Sequence[str] | None) -> list[str]:
         if fields is None:
@@ -207,16 +422,106 @@ class Codebook:
             raise QueryError(f"coordinate {c.name!r}: value {v!r} is outside the domain [{low:g}, {high:g}]")
         return np.clip(x, low, high)
 
-    def _evaluate_flat(self, flat: list[np.ndarray], selected: list[str]) -> dict[str, np.ndarray]:
+    def _evaluate_point(self, xs: list[float], selected: list[str], shape: tuple) -> dict[str, np.ndarray]:
+        """One point: per coordinate, its cardinal row (a unit row at a node) times its modes.
+
+        The same arithmetic, in the same order, as the batch path on one point.
+        """
         product = None
-        for basis, stacked, x in zip(self._bases, self._stacked, flat):
-            vals = basis.interpolation_matrix(x) @ stacked  # (P, total rank)
+        for x, p in zip(xs, self._point):
+            if not (x >= p.lower and x <= p.upper):
+                low, high = p.domain
+                raise QueryError(f"coordinate {p.name!r}: value {x!r} is outside the domain [{low:g}, {high:g}]")
+            x = x if x > p.low else p.low  # np.clip, as the batch path
+            x = x if x < p.high else p.high
+            k = p.node_index.get(x)
+            if k is not None:
+                row = p.unit[k]
+            elif p.chebyshev:
+                c = p.bary / (x - p.nodes)
+                row = c / _add_reduce(c)
+            else:
+                nodes = p.node_list
+                left = min(max(bisect_right(nodes, x) - 1, 0), len(nodes) - 2)
+                theta = (x - nodes[left]) / (nodes[left + 1] - nodes[left])
+                row = np.zeros(len(nodes))
+                row[left] = 1.0 - theta
+                row[left + 1] = theta
+            vals = row @ p.modes  # (total rank,)
             product = vals if product is None else product * vals
-        return {u: product[:, self._slices[u]] @ self.fields[u].alphas for u in selected}
+        if shape == ():
+            return {u: np.array(product[self._slices[u]] @ self.fields[u].alphas) for u in selected}
+        return {u: np.array(product[self._slices[u]] @ self.fields[u].alphas).reshape(shape) for u in selected}
+
+    def _evaluate_flat(self, flat: list[np.ndarray], selected: list[str], size: int,
+                       index: list[np.ndarray | None]) -> dict[str, np.ndarray]:
+        """Evaluate ``size`` (>= 2) points.
+
+        Coordinate ``j`` takes the values ``flat[j]``: one per point, or one for
+        all points, or ``flat[j][index[j]]``. Points are processed in cache-sized
+        chunks (:func:`_chunk_length`); a coordinate given at fewer values than
+        there are points is interpolated once, at its own values.
+        """
+        bases, stacked, slices = self._bases, self._stacked, self._slices
+        rank = stacked[0].shape[1]
+        chunk = _chunk_length(rank, max(b.size for b in bases))
+        per_point = [x.size == size for x in flat]
+        # mode values of the coordinates not given one value per point: (values, total rank)
+        pre = [None if full else self._mode_values(j, x, chunk) for j, (x, full) in enumerate(zip(flat, per_point))]
+        out = {u: np.empty(size) for u in selected}
+        alphas = {u: self.fields[u].alphas for u in selected}
+
+        def run(bounds):
+            prod = np.empty((chunk + 1, rank))
+            vals = np.empty((chunk + 1, rank))
+            scratch = [(np.empty((chunk + 1, b.size)), np.empty((chunk + 1, b.size))) if full else None
+                       for b, full in zip(bases, per_point)]
+            for lo, hi in bounds:
+                m = hi - lo
+                p = prod[:m]
+                for j, (basis, modes, x, ix, v, buf) in enumerate(zip(bases, stacked, flat, index, pre, scratch)):
+                    target = p if j == 0 else vals[:m]
+                    if v is None:  # one value per point
+                        w = basis._interpolation_rows(x[lo:hi], buf[0][:m], buf[1][:m])
+                        np.matmul(w, modes, out=target)
+                    elif ix is None:  # one value for all points
+                        target[...] = v[0]
+                    else:
+                        np.take(v, ix[lo:hi], axis=0, out=target)
+                    if j:
+                        np.multiply(p, target, out=p)
+                for u in selected:
+                    np.matmul(p[:, slices[u]], alphas[u], out=out[u][lo:hi])
+
+        _run_chunks(run, _chunk_bounds(size, chunk))
+        return out
+
+    def _mode_values(self, j: int, x: np.ndarray, chunk: int) -> np.ndarray:
+        """All unknowns' modes of coordinate ``j`` at the points ``x``: shape (len(x), total rank).
+
+        One point is computed as the first of two (a 1-row product would be a
+        matrix-vector product, rounded differently from the rows of a batch).
+        """
+        basis, modes = self._bases[j], self._stacked[j]
+        if x.size == 1:
+            return self._mode_values(j, np.repeat(x, 2), chunk)[:1]
+        out = np.empty((x.size, modes.shape[1]))
+        weights = np.empty((min(chunk, x.size) + 1, basis.size))
+        work = np.empty_like(weights)
+        for lo, hi in _chunk_bounds(x.size, chunk):
+            m = hi - lo
+            w = basis._interpolation_rows(x[lo:hi], weights[:m], work[:m])
+            np.matmul(w, modes, out=out[lo:hi])
+        return out
 
     def nodal_values(self, field_name: str) -> np.ndarray:
         """The unknown on the full tensor grid of nodes (small codebooks only: tests and plots)."""
         fm = self.fields[self._select([field_name])[0]]
+        if isinstance(fm, FieldTT):
+            full = fm.cores[0][0]
+            for core in fm.cores[1:]:
+                full = np.tensordot(full, core, axes=(-1, 0))
+            return np.transpose(full[..., 0], np.argsort(fm.mode_order))
         out = np.zeros(tuple(c.nodes for c in self.coordinates))
         letters = "abcdefghijklmnopqrstuvwxyz"[: len(self.coordinates)]
         expr = ",".join(f"{l}r" for l in letters) + ",r->" + letters
@@ -237,7 +542,7 @@ class Codebook:
                  "discretization": c.discretization}
                 for c in self.coordinates
             ],
-            "unknowns": {u: {"modes": fm.rank} for u, fm in self.fields.items()},
+            "unknowns": {u: _field_summary(fm) for u, fm in self.fields.items()},
             "converged": bool(rep.get("converged", False)),
             "residual": float(rep.get("residual", np.nan)),
             "tolerance": float(rep.get("tolerance", np.nan)),
@@ -255,23 +560,35 @@ class Codebook:
         A crash or error while writing leaves any previous file at ``path``
         untouched and no partial file behind.
         """
+        import tempfile
+        from pathlib import Path
+
         import h5py
 
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        except OSError as exc:
+            raise CodebookError(f"{path}: cannot write the codebook ({_one_line(exc)})") from None
         os.close(fd)
         try:
+            # mkstemp creates 0600; a codebook gets the usual permissions (umask applies)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
             with h5py.File(tmp, "w") as f:
                 self._write(f)
             with open(tmp, "rb+") as fh:
                 os.fsync(fh.fileno())
             os.replace(tmp, path)
-        except BaseException:
+        except BaseException as exc:
             try:
                 os.unlink(tmp)
             except FileNotFoundError:
                 pass
+            if isinstance(exc, OSError):
+                raise CodebookError(f"{path}: cannot write the codebook ({_one_line(exc)})") from None
             raise
         return path
 
@@ -297,6 +614,14 @@ class Codebook:
         gu = f.create_group("unknowns")
         for u, fm in self.fields.items():
             g = gu.create_group(u)
+            if isinstance(fm, FieldTT):
+                g.attrs["representation"] = "tensor-train"
+                g.attrs["mode-order"] = np.array([self.coordinates[j].name for j in fm.mode_order], dtype=object)
+                gc = g.create_group("cores")
+                for j, core in zip(fm.mode_order, fm.cores):
+                    gc.create_dataset(self.coordinates[j].name, data=core)
+                continue
+            g.attrs["representation"] = "cp"
             g.create_dataset("alphas", data=fm.alphas)
             gm = g.create_group("modes")
             for c, m in zip(self.coordinates, fm.modes):
@@ -365,12 +690,25 @@ class Codebook:
                 raise CodebookError(f"{p}: coordinate {name!r} has unknown discretization {kind_!r}")
             nodes = g["nodes"][()]
             info = CoordinateInfo(name, domain, int(nodes.size), kind_, _attr_str(g.attrs.get("role", "parameter")))
-            if not np.array_equal(info.basis().nodes, nodes):
+            if not np.array_equal(_basis(info).nodes, nodes):  # built once: the codebook reuses it
                 raise CodebookError(f"{p}: stored nodes of coordinate {name!r} do not match its {kind_} basis")
             coords.append(info)
         fields = {}
         for u in unknown_names:
             g = f["unknowns"][u]
+            representation = _attr_str(g.attrs.get("representation", "cp"))
+            if representation == "tensor-train":
+                order = [_attr_str(x) for x in g.attrs["mode-order"]]
+                unknown_coords = [c for c in order if c not in coord_names]
+                if unknown_coords:
+                    raise CodebookError(f"{p}: unknown {u!r}: tensor-train core for unknown coordinate "
+                                        f"{unknown_coords[0]!r}")
+                cores = tuple(np.asarray(g["cores"][c][()], dtype=float) for c in order)
+                fields[u] = FieldTT(cores, tuple(coord_names.index(c) for c in order))
+                continue
+            if representation != "cp":
+                raise CodebookError(f"{p}: unknown {u!r} has representation {representation!r}, which this "
+                                    f"pgdcli does not know; upgrade pgdcli (pip install -U pgdcli)")
             modes = tuple(np.asarray(g["modes"][c][()], dtype=float) for c in coord_names)
             fields[u] = FieldModes(np.asarray(g["alphas"][()], dtype=float).reshape(-1), modes)
         report = {}
@@ -387,6 +725,28 @@ class Codebook:
             description=_attr_str(f.attrs.get("description", "")),
             created=_attr_str(f.attrs.get("created", "")) or None,
         )
+
+
+def _field_summary(fm) -> dict:
+    if isinstance(fm, FieldTT):
+        return {"representation": "tensor-train", "modes": fm.rank, "ranks": list(fm.ranks), "floats": fm.size}
+    return {"representation": "cp", "modes": fm.rank, "floats": int(fm.alphas.size + sum(m.size for m in fm.modes))}
+
+
+_TT_CHUNK = 2048  # points per block: keeps the (points, nodes, rank) intermediates in cache
+
+
+def _contract_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
+    """Tensor train at points: ``mats[j]`` (P, nodes_j) are the cardinal rows per coordinate."""
+    v = None
+    for core, j in zip(fm.cores, fm.mode_order):
+        r0, n, r1 = core.shape
+        if v is None:
+            v = mats[j] @ core[0]  # (P, r1)
+        else:
+            w = (v @ core.reshape(r0, n * r1)).reshape(-1, n, r1)
+            v = np.einsum("pn,pnr->pr", mats[j], w)
+    return v[:, 0]
 
 
 def _one_line(exc: BaseException) -> str:

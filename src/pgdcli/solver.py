@@ -270,10 +270,11 @@ class _State:
 
 
 def _others_product(mats: list[np.ndarray], j: int) -> np.ndarray:
-    out = None
+    """Hadamard product of ``mats[m]`` over ``m != j`` (ones when j is the only mode)."""
+    out = np.ones_like(mats[j])
     for m, a in enumerate(mats):
         if m != j:
-            out = a.copy() if out is None else out * a
+            out *= a
     return out
 
 
@@ -602,6 +603,11 @@ def solve(problem, *, tolerance: float | None = None, max_modes: int | None = No
         raise SolverError(f"tolerance must be in (0, 1), got {tol}")
     if nmax < 1:
         raise SolverError(f"max_modes must be at least 1, got {nmax}")
+    if _use_march(problem):
+        from .march import solve_march
+
+        with _blas_single_thread():
+            return solve_march(problem, tol, callback=callback)
     started = _time.perf_counter()
     with _blas_single_thread():
         disc = discretize(problem)
@@ -634,6 +640,16 @@ def solve(problem, *, tolerance: float | None = None, max_modes: int | None = No
     }
     codebook = codebook_from_solution(problem, disc, state.alphas, state.factors, report)
     return SolveResult(codebook, converged, status, message, np.array(history), np.array(iterations, dtype=int), wall)
+
+
+def _use_march(problem) -> bool:
+    """``method: auto`` marches nonlinear problems and enriches linear ones."""
+    nonlinear = any(eq.polynomial.degree >= 2 for eq in problem.equations)
+    method = getattr(problem.solver, "method", "auto")
+    if method == "pgd" and nonlinear:
+        raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "
+                          f"use 'march' or 'auto' for this problem")
+    return method == "march" or (method == "auto" and nonlinear)
 
 
 def _run(disc: Discretization, opts, tol: float, nmax: int, callback):

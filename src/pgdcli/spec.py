@@ -56,6 +56,7 @@ COORDINATE_KEYS = ("domain", "nodes", "discretization")
 UNKNOWN_KEYS = ("initial",)
 DISCRETIZATIONS = ("chebyshev", "linear")
 FORMULATIONS = ("minres", "galerkin")
+METHODS = ("auto", "pgd", "march")
 MAX_NODES = 2000
 
 #: Names that may not be used for coordinates, constants or unknowns: built-ins of
@@ -124,6 +125,9 @@ class SolverOptions:
     fixed_point_tolerance: float = 1e-4
     max_fixed_point_iterations: int = 25
     update: bool = True
+    method: str = "auto"  # 'auto' | 'pgd' (linear enrichment) | 'march' (separated time march)
+    max_rank: int = 400  # march: cap on every tensor-train rank
+    max_steps: int = 20000  # march: cap on accepted + rejected time steps
 
 
 @dataclass(frozen=True)
@@ -552,8 +556,13 @@ def _parse_solver(check: _Checker, value: Any) -> SolverOptions:
     for key in ("max_modes", "max_fixed_point_iterations"):
         if key in section:
             options[key] = check.integer(section[key], f"solver.{key}", 1)
+    for key in ("max_rank", "max_steps"):
+        if key in section:
+            options[key] = check.integer(section[key], f"solver.{key}", 1)
     if "formulation" in section:
         options["formulation"] = check.choice(section["formulation"], "solver.formulation", FORMULATIONS)
+    if "method" in section:
+        options["method"] = check.choice(section["method"], "solver.method", METHODS)
     if "update" in section:
         if not isinstance(section["update"], bool):
             raise check.error("solver.update", f"expected true or false, got {_show(section['update'])}")
@@ -573,6 +582,17 @@ def _parse_output(check: _Checker, data: dict, name: str) -> pathlib.Path:
 # ----------------------------------------------------------------------------------------------
 # public API
 # ----------------------------------------------------------------------------------------------
+def check_derivatives_linear(problem: Problem) -> None:
+    """Reject a time derivative multiplied by an unknown (``der(u)*u``): no solver handles it."""
+    for equation in problem.equations:
+        for monomial in equation.polynomial:
+            if len(monomial) >= 2 and any(atom.order > 0 for atom in monomial):
+                raise SpecError(
+                    f"{problem.source}: equations[{equation.index}]: term '{format_monomial(monomial, problem.time)}'"
+                    f" in '{equation.text}' multiplies a derivative by an unknown; der(...) must appear linearly"
+                )
+
+
 def check_linear(problem_or_equations: Problem | Iterable[Equation], *, source: str = "<string>") -> None:
     """Reject equations that are nonlinear in the unknowns (the linear solver's limit).
 
@@ -600,7 +620,7 @@ def check_linear(problem_or_equations: Problem | Iterable[Equation], *, source: 
                 )
 
 
-def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, allow_nonlinear: bool = False) -> Problem:
+def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, allow_nonlinear: bool = True) -> Problem:
     """Validate a YAML problem specification.
 
     Parameters
@@ -661,12 +681,13 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
         source_text=text,
         source=source,
     )
+    check_derivatives_linear(problem)
     if not allow_nonlinear:
         check_linear(problem)
     return problem
 
 
-def load_spec(path: str | pathlib.Path, *, allow_nonlinear: bool = False) -> Problem:
+def load_spec(path: str | pathlib.Path, *, allow_nonlinear: bool = True) -> Problem:
     """Read and validate a YAML problem file.
 
     Parameters

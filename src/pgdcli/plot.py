@@ -1,0 +1,859 @@
+"""Pictures of a codebook: modes, convergence, solution and error (``pgd plot``).
+
+Two layers, so that tests check numbers rather than pixels:
+
+- ``*_data`` functions compute what is drawn, as plain dicts of numpy arrays:
+  :func:`modes_data`, :func:`convergence_data`, :func:`solution_data`,
+  :func:`error_data`. Every array handed to matplotlib comes from them.
+- ``draw_*`` functions turn such a dict into a :class:`matplotlib.figure.Figure`;
+  ``plot_*`` do both (``plot_modes(codebook, ...) -> Figure``), and
+  :func:`render` does what ``pgd plot`` does: load, compute, draw, save.
+
+Figures are built as bare :class:`~matplotlib.figure.Figure` objects, never
+through ``matplotlib.pyplot``: no display, no GUI backend and no global state
+are involved (saving goes through matplotlib's Agg / SVG canvases), and
+importing this module does not change the backend of an interactive session.
+
+Conventions
+-----------
+- Curves ("lines" layout) run along the time coordinate, one per parameter
+  point; a point that leaves a non-time coordinate unset takes the midpoint of
+  its domain.
+- Maps ("map" layout) are drawn over two coordinates ``(x, y)``; every other
+  coordinate is fixed, by default at the midpoint of its domain.
+- The independent reference is :func:`pgdcli.reference.solve_reference`
+  (scipy ``solve_ivp``) on the spec embedded in the codebook; any callable
+  ``reference(params, times) -> result`` with ``result.values[unknown]`` of
+  shape ``(S, T)``, ``result.success`` (S,) and ``result.messages`` can be
+  passed instead.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from .errors import PgdError, QueryError
+
+__all__ = [
+    "KINDS",
+    "FORMATS",
+    "DEFAULT_DPI",
+    "modes_data",
+    "convergence_data",
+    "solution_data",
+    "error_data",
+    "draw_modes",
+    "draw_convergence",
+    "draw_solution",
+    "draw_error",
+    "plot_modes",
+    "plot_convergence",
+    "plot_solution",
+    "plot_error",
+    "reference_solver",
+    "parse_point",
+    "parse_over",
+    "parse_size",
+    "default_output",
+    "save_figure",
+    "render",
+]
+
+KINDS = ("modes", "convergence", "solution", "error")
+FORMATS = ("png", "svg")
+DEFAULT_DPI = 150
+DEFAULT_COUNT = 6
+LINE_POINTS = 201          # samples along a curve
+MAP_POINTS = 81            # samples per axis of a map
+REFERENCE_MARKERS = 21     # reference markers per curve (solution --reference)
+DEFAULT_AT_CURVES = 5      # curves along the first parameter when no --at is given
+
+# Okabe-Ito colors (color-blind safe), each paired with its own line style and marker so
+# that curves stay distinguishable in grayscale.
+_COLORS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000")
+_LINESTYLES = ("-", "--", "-.", ":", (0, (6, 2, 1, 2, 1, 2)), (0, (10, 3)), (0, (1, 3)))
+_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+_MAP_CMAP = "viridis"
+_ERROR_CMAP = "cividis"
+
+
+def _style(i: int) -> dict:
+    return {"color": _COLORS[i % len(_COLORS)], "linestyle": _LINESTYLES[i % len(_LINESTYLES)],
+            "marker": _MARKERS[i % len(_MARKERS)]}
+
+
+# ----------------------------------------------------------------------------------------------
+# argument parsing shared by the CLI and the Python API (errors name the option)
+# ----------------------------------------------------------------------------------------------
+def _describe(c) -> str:
+    return f"{c.name} in [{c.domain[0]:g}, {c.domain[1]:g}]"
+
+
+def _coordinate(codebook, name: str, option: str):
+    for c in codebook.coordinates:
+        if c.name == name:
+            return c
+    raise QueryError(f"{option}: unknown coordinate {name!r}; this codebook has "
+                     f"{', '.join(_describe(c) for c in codebook.coordinates)}")
+
+
+def _check_value(c, value: float, option: str) -> float:
+    low, high = c.domain
+    if not (math.isfinite(value) and low <= value <= high):
+        raise QueryError(f"{option} {c.name}={value:g}: outside the domain [{low:g}, {high:g}] of {c.name!r}")
+    return float(value)
+
+
+def parse_point(text: str | Mapping[str, float], codebook, option: str = "--at") -> dict[str, float]:
+    """``'k=3.2,c=0.1'`` (or a mapping) -> ``{'k': 3.2, 'c': 0.1}``, checked against the codebook.
+
+    Raises
+    ------
+    QueryError
+        Malformed text, a missing value, an unknown coordinate, a coordinate
+        given twice or a value outside its domain; the message names ``option``.
+    """
+    if isinstance(text, Mapping):
+        items = [(str(k), v) for k, v in text.items()]
+    else:
+        items = []
+        for part in str(text).split(","):
+            name, eq, value = part.partition("=")
+            name, value = name.strip(), value.strip()
+            if not eq or not name:
+                raise QueryError(f"{option}: expected NAME=VALUE[,NAME=VALUE...], got {str(text)!r}")
+            if not value:
+                raise QueryError(f"{option}: missing value for coordinate {name!r} (expected {name}=NUMBER)")
+            items.append((name, value))
+    out: dict[str, float] = {}
+    for name, value in items:
+        c = _coordinate(codebook, name, option)
+        if name in out:
+            raise QueryError(f"{option}: coordinate {name!r} given twice")
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise QueryError(f"{option} {name}={value}: not a number") from None
+        out[name] = _check_value(c, number, option)
+    return out
+
+
+def parse_over(text: str | Sequence[str], codebook) -> tuple[str, str]:
+    """``'k,t'`` -> ``('k', 't')``: the x and y axes of a map (two different coordinates)."""
+    names = [n.strip() for n in text.split(",")] if isinstance(text, str) else [str(n) for n in text]
+    if len(names) != 2 or not all(names) or names[0] == names[1]:
+        names_ = codebook.coordinate_names
+        example = f" (e.g. {names_[1]},{names_[0]})" if len(names_) >= 2 else ""
+        raise QueryError(f"--over: expected two different coordinate names X,Y{example}, got {text!r}")
+    for n in names:
+        _coordinate(codebook, n, "--over")
+    return names[0], names[1]
+
+
+def parse_size(text: str) -> tuple[float, float]:
+    """``'8x5'`` (inches) -> ``(8.0, 5.0)``."""
+    parts = str(text).lower().replace(",", "x").split("x")
+    try:
+        w, h = (float(p) for p in parts)
+    except ValueError:
+        raise QueryError(f"--size: expected WIDTHxHEIGHT in inches (e.g. 8x5), got {text!r}") from None
+    if not (0.5 <= w <= 100 and 0.5 <= h <= 100):
+        raise QueryError(f"--size: width and height must be between 0.5 and 100 inches, got {text!r}")
+    return w, h
+
+
+def _field(codebook, field: str | None) -> str:
+    if field is None:
+        return codebook.unknown_names[0]
+    if field not in codebook.fields:
+        raise QueryError(f"--field: unknown {field!r}; this codebook has {', '.join(codebook.unknown_names)}")
+    return field
+
+
+def _time(codebook, what: str):
+    for c in codebook.coordinates:
+        if c.role == "time":
+            return c
+    raise QueryError(f"{what} needs a time coordinate; this codebook has none "
+                     f"({', '.join(codebook.coordinate_names)})")
+
+
+def _midpoint(c) -> float:
+    return 0.5 * (c.domain[0] + c.domain[1])
+
+
+def _count_points(points: int | None, default: int, high: int = 100_000, option: str = "--points") -> int:
+    if points is None:
+        return default
+    if int(points) != points or not 2 <= points <= high:
+        raise QueryError(f"{option}: expected an integer from 2 to {high}, got {points}")
+    return int(points)
+
+
+def _label(point: Mapping[str, float]) -> str:
+    return ", ".join(f"{k}={v:g}" for k, v in point.items()) or "(no parameters)"
+
+
+# ----------------------------------------------------------------------------------------------
+# the independent reference
+# ----------------------------------------------------------------------------------------------
+def reference_solver(codebook, *, source: str = "<codebook>", method: str = "DOP853",
+                     rtol: float = 1e-12, atol: float = 1e-12) -> Callable:
+    """The independent reference for ``codebook``: ``solve(params, times) -> ReferenceResult``.
+
+    Re-parses the spec embedded in the codebook and integrates it with
+    :func:`pgdcli.reference.solve_reference` (scipy ``solve_ivp``).
+    """
+    from .spec import parse_spec
+
+    if not codebook.spec_text.strip():
+        raise PgdError(f"{source}: the codebook has no embedded spec; a reference solution needs one")
+    try:
+        from .reference import solve_reference
+    except ImportError as exc:  # pragma: no cover - only while pgdcli.reference is missing
+        raise PgdError(f"the reference solver is not available ({exc})") from None
+    problem = parse_spec(codebook.spec_text, source=source, allow_nonlinear=True)
+
+    def solve(params: Mapping[str, np.ndarray], times: np.ndarray):
+        return solve_reference(problem, dict(params), np.asarray(times, dtype=float),
+                               method=method, rtol=rtol, atol=atol)
+
+    solve.description = f"solve_ivp {method}, rtol={rtol:g}, atol={atol:g}"
+    return solve
+
+
+def _reference_values(reference: Callable, field: str, params: Mapping[str, np.ndarray],
+                      times: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Reference values (S, T) of ``field``; rows whose solve failed are NaN, with a message each."""
+    result = reference({k: np.asarray(v, dtype=float).reshape(-1) for k, v in params.items()}, times)
+    values = np.array(result.values[field], dtype=float, copy=True)
+    size = len(next(iter(params.values()))) if params else 1
+    values = values.reshape(size, len(times))
+    success = np.asarray(getattr(result, "success", np.ones(size, bool)), dtype=bool).reshape(-1)
+    messages = list(getattr(result, "messages", [""] * size) or [""] * size)
+    failures = []
+    for s in np.flatnonzero(~success):
+        values[s] = np.nan
+        where = _label({k: float(np.asarray(v).reshape(-1)[s]) for k, v in params.items()})
+        msg = messages[s] if s < len(messages) else ""
+        failures.append(f"reference failed at {where}: {' '.join(str(msg).split()) or 'unknown reason'}")
+    return values, failures
+
+
+def _reference_description(reference) -> str:
+    return getattr(reference, "description", "independent reference")
+
+
+# ----------------------------------------------------------------------------------------------
+# data
+# ----------------------------------------------------------------------------------------------
+def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *, points: int | None = None) -> dict:
+    """The first ``count`` stored modes of ``field`` per coordinate, on a fine grid.
+
+    Each coordinate's grid is ``points`` (default 201) equispaced samples of its
+    domain merged with the basis nodes, and the modes are evaluated there with the
+    codebook's own interpolant (``CoordinateInfo.basis().interpolation_matrix``), so
+    the curves pass through the stored nodal values.
+
+    Returns
+    -------
+    dict
+        ``kind``, ``problem``, ``field``, ``count`` (shown), ``rank`` (stored),
+        ``alphas`` (count,), and ``panels``: one dict per coordinate with
+        ``coordinate``, ``role``, ``domain``, ``x`` (P,), ``values`` (P, count),
+        ``nodes`` (n,) and ``node_values`` (n, count).
+    """
+    name = _field(codebook, field)
+    if int(count) != count or count < 1:
+        raise QueryError(f"--count: expected an integer >= 1, got {count}")
+    npts = _count_points(points, LINE_POINTS)
+    fm = codebook.fields[name]
+    n = min(int(count), fm.rank)
+    panels = []
+    for c, m in zip(codebook.coordinates, fm.modes):
+        basis = c.basis()
+        x = np.union1d(np.linspace(c.domain[0], c.domain[1], npts), basis.nodes)
+        panels.append({
+            "coordinate": c.name,
+            "role": c.role,
+            "domain": tuple(c.domain),
+            "x": x,
+            "values": basis.interpolation_matrix(x) @ m[:, :n],
+            "nodes": np.array(basis.nodes),
+            "node_values": np.array(m[:, :n]),
+        })
+    return {"kind": "modes", "problem": codebook.name, "field": name, "count": n, "rank": fm.rank,
+            "alphas": np.array(fm.alphas[:n]), "panels": panels}
+
+
+def convergence_data(codebook) -> dict:
+    """Relative residual against the number of modes, from the stored solver report.
+
+    Returns
+    -------
+    dict
+        ``modes`` (int array 0..n), ``residual`` (the report's ``residual_history``),
+        ``tolerance``, ``converged``, ``iterations`` (fixed-point iterations per mode
+        or None) and ``outer``: None, or ``{"iteration", "change"}`` from the report's
+        ``outer_history`` (nonlinear solvers: the outer iteration's change per
+        iteration).
+    """
+    rep = codebook.report
+    history = rep.get("residual_history")
+    if history is None or np.size(history) == 0:
+        raise PgdError(f"codebook {codebook.name!r} has no residual history in its solver report")
+    residual = np.asarray(history, dtype=float).reshape(-1)
+    iterations = rep.get("iterations")
+    outer = None
+    raw = rep.get("outer_history")
+    if raw is not None and np.size(raw) > 0:
+        change = np.asarray(raw, dtype=float).reshape(-1)
+        outer = {"iteration": np.arange(1, change.size + 1), "change": change}
+    return {
+        "kind": "convergence",
+        "problem": codebook.name,
+        "modes": np.arange(residual.size),
+        "residual": residual,
+        "tolerance": float(rep.get("tolerance", np.nan)),
+        "converged": bool(rep.get("converged", False)),
+        "iterations": None if iterations is None else np.asarray(iterations).reshape(-1),
+        "outer": outer,
+    }
+
+
+def _line_points(codebook, at, what: str) -> tuple[object, list[dict[str, float]]]:
+    """Complete ``--at`` points: every non-time coordinate set (default: domain midpoint)."""
+    tc = _time(codebook, what)
+    others = [c for c in codebook.coordinates if c is not tc]
+    if isinstance(at, (str, Mapping)):
+        at = [at]
+    if at is None or len(at) == 0:
+        if others:  # a few values of the first parameter, the others at their midpoints
+            first = others[0]
+            given = [{first.name: float(v)} for v in np.linspace(first.domain[0], first.domain[1],
+                                                                  DEFAULT_AT_CURVES)]
+        else:
+            given = [{}]
+    else:
+        given = [parse_point(p, codebook, "--at") for p in at]
+    points = []
+    for g in given:
+        if tc.name in g:
+            rest = ", ".join(c.name for c in others) or "nothing"
+            raise QueryError(f"--at: {tc.name!r} is the time axis of the curves; give only {rest}")
+        points.append({c.name: g.get(c.name, _midpoint(c)) for c in others})
+    return tc, points
+
+
+def _map_axes(codebook, over, fix, npts: int):
+    if over is None:
+        tc = _time(codebook, "a map without --over")
+        others = [c for c in codebook.coordinates if c is not tc]
+        if not others:
+            raise QueryError("--over: this codebook has a single coordinate; there is no map to draw")
+        xn, yn = tc.name, others[0].name
+    else:
+        xn, yn = parse_over(over, codebook)
+    fixed_given: dict[str, float] = {}
+    for f in ([] if fix is None else ([fix] if isinstance(fix, (str, Mapping)) else list(fix))):
+        for k, v in parse_point(f, codebook, "--fix").items():
+            if k in (xn, yn):
+                raise QueryError(f"--fix: {k!r} is an axis of the map (--over {xn},{yn}); fix only the others")
+            if k in fixed_given:
+                raise QueryError(f"--fix: coordinate {k!r} given twice")
+            fixed_given[k] = v
+    fixed = {c.name: fixed_given.get(c.name, _midpoint(c)) for c in codebook.coordinates if c.name not in (xn, yn)}
+    cx, cy = codebook.coordinate(xn), codebook.coordinate(yn)
+    xv = np.linspace(cx.domain[0], cx.domain[1], npts)
+    yv = np.linspace(cy.domain[0], cy.domain[1], npts)
+    return xn, yn, xv, yv, fixed
+
+
+def _map_coordinates(xn, yn, xv, yv, fixed) -> dict[str, np.ndarray]:
+    gx, gy = np.meshgrid(xv, yv, indexing="xy")  # (ny, nx): rows follow y, as matplotlib draws
+    coords = {xn: gx, yn: gy}
+    coords.update({k: np.full(gx.shape, v) for k, v in fixed.items()})
+    return coords
+
+
+def _map_reference(codebook, reference, field, xn, yn, xv, yv, fixed) -> tuple[np.ndarray, list[str]]:
+    """The reference on the map grid, shape (len(yv), len(xv))."""
+    tc = _time(codebook, "a reference solution")
+    if tc.name in (xn, yn):  # one solve per point of the other axis, all times at once
+        pn, pv, time_is_x = (yn, yv, True) if tc.name == xn else (xn, xv, False)
+        times = xv if time_is_x else yv
+        params = {pn: pv}
+        params.update({k: np.full(pv.size, v) for k, v in fixed.items() if k != tc.name})
+        values, failures = _reference_values(reference, field, params, times)  # (n_p, n_t)
+        return (values if time_is_x else values.T), failures
+    coords = _map_coordinates(xn, yn, xv, yv, fixed)
+    t = fixed[tc.name]
+    params = {k: v.reshape(-1) for k, v in coords.items() if k != tc.name}
+    values, failures = _reference_values(reference, field, params, np.array([t]))
+    return values.reshape(yv.size, xv.size), failures
+
+
+def solution_data(codebook, field: str | None = None, *, at=None, over=None, fix=None,
+                  points: int | None = None, reference=False) -> dict:
+    """The unknown ``field`` along time at parameter points (``at``) or over two coordinates (``over``).
+
+    Parameters
+    ----------
+    at : sequence of str or mapping, optional
+        Points such as ``'k=3.2,c=0.1'``; unspecified non-time coordinates take
+        their domain midpoints. Default: 5 values spanning the first parameter.
+    over : str or (str, str), optional
+        ``'k,t'``: a map with ``k`` along x and ``t`` along y.
+    fix : str or sequence, optional
+        ``'c=0.3'`` for the coordinates that are not axes of the map (default midpoints).
+    points : int, optional
+        Samples along each curve (201) or per map axis (81).
+    reference : bool or callable
+        True: add the independent reference (markers at 21 times per curve, or
+        the map on the same grid); a callable is used as the reference solver.
+
+    Returns
+    -------
+    dict
+        ``layout`` 'lines': ``time``, ``t`` (T,), ``points`` (list of dicts),
+        ``labels``, ``values`` (P, T) = codebook values; ``reference`` None or
+        ``{"t", "values" (P, Tr), "description"}``.
+        ``layout`` 'map': ``x``, ``y`` (names), ``xv`` (nx,), ``yv`` (ny,),
+        ``fixed``, ``values`` (ny, nx); ``reference`` None or ``{"values", "description"}``.
+        Both: ``kind``, ``problem``, ``field``, ``failures`` (reference failures).
+    """
+    name = _field(codebook, field)
+    if at and over is not None:
+        raise QueryError("--at and --over: give curves (--at) or a map (--over), not both")
+    ref = None
+    if reference is True:
+        ref = reference_solver(codebook)
+    elif callable(reference):
+        ref = reference
+    out = {"kind": "solution", "problem": codebook.name, "field": name, "failures": [], "reference": None}
+    if over is None and fix:
+        raise QueryError("--fix applies to maps (--over X,Y); curves take their parameters from --at")
+    if over is None:
+        tc, pts = _line_points(codebook, at, "curves along time")
+        t = np.linspace(tc.domain[0], tc.domain[1], _count_points(points, LINE_POINTS))
+        values = np.array([codebook.evaluate({**p, tc.name: t}, fields=[name])[name] for p in pts])
+        out.update(layout="lines", time=tc.name, t=t, points=pts, labels=[_label(p) for p in pts], values=values)
+        if ref is not None:
+            tr = np.linspace(tc.domain[0], tc.domain[1], REFERENCE_MARKERS)
+            params = {k: np.array([p[k] for p in pts]) for k in pts[0]} if pts and pts[0] else {}
+            rv, failures = _reference_values(ref, name, params, tr)
+            out["reference"] = {"t": tr, "values": rv, "description": _reference_description(ref)}
+            out["failures"] = failures
+        return out
+    npts = _count_points(points, MAP_POINTS, 1000)
+    xn, yn, xv, yv, fixed = _map_axes(codebook, over, fix, npts)
+    values = codebook.evaluate(_map_coordinates(xn, yn, xv, yv, fixed), fields=[name])[name]
+    out.update(layout="map", x=xn, y=yn, xv=xv, yv=yv, fixed=fixed, values=values)
+    if ref is not None:
+        rv, failures = _map_reference(codebook, ref, name, xn, yn, xv, yv, fixed)
+        out["reference"] = {"values": rv, "description": _reference_description(ref)}
+        out["failures"] = failures
+    return out
+
+
+def error_data(codebook, field: str | None = None, *, at=None, over=None, fix=None,
+               points: int | None = None, reference=None) -> dict:
+    """Absolute error ``|codebook - reference|`` of ``field`` along time (``at``) or over a map.
+
+    Without ``at`` the default is a map over (time, first parameter), the other
+    coordinates at their domain midpoints. ``reference`` is a callable like
+    :func:`reference_solver`'s result (default: that reference).
+
+    Returns
+    -------
+    dict
+        As :func:`solution_data` (``layout`` 'lines' or 'map'), with ``values`` the
+        absolute error, ``codebook`` and ``reference`` the two solutions on the same
+        grid, ``description`` naming the reference, and ``max`` the largest error
+        with ``argmax`` (the coordinates where it occurs).
+    """
+    name = _field(codebook, field)
+    if at and over is not None:
+        raise QueryError("--at and --over: give curves (--at) or a map (--over), not both")
+    if at and fix:
+        raise QueryError("--fix applies to maps (--over X,Y); curves take their parameters from --at")
+    ref = reference_solver(codebook) if reference is None or reference is True else reference
+    out = {"kind": "error", "problem": codebook.name, "field": name, "description": _reference_description(ref)}
+    single = over is None and len(codebook.coordinates) == 1
+    if at or single:
+        tc, pts = _line_points(codebook, at, "error curves along time")
+        t = np.linspace(tc.domain[0], tc.domain[1], _count_points(points, LINE_POINTS))
+        cbv = np.array([codebook.evaluate({**p, tc.name: t}, fields=[name])[name] for p in pts])
+        params = {k: np.array([p[k] for p in pts]) for k in pts[0]} if pts[0] else {}
+        rv, failures = _reference_values(ref, name, params, t)
+        err = np.abs(cbv - rv)
+        out.update(layout="lines", time=tc.name, t=t, points=pts, labels=[_label(p) for p in pts],
+                   codebook=cbv, reference=rv, values=err, failures=failures)
+        if np.isfinite(err).any():
+            i, j = np.unravel_index(np.nanargmax(err), err.shape)
+            out.update(max=float(err[i, j]), argmax={**pts[i], tc.name: float(t[j])})
+        else:
+            out.update(max=float("nan"), argmax=None)
+        return out
+    npts = _count_points(points, MAP_POINTS, 1000)
+    xn, yn, xv, yv, fixed = _map_axes(codebook, over, fix, npts)
+    cbv = codebook.evaluate(_map_coordinates(xn, yn, xv, yv, fixed), fields=[name])[name]
+    rv, failures = _map_reference(codebook, ref, name, xn, yn, xv, yv, fixed)
+    err = np.abs(cbv - rv)
+    out.update(layout="map", x=xn, y=yn, xv=xv, yv=yv, fixed=fixed, codebook=cbv, reference=rv, values=err,
+               failures=failures)
+    if np.isfinite(err).any():
+        j, i = np.unravel_index(np.nanargmax(err), err.shape)
+        out.update(max=float(err[j, i]), argmax={xn: float(xv[i]), yn: float(yv[j]), **fixed})
+    else:
+        out.update(max=float("nan"), argmax=None)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# drawing
+# ----------------------------------------------------------------------------------------------
+def _new_figure(fig, figsize):
+    if fig is not None:
+        return fig
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=figsize, dpi=DEFAULT_DPI, layout="constrained")
+
+
+def _title(fig, data: dict, what: str) -> None:
+    fig.suptitle(f"{data['problem']}: {what}", fontsize="large")
+
+
+def _fixed_note(fixed: Mapping[str, float]) -> str:
+    return f" ({_label(fixed)})" if fixed else ""
+
+
+def draw_modes(data: dict, *, fig=None, figsize=None):
+    """Figure of :func:`modes_data`: one panel per coordinate, one curve per mode."""
+    panels = data["panels"]
+    npan = len(panels)
+    ncols = npan if npan <= 3 else (2 if npan == 4 else 3)
+    nrows = math.ceil(npan / ncols)
+    fig = _new_figure(fig, figsize or (3.6 * ncols + 1.4, 2.9 * nrows + 0.6))
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    field = data["field"]
+    for ax, panel in zip(axes, panels):
+        x, vals = panel["x"], panel["values"]
+        step = max(1, x.size // 8)
+        for i in range(vals.shape[1]):
+            st = _style(i)
+            ax.plot(x, vals[:, i], color=st["color"], linestyle=st["linestyle"], marker=st["marker"],
+                    markersize=4.5, markerfacecolor="white", markevery=(i * step // max(vals.shape[1], 1), step),
+                    linewidth=1.6, label=f"mode {i + 1} (\u03b1={data['alphas'][i]:.3g})")
+        ax.axhline(0.0, color="0.6", linewidth=0.6, zorder=0)
+        # the basis nodes as a rug along the bottom: where the stored values live
+        ax.plot(panel["nodes"], np.zeros(panel["nodes"].size), linestyle="none", marker=2, markersize=6,
+                color="0.35", transform=ax.get_xaxis_transform(), clip_on=False, label="_nodes")
+        role = "time, " if panel["role"] == "time" else ""
+        ax.set_xlabel(f"{panel['coordinate']}  ({role}{panel['nodes'].size} nodes: ticks on the axis)")
+        ax.set_ylabel(f"modes of {field} in {panel['coordinate']}")
+        ax.set_xlim(*panel["domain"])
+        ax.grid(True, linewidth=0.4, alpha=0.5)
+    for ax in axes[npan:]:
+        ax.set_visible(False)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right upper", fontsize="small", title=f"{field}: {data['rank']} modes")
+    _title(fig, data, f"first {data['count']} modes of {field}")
+    return fig
+
+
+def draw_convergence(data: dict, *, fig=None, figsize=None):
+    """Figure of :func:`convergence_data`: residual (log) per mode, and the outer iteration if recorded."""
+    outer = data["outer"]
+    fig = _new_figure(fig, figsize or ((10.0, 4.2) if outer is not None else (6.4, 4.2)))
+    axes = fig.subplots(1, 2 if outer is not None else 1, squeeze=False).ravel()
+    ax = axes[0]
+    res = np.where(data["residual"] > 0, data["residual"], np.nan)
+    ax.semilogy(data["modes"], res, color=_COLORS[0], linestyle="-", marker="o", markersize=4,
+                markerfacecolor="white", linewidth=1.6, label="relative residual")
+    tol = data["tolerance"]
+    if math.isfinite(tol) and tol > 0:
+        ax.axhline(tol, color="0.25", linestyle="--", linewidth=1.0, label=f"tolerance {tol:.1e}")
+    ax.set_xlabel("number of modes")
+    ax.set_ylabel("relative residual")
+    ax.xaxis.get_major_locator().set_params(integer=True)
+    ax.grid(True, which="both", linewidth=0.4, alpha=0.5)
+    ax.legend(fontsize="small")
+    state = "converged" if data["converged"] else "not converged"
+    ax.set_title(f"{data['modes'][-1]} enrichment modes, {state}", fontsize="medium")
+    if outer is not None:
+        ax2 = axes[1]
+        change = np.where(outer["change"] > 0, outer["change"], np.nan)
+        ax2.semilogy(outer["iteration"], change, color=_COLORS[1], linestyle="--", marker="s", markersize=4,
+                     markerfacecolor="white", linewidth=1.6)
+        ax2.set_xlabel("outer iteration")
+        ax2.set_ylabel("change per iteration")
+        ax2.xaxis.get_major_locator().set_params(integer=True)
+        ax2.grid(True, which="both", linewidth=0.4, alpha=0.5)
+        ax2.set_title("outer (nonlinear) iteration", fontsize="medium")
+    _title(fig, data, "convergence")
+    return fig
+
+
+def _draw_lines(ax, data: dict, *, markers: bool) -> None:
+    t, vals = data["t"], data["values"]
+    step = max(1, t.size // 10)
+    for i, label in enumerate(data["labels"]):
+        st = _style(i)
+        kw = dict(marker=st["marker"], markersize=4.5, markerfacecolor="white",
+                  markevery=(i * step // max(len(data["labels"]), 1), step)) if markers else {}
+        ax.plot(t, vals[i], color=st["color"], linestyle=st["linestyle"], linewidth=1.6, label=label, **kw)
+
+
+def _map_mesh(ax, fig, data: dict, z, *, cmap: str, norm=None, label: str):
+    mesh = ax.pcolormesh(data["xv"], data["yv"], z, cmap=cmap, norm=norm, shading="nearest", rasterized=True)
+    fig.colorbar(mesh, ax=ax, label=label, extend="min" if norm is not None else "neither")
+    ax.set_xlabel(data["x"])
+    ax.set_ylabel(data["y"])
+    return mesh
+
+
+def draw_solution(data: dict, *, fig=None, figsize=None):
+    """Figure of :func:`solution_data`: curves along time, or a heat map (reference as markers / contours)."""
+    from matplotlib.lines import Line2D
+
+    field = data["field"]
+    ref = data.get("reference")
+    if data["layout"] == "lines":
+        fig = _new_figure(fig, figsize or (8.4, 4.6))
+        ax = fig.subplots()
+        _draw_lines(ax, data, markers=ref is None)
+        if ref is not None:
+            for i in range(len(data["labels"])):
+                st = _style(i)
+                ax.plot(ref["t"], ref["values"][i], linestyle="none", marker=st["marker"], markersize=6,
+                        markerfacecolor="none", markeredgecolor=st["color"], markeredgewidth=1.1)
+            handles, labels = ax.get_legend_handles_labels()
+            handles.append(Line2D([], [], linestyle="none", marker="s", markerfacecolor="none",
+                                  markeredgecolor="0.2", markersize=6))
+            labels.append("reference (open markers)")
+            handles.insert(0, Line2D([], [], color="0.2", linewidth=1.6))
+            labels.insert(0, "PGD codebook")
+            fig.legend(handles, labels, fontsize="small", loc="outside right upper")
+            ax.set_title(f"markers: reference ({ref['description']})", fontsize="small", pad=8)
+        else:
+            fig.legend(*ax.get_legend_handles_labels(), fontsize="small", loc="outside right upper")
+        ax.set_xlabel(data["time"])
+        ax.set_ylabel(field)
+        ax.set_xlim(data["t"][0], data["t"][-1])
+        ax.grid(True, linewidth=0.4, alpha=0.5)
+        _title(fig, data, f"{field} against {data['time']}")
+        return fig
+    fig = _new_figure(fig, figsize or (7.0, 5.2))
+    ax = fig.subplots()
+    _map_mesh(ax, fig, data, data["values"], cmap=_MAP_CMAP, label=field)
+    if ref is not None:
+        z = data["values"]
+        levels = np.linspace(np.nanmin(z), np.nanmax(z), 9)[1:-1]
+        if levels.size and np.ptp(levels) > 0:
+            ax.contour(data["xv"], data["yv"], z, levels=levels, colors="black", linewidths=1.4)
+            ax.contour(data["xv"], data["yv"], ref["values"], levels=levels, colors="white", linewidths=1.0,
+                       linestyles="--")
+        ax.legend([Line2D([], [], color="black", linewidth=1.4), Line2D([], [], color="white", linestyle="--")],
+                  ["PGD codebook (contours)", f"reference ({ref['description']})"], fontsize="small",
+                  loc="upper right", facecolor="0.75", framealpha=0.9)
+    _title(fig, data, f"{field} over {data['x']}, {data['y']}{_fixed_note(data['fixed'])}")
+    return fig
+
+
+def draw_error(data: dict, *, fig=None, figsize=None):
+    """Figure of :func:`error_data`: |error| along time (log axis) or as a log-scaled heat map."""
+    from matplotlib.colors import LogNorm
+
+    field = data["field"]
+    what = f"|{field} \u2212 {field}_ref|"
+    if data["layout"] == "lines":
+        fig = _new_figure(fig, figsize or (8.4, 4.6))
+        ax = fig.subplots()
+        shown = dict(data)
+        shown["values"] = np.where(data["values"] > 0, data["values"], np.nan)  # log axis: exact zeros omitted
+        shown["labels"] = [f"{lab} (max {np.nanmax(v) if np.isfinite(v).any() else float('nan'):.2g})"
+                           for lab, v in zip(data["labels"], data["values"])]
+        _draw_lines(ax, shown, markers=True)
+        ax.set_yscale("log")
+        ax.set_xlabel(data["time"])
+        ax.set_ylabel(f"absolute error {what}")
+        ax.set_xlim(data["t"][0], data["t"][-1])
+        ax.grid(True, which="both", linewidth=0.4, alpha=0.5)
+        fig.legend(*ax.get_legend_handles_labels(), fontsize="small", loc="outside right upper")
+        ax.set_title(f"reference: {data['description']}", fontsize="small", pad=8)
+        _title(fig, data, f"error of {field} against {data['time']}")
+        return fig
+    fig = _new_figure(fig, figsize or (7.0, 5.2))
+    ax = fig.subplots()
+    z = data["values"]
+    positive = z[np.isfinite(z) & (z > 0)]
+    if positive.size:
+        vmax = float(positive.max())
+        vmin = max(float(positive.min()), vmax * 1e-5)  # five decades: rounding-level zeros clip
+        if vmin >= vmax:
+            vmin = vmax / 10.0
+        shown = np.clip(np.where(np.isfinite(z), z, np.nan), vmin, vmax)
+        _map_mesh(ax, fig, data, shown, cmap=_ERROR_CMAP, norm=LogNorm(vmin=vmin, vmax=vmax),
+                  label=f"absolute error {what}")
+    else:  # identical everywhere (or the reference failed everywhere)
+        _map_mesh(ax, fig, data, np.where(np.isfinite(z), z, np.nan), cmap=_ERROR_CMAP,
+                  label=f"absolute error {what}")
+    if data.get("argmax"):
+        am = data["argmax"]
+        ax.plot([am[data["x"]]], [am[data["y"]]], linestyle="none", marker="X", markersize=10,
+                markerfacecolor="white", markeredgecolor="black", label=f"max {data['max']:.2g}", clip_on=False,
+                zorder=5)
+        ax.legend(fontsize="small", loc="upper right", framealpha=0.9)
+    ax.set_title(f"reference: {data['description']}", fontsize="small", pad=10)
+    _title(fig, data, f"error of {field} over {data['x']}, {data['y']}{_fixed_note(data['fixed'])}")
+    return fig
+
+
+def plot_modes(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *, points=None, fig=None,
+               figsize=None):
+    """:func:`modes_data` drawn by :func:`draw_modes`; returns the Figure."""
+    return draw_modes(modes_data(codebook, count, field, points=points), fig=fig, figsize=figsize)
+
+
+def plot_convergence(codebook, *, fig=None, figsize=None):
+    """:func:`convergence_data` drawn by :func:`draw_convergence`; returns the Figure."""
+    return draw_convergence(convergence_data(codebook), fig=fig, figsize=figsize)
+
+
+def plot_solution(codebook, field: str | None = None, *, fig=None, figsize=None, **options):
+    """:func:`solution_data` drawn by :func:`draw_solution`; returns the Figure."""
+    return draw_solution(solution_data(codebook, field, **options), fig=fig, figsize=figsize)
+
+
+def plot_error(codebook, field: str | None = None, *, fig=None, figsize=None, **options):
+    """:func:`error_data` drawn by :func:`draw_error`; returns the Figure."""
+    return draw_error(error_data(codebook, field, **options), fig=fig, figsize=figsize)
+
+
+# ----------------------------------------------------------------------------------------------
+# files
+# ----------------------------------------------------------------------------------------------
+def default_output(codebook_path: str | os.PathLike, kind: str) -> Path:
+    """``<directory of the codebook>/<codebook stem>-<kind>.png``."""
+    p = Path(codebook_path)
+    return p.with_name(f"{p.stem}-{kind}.png")
+
+
+def _format(path: Path) -> str:
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in FORMATS:
+        raise PgdError(f"--output {path}: unsupported file type {path.suffix or '(no suffix)'!r}; "
+                       f"expected a .png or .svg file")
+    return fmt
+
+
+def save_figure(fig, path: str | os.PathLike, *, dpi: int = DEFAULT_DPI) -> Path:
+    """Write ``fig`` as PNG or SVG (by the suffix of ``path``), atomically; returns the path.
+
+    The image is ``figsize * dpi`` pixels (PNG) or ``figsize * 72`` points (SVG);
+    no tight bounding box, so the size is exactly the figure's.
+    """
+    import tempfile
+
+    import matplotlib
+
+    path = Path(path)
+    fmt = _format(path)
+    if path.is_dir():
+        raise PgdError(f"--output {path}: is a directory, expected a .png or .svg file name")
+    if not path.parent.is_dir():
+        raise PgdError(f"--output {path}: directory {str(path.parent)!r} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    # reproducible files: no timestamps, fixed SVG ids
+    metadata = {"Date": None} if fmt == "svg" else {"Software": None}
+    try:
+        with matplotlib.rc_context({"svg.hashsalt": "pgdcli", "svg.fonttype": "path"}):
+            fig.savefig(tmp, format=fmt, dpi=dpi, metadata=metadata)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; an image gets the usual permissions
+        os.replace(tmp, path)
+    except OSError as exc:
+        _unlink(tmp)
+        raise PgdError(f"--output {path}: cannot write ({exc.strerror or exc})") from None
+    except BaseException:
+        _unlink(tmp)
+        raise
+    return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _unlink(p: str) -> None:
+    try:
+        os.unlink(p)
+    except FileNotFoundError:
+        pass
+
+
+_APPLIES = {
+    "modes": {"--count", "--points", "--field"},
+    "convergence": set(),
+    "solution": {"--at", "--over", "--fix", "--reference", "--points", "--field"},
+    "error": {"--at", "--over", "--fix", "--points", "--field"},
+}
+
+
+def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | os.PathLike | None = None, *,
+           field: str | None = None, count: int | None = None, at: Iterable[str] | None = None,
+           over: str | None = None, fix: Iterable[str] | None = None, reference: bool = False,
+           points: int | None = None, dpi: int = DEFAULT_DPI, size: str | tuple[float, float] | None = None,
+           warn: Callable[[str], None] | None = None) -> Path:
+    """What ``pgd plot`` does: load the codebook, compute, draw and save; returns the written path.
+
+    Options that do not apply to ``kind`` raise :class:`QueryError` (naming
+    the option) rather than being ignored. ``warn`` receives reference
+    failures (one line each).
+    """
+    from .codebook import Codebook
+
+    if kind not in KINDS:
+        raise QueryError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+    target = Path(output) if output is not None else default_output(codebook_path, kind)
+    _format(target)  # before any work
+    if int(dpi) != dpi or not 10 <= dpi <= 1200:
+        raise QueryError(f"--dpi: expected an integer between 10 and 1200, got {dpi}")
+    figsize = parse_size(size) if isinstance(size, str) else (tuple(size) if size is not None else None)
+    at = list(at or [])
+    fix = list(fix or [])
+    given = {"--count": count is not None, "--at": bool(at), "--over": over is not None, "--fix": bool(fix),
+             "--reference": bool(reference), "--points": points is not None, "--field": field is not None}
+    for opt, present in given.items():
+        if present and opt not in _APPLIES[kind]:
+            applies = [k for k, a in _APPLIES.items() if opt in a]
+            note = " (error plots always compare with the reference)" if opt == "--reference" else ""
+            raise QueryError(f"{opt} does not apply to --kind {kind}; it is for --kind {' and '.join(applies)}{note}")
+    cb = Codebook.load(codebook_path)
+    if kind == "modes":
+        data = modes_data(cb, DEFAULT_COUNT if count is None else count, field, points=points)
+        fig = draw_modes(data, figsize=figsize)
+    elif kind == "convergence":
+        data = convergence_data(cb)
+        fig = draw_convergence(data, figsize=figsize)
+    elif kind == "solution":
+        ref = reference_solver(cb, source=str(codebook_path)) if reference else False
+        data = solution_data(cb, field, at=at, over=over, fix=fix, points=points, reference=ref)
+        fig = draw_solution(data, figsize=figsize)
+    else:
+        ref = reference_solver(cb, source=str(codebook_path))
+        data = error_data(cb, field, at=at, over=over, fix=fix, points=points, reference=ref)
+        fig = draw_error(data, figsize=figsize)
+    if warn is not None:
+        for message in data.get("failures", []):
+            warn(message)
+    return save_figure(fig, target, dpi=dpi)

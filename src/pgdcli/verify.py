@@ -1,0 +1,566 @@
+"""Check a codebook against an independent reference (``pgd verify``).
+
+The problem stored in the codebook (its embedded spec) is integrated again
+with scipy's ``solve_ivp`` (:mod:`pgdcli.reference`, which shares no code with
+the PGD solver) at sample points of the parameter box, and the codebook is
+compared with it at every time node of the codebook's time grid plus random
+times.
+
+Sample points: ``samples`` scrambled Sobol (or Latin hypercube) points of the
+parameter box, plus all ``2**m`` corners of the box (at most
+:data:`MAX_CORNERS`; beyond that a seeded random subset of corners), or the
+points of a CSV file instead.
+
+Figures, per unknown ``u``, over every successful sample point and time:
+
+- ``max_abs_error = max |u_codebook - u_reference|``
+- ``reference_scale = max |u_reference|``
+- ``max_rel_error = max_abs_error / reference_scale`` (relative to the
+  unknown's magnitude, not pointwise: a pointwise ratio explodes where the
+  solution crosses zero)
+- ``rms_error = sqrt(mean((u_codebook - u_reference)**2))``
+- ``where``: all coordinates (time included) of the largest error.
+
+See ``docs/verify.md`` for the JSON schema.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import sys
+import time as _time
+import types
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from .errors import CodebookError, PgdError
+
+__all__ = ["verify", "VerifyReport", "UnknownErrors", "Failure", "VerifyError", "MAX_CORNERS", "SAMPLINGS"]
+
+#: Most corners of the parameter box that are checked (a random subset beyond).
+MAX_CORNERS = 1024
+SAMPLINGS = ("sobol", "lhs")
+# codebook evaluations per block (bounds memory of the interpolation matrices)
+_EVAL_BLOCK = 100_000
+
+
+class VerifyError(PgdError):
+    """Invalid verification request (options, points file)."""
+
+
+@dataclass
+class UnknownErrors:
+    """Error figures of one unknown (see the module docstring for the definitions).
+
+    NaN when no sample point could be integrated.
+    """
+
+    max_abs_error: float
+    max_rel_error: float
+    rms_error: float
+    reference_scale: float
+    where: dict[str, float]
+    codebook_value: float
+    reference_value: float
+
+    def to_dict(self) -> dict:
+        return {
+            "max_abs_error": _json_float(self.max_abs_error),
+            "max_rel_error": _json_float(self.max_rel_error),
+            "rms_error": _json_float(self.rms_error),
+            "reference_scale": _json_float(self.reference_scale),
+            "where": {k: _json_float(v) for k, v in self.where.items()},
+            "codebook_value": _json_float(self.codebook_value),
+            "reference_value": _json_float(self.reference_value),
+        }
+
+
+@dataclass
+class Failure:
+    """A parameter point where the reference integration failed."""
+
+    point: dict[str, float]
+    message: str
+
+    def to_dict(self) -> dict:
+        return {"point": {k: float(v) for k, v in self.point.items()}, "message": self.message}
+
+
+@dataclass
+class VerifyReport:
+    """Outcome of :func:`verify`.
+
+    Attributes
+    ----------
+    codebook : str or None
+        Path of the codebook file (None for an in-memory codebook).
+    problem : str
+        Problem name.
+    time : str
+        Name of the time coordinate.
+    coordinates : list of str
+        All coordinates, codebook order.
+    unknowns : dict of str to UnknownErrors
+    failures : list of Failure
+    settings : dict
+        Sampling and integration settings (the JSON ``settings`` object).
+    max_error, max_rel_error : float or None
+        The gate given to :func:`verify` (used by :meth:`to_dict`).
+    samples : dict of str to ndarray, shape (S,)
+        The parameter points.
+    times : ndarray, shape (T,)
+        The times (sorted).
+    reference, codebook_values : dict of str to ndarray, shape (S, T)
+        Reference (NaN at failed points) and codebook values.
+    wall_time : float
+        Seconds.
+    """
+
+    codebook: str | None
+    problem: str
+    time: str
+    coordinates: list[str]
+    unknowns: dict[str, UnknownErrors]
+    failures: list[Failure]
+    settings: dict
+    max_error: float | None = None
+    max_rel_error: float | None = None
+    samples: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    reference: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    codebook_values: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    wall_time: float = 0.0
+
+    @property
+    def n_points(self) -> int:
+        """Parameter points checked (including failed ones)."""
+        return int(self.settings.get("parameter_points", 0))
+
+    def violations(self, max_error: float | None = None, max_rel_error: float | None = None) -> list[str]:
+        """Reasons the check fails (empty when it passes), one line each."""
+        reasons = []
+        if self.failures:
+            first = self.failures[0]
+            reasons.append(
+                f"the reference integration failed at {len(self.failures)} of {self.n_points} parameter point(s)"
+                f" (first: {_format_point(first.point)}: {first.message})"
+            )
+        for name, stats in self.unknowns.items():
+            if max_error is not None and not stats.max_abs_error <= max_error:
+                reasons.append(f"{name}: max abs error {stats.max_abs_error:.3e} > {max_error:.3e}"
+                               f" at {_format_point(stats.where)}")
+            if max_rel_error is not None and not stats.max_rel_error <= max_rel_error:
+                reasons.append(f"{name}: max rel error {stats.max_rel_error:.3e} > {max_rel_error:.3e}"
+                               f" at {_format_point(stats.where)}")
+        return reasons
+
+    def passed(self, max_error: float | None = None, max_rel_error: float | None = None) -> bool:
+        """True when every reference integration succeeded and the given tolerances hold.
+
+        Parameters
+        ----------
+        max_error : float, optional
+            Largest allowed absolute error of every unknown.
+        max_rel_error : float, optional
+            Largest allowed relative error (``max_abs_error / reference_scale``).
+        """
+        return not self.violations(max_error, max_rel_error)
+
+    def to_dict(self) -> dict:
+        """The JSON report (``pgd verify --format json``); keys in docs/verify.md."""
+        return {
+            "codebook": self.codebook,
+            "problem": self.problem,
+            "passed": self.passed(self.max_error, self.max_rel_error),
+            "gate": {"max_error": self.max_error, "max_rel_error": self.max_rel_error},
+            "settings": dict(self.settings),
+            "unknowns": {name: stats.to_dict() for name, stats in self.unknowns.items()},
+            "failures": {"count": len(self.failures), "points": [f.to_dict() for f in self.failures]},
+            "wall_time": float(self.wall_time),
+        }
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------
+def _json_float(value: float) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _format_point(point: Mapping[str, float]) -> str:
+    return ", ".join(f"{k}={float(v):.6g}" for k, v in point.items()) or "(no parameters)"
+
+
+def _check_int(name: str, value, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise VerifyError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def _check_tolerance(name: str, value) -> float | None:
+    if value is None:
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise VerifyError(f"{name} must be a number >= 0, got {value!r}") from None
+    if not (math.isfinite(number) and number >= 0):
+        raise VerifyError(f"{name} must be a finite number >= 0, got {value!r}")
+    return number
+
+
+def _parse_problem(cb, source: str):
+    from .spec import parse_spec
+
+    if not cb.spec_text.strip():
+        raise CodebookError(f"{source}: the codebook holds no problem spec; it cannot be verified")
+    try:
+        problem = parse_spec(cb.spec_text, source=source, allow_nonlinear=True)
+    except TypeError:  # pragma: no cover - a parse_spec without allow_nonlinear
+        problem = parse_spec(cb.spec_text, source=source)
+    spec_coords = [(c.name, tuple(map(float, c.domain))) for c in problem.coordinates]
+    cb_coords = [(c.name, tuple(map(float, c.domain))) for c in cb.coordinates]
+    if spec_coords != cb_coords:
+        raise CodebookError(f"{source}: the embedded spec's coordinates {spec_coords} do not match the codebook's "
+                            f"{cb_coords}")
+    missing = [u for u in problem.unknown_names if u not in cb.fields]
+    if missing:
+        raise CodebookError(f"{source}: the codebook lacks the unknown(s) {', '.join(missing)} of its spec")
+    return problem
+
+
+def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
+    """Parameter points from a CSV file whose header names the non-time coordinates.
+
+    Raises
+    ------
+    VerifyError
+        Unreadable file, unknown/missing/time column, non-numbers, points
+        outside the domain, no rows.
+    """
+    source = str(path)
+    names = [c.name for c in problem.parameter_coordinates]
+    try:
+        with open(path, newline="", encoding="utf-8") as handle:
+            rows = list(csv.reader(handle))
+    except FileNotFoundError:
+        raise VerifyError(f"{source}: no such points file") from None
+    except IsADirectoryError:
+        raise VerifyError(f"{source}: is a directory, expected a CSV points file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise VerifyError(f"{source}: cannot read points file ({' '.join(str(exc).split())})") from None
+    if not rows:
+        raise VerifyError(f"{source}: empty points file; expected a CSV header naming {', '.join(names)}")
+    header = [h.strip() for h in rows[0]]
+    for h in header:
+        if h == problem.time:
+            raise VerifyError(f"{source}: column {h!r} is the time coordinate; the points give the parameters "
+                              f"({', '.join(names)}) and times are chosen by verify")
+        if h not in names:
+            raise VerifyError(f"{source}: unknown column {h!r}; expected the parameter coordinates "
+                              f"{', '.join(names) or '(none)'}")
+    if len(set(header)) != len(header):
+        raise VerifyError(f"{source}: a column is repeated in the header {','.join(header)}")
+    missing = [n for n in names if n not in header]
+    if missing:
+        raise VerifyError(f"{source}: missing column(s) {', '.join(missing)}")
+    data = []
+    for line, row in enumerate(rows[1:], start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        if len(row) != len(header):
+            raise VerifyError(f"{source}: line {line}: expected {len(header)} values, got {len(row)}")
+        try:
+            values = [float(cell) for cell in row]
+        except ValueError:
+            raise VerifyError(f"{source}: line {line}: not a number in {','.join(row)!r}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise VerifyError(f"{source}: line {line}: values must be finite")
+        data.append(values)
+    if not data:
+        raise VerifyError(f"{source}: no points (only a header)")
+    array = np.array(data, dtype=float).reshape(-1, len(header))
+    points = {h: array[:, i] for i, h in enumerate(header)}
+    _check_points_domain(points, problem, source)
+    return {n: points[n] for n in names}
+
+
+def _check_points_domain(points: Mapping[str, np.ndarray], problem, source: str) -> None:
+    for c in problem.parameter_coordinates:
+        low, high = c.domain
+        values = points[c.name]
+        bad = ~((values >= low) & (values <= high))
+        if bad.any():
+            raise VerifyError(f"{source}: coordinate {c.name!r}: value {float(values[bad][0])!r} is outside the "
+                              f"domain [{low:g}, {high:g}]")
+
+
+def _sample_box(problem, n: int, sampling: str, seed: int) -> dict[str, np.ndarray]:
+    from scipy.stats import qmc
+
+    coords = problem.parameter_coordinates
+    m = len(coords)
+    if sampling == "sobol":
+        engine = qmc.Sobol(d=m, scramble=True, seed=seed)
+    else:
+        engine = qmc.LatinHypercube(d=m, seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Sobol: "balance properties" when n is not a power of 2
+        unit = engine.random(n)
+    low = np.array([c.domain[0] for c in coords])
+    high = np.array([c.domain[1] for c in coords])
+    box = low + unit * (high - low)
+    box = np.minimum(np.maximum(box, low), high)
+    return {c.name: box[:, j] for j, c in enumerate(coords)}
+
+
+def _corners(problem, seed: int, max_corners: int) -> tuple[dict[str, np.ndarray], int]:
+    """Corners of the parameter box (a seeded random subset beyond max_corners) and their total number."""
+    coords = problem.parameter_coordinates
+    m = len(coords)
+    total = 2**m
+    if total <= max_corners:
+        bits = (np.arange(total)[:, None] >> np.arange(m)[::-1][None, :]) & 1
+    else:
+        rng = np.random.default_rng([seed, 2])
+        chosen = np.zeros((0, m), dtype=int)
+        while chosen.shape[0] < max_corners:
+            more = rng.integers(0, 2, size=(max_corners, m))
+            chosen = np.unique(np.vstack([chosen, more]), axis=0)
+        bits = chosen[rng.permutation(chosen.shape[0])[:max_corners]]
+    points = {c.name: np.where(bits[:, j] == 1, c.domain[1], c.domain[0]).astype(float) for j, c in enumerate(coords)}
+    return points, total
+
+
+def _evaluate_codebook(cb, samples: Mapping[str, np.ndarray], time: str, times: np.ndarray, unknowns) -> dict:
+    S = len(next(iter(samples.values()))) if samples else 1
+    T = times.size
+    out = {u: np.empty((S, T)) for u in unknowns}
+    block = max(1, _EVAL_BLOCK // max(T, 1))
+    for start in range(0, S, block):
+        rows = slice(start, min(S, start + block))
+        coords = {}
+        for c in cb.coordinates:
+            coords[c.name] = times[None, :] if c.name == time else samples[c.name][rows, None]
+        values = cb.evaluate(coords, fields=list(unknowns))
+        for u in unknowns:
+            out[u][rows] = np.broadcast_to(values[u], (rows.stop - rows.start, T))
+    return out
+
+
+def _statistics(coordinates, time, samples, times, ok, reference, approx) -> UnknownErrors:
+    if not ok.any():
+        nan = float("nan")
+        return UnknownErrors(nan, nan, nan, nan, {c: nan for c in coordinates}, nan, nan)
+    ref = reference[ok]
+    cbv = approx[ok]
+    err = np.abs(cbv - ref)
+    i, j = np.unravel_index(int(np.argmax(err)), err.shape)
+    max_abs = float(err[i, j])
+    scale = float(np.max(np.abs(ref)))
+    if scale > 0:
+        rel = max_abs / scale
+    else:
+        rel = 0.0 if max_abs == 0 else float("inf")
+    rows = np.flatnonzero(ok)
+    where = {c: float(times[j]) if c == time else float(samples[c][rows[i]]) for c in coordinates}
+    return UnknownErrors(
+        max_abs_error=max_abs,
+        max_rel_error=float(rel),
+        rms_error=float(np.sqrt(np.mean(err**2))),
+        reference_scale=scale,
+        where=where,
+        codebook_value=float(cbv[i, j]),
+        reference_value=float(ref[i, j]),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# public API
+# ----------------------------------------------------------------------------------------------
+def verify(
+    codebook,
+    *,
+    samples: int = 64,
+    sampling: str = "sobol",
+    seed: int = 0,
+    points: str | os.PathLike | Mapping[str, object] | None = None,
+    times: int = 16,
+    method: str = "DOP853",
+    rtol: float = 1e-12,
+    atol: float = 1e-12,
+    jobs: int | None = None,
+    max_error: float | None = None,
+    max_rel_error: float | None = None,
+    max_corners: int = MAX_CORNERS,
+    progress: Callable[[int, int], None] | None = None,
+) -> VerifyReport:
+    """Compare a codebook with an independent ``solve_ivp`` reference of its own problem.
+
+    Parameters
+    ----------
+    codebook : Codebook or path
+    samples : int
+        Random points of the parameter box (>= 1), in addition to its corners.
+    sampling : {'sobol', 'lhs'}
+        Scrambled Sobol or Latin hypercube (``scipy.stats.qmc``).
+    seed : int
+        Seed of the sampling and of the random times.
+    points : path or mapping, optional
+        Check these parameter points instead (no random samples, no
+        corners): a CSV file whose header names the non-time coordinates, or
+        a mapping coordinate -> 1-D array.
+    times : int
+        Random times (>= 0) in addition to every node of the time coordinate.
+    method : str
+        ``solve_ivp`` method: DOP853, RK45, Radau, BDF or LSODA.
+    rtol, atol : float
+        ``solve_ivp`` tolerances.
+    jobs : int, optional
+        Worker processes (default: ``os.cpu_count()``; 1: no pool).
+    max_error, max_rel_error : float, optional
+        The gate recorded in the report (see :meth:`VerifyReport.passed`).
+    max_corners : int
+        Most corners checked; beyond, a seeded random subset.
+    progress : callable, optional
+        ``progress(done, total)`` in parameter points, after each chunk.
+
+    Returns
+    -------
+    VerifyReport
+
+    Raises
+    ------
+    PgdError
+        Unreadable codebook, a codebook without spec, invalid options or
+        points (:class:`VerifyError`).
+    """
+    from .codebook import Codebook
+    from .reference import METHODS, solve_reference
+
+    started = _time.perf_counter()
+    samples = _check_int("samples", samples, 1)
+    times_count = _check_int("times", times, 0)
+    seed = _check_int("seed", seed, 0)
+    max_corners = _check_int("max_corners", max_corners, 0)
+    jobs = (os.cpu_count() or 1) if jobs is None else _check_int("jobs", jobs, 1)
+    if sampling not in SAMPLINGS:
+        raise VerifyError(f"sampling must be one of {', '.join(SAMPLINGS)}, got {sampling!r}")
+    if method not in METHODS:
+        raise VerifyError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    for label, value in (("rtol", rtol), ("atol", atol)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) \
+                or not (math.isfinite(value) and 0 < value < 1):
+            raise VerifyError(f"{label} must be a number in (0, 1), got {value!r}")
+    max_error = _check_tolerance("max_error", max_error)
+    max_rel_error = _check_tolerance("max_rel_error", max_rel_error)
+
+    if isinstance(codebook, Codebook):
+        cb, path = codebook, None
+        source = f"<codebook {cb.name}>"
+    else:
+        path = str(codebook)
+        cb = Codebook.load(codebook)
+        source = path
+    problem = _parse_problem(cb, source)
+    time = problem.time
+    params = problem.parameter_coordinates
+    names = [c.name for c in params]
+
+    settings: dict = {"sampling": sampling, "samples": samples, "seed": seed, "corners": 0, "corners_total": 2 ** len(names),
+                      "points_file": None}
+    if points is not None:
+        if isinstance(points, Mapping):
+            extra = [k for k in points if k not in names]
+            if extra:
+                raise VerifyError(f"points: unknown coordinate {extra[0]!r}; expected {', '.join(names) or '(none)'}")
+            missing = [n for n in names if n not in points]
+            if missing:
+                raise VerifyError(f"points: missing coordinate(s) {', '.join(missing)}")
+            sample_points = {n: np.atleast_1d(np.asarray(points[n], dtype=float)) for n in names}
+            if len({a.shape for a in sample_points.values()}) > 1 or any(a.ndim != 1 for a in sample_points.values()):
+                raise VerifyError("points: expected 1-D arrays of one length")
+            if any(not np.isfinite(a).all() for a in sample_points.values()):
+                raise VerifyError("points: values must be finite")
+            _check_points_domain(sample_points, problem, "points")
+        else:
+            sample_points = read_points(points, problem)
+            settings["points_file"] = str(points)
+        S = len(next(iter(sample_points.values()))) if names else 1
+        settings.update(sampling="points", samples=S, corners_total=0)
+    elif names:
+        random_points = _sample_box(problem, samples, sampling, seed)
+        corner_points, total = _corners(problem, seed, max_corners)
+        sample_points = {n: np.concatenate([random_points[n], corner_points[n]]) for n in names}
+        S = samples + len(next(iter(corner_points.values())))
+        settings.update(corners=S - samples, corners_total=total)
+    else:
+        sample_points, S = {}, 1  # no parameters: one trajectory
+        settings.update(samples=1, corners_total=0)
+
+    time_coordinate = cb.coordinate(time)
+    nodes = np.asarray(time_coordinate.basis().nodes, dtype=float)
+    t_low, t_high = time_coordinate.domain
+    rng = np.random.default_rng([seed, 1])
+    random_times = rng.uniform(t_low, t_high, times_count)
+    all_times = np.unique(np.clip(np.concatenate([nodes, random_times]), t_low, t_high))
+    settings.update(
+        parameter_points=int(S),
+        random_times=times_count,
+        time_nodes=int(nodes.size),
+        times=int(all_times.size),
+        method=method,
+        rtol=float(rtol),
+        atol=float(atol),
+        jobs=int(jobs),
+    )
+
+    def report_progress(done: int) -> None:
+        if progress is not None:
+            progress(done, S)
+
+    report_progress(0)
+    result = solve_reference(problem, sample_points, all_times, method=method, rtol=rtol, atol=atol, jobs=jobs,
+                             progress=report_progress)
+    unknowns = list(problem.unknown_names)
+    approx = _evaluate_codebook(cb, sample_points, time, all_times, unknowns)
+    coordinates = cb.coordinate_names
+    stats = {u: _statistics(coordinates, time, sample_points, all_times, result.success, result.values[u], approx[u])
+             for u in unknowns}
+    failures = [
+        Failure({n: float(sample_points[n][i]) for n in names}, result.messages[i] or "integration failed")
+        for i in np.flatnonzero(~result.success)
+    ]
+    return VerifyReport(
+        codebook=path,
+        problem=problem.name,
+        time=time,
+        coordinates=list(coordinates),
+        unknowns=stats,
+        failures=failures,
+        settings=settings,
+        max_error=max_error,
+        max_rel_error=max_rel_error,
+        samples=sample_points,
+        times=all_times,
+        reference=result.values,
+        codebook_values=approx,
+        wall_time=_time.perf_counter() - started,
+    )
+
+
+# ``pgdcli.verify`` names the function (lazy attribute of the package) but becomes this module
+# when the module is imported first (``from pgdcli.verify import ...`` sets the package
+# attribute): calling the module calls the function, so ``pgdcli.verify(cb)`` works either way.
+class _CallableModule(types.ModuleType):
+    def __call__(self, *args, **kwargs):
+        return verify(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

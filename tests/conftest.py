@@ -1,0 +1,105 @@
+"""Shared fixtures and references for the issue-2 test suite.
+
+The shipped problems are solved once per session (``solved``) and their
+codebooks written once to a session temporary directory (``codebook_path``).
+Exact solutions are written here from the comments of ``problems/*.yaml``;
+they never use pgdcli.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PROBLEMS = ROOT / "problems"
+SHIPPED = ("parametric", "spring", "relaxation")
+
+
+# ----------------------------------------------------------------------------------------------
+# exact solutions (from the comments of problems/*.yaml)
+# ----------------------------------------------------------------------------------------------
+def exact_parametric(p):
+    """k (u' + 1) = 10, u(0) = 0  ->  u = (10/k - 1) t."""
+    return {"u": (10.0 / p["k"] - 1.0) * p["t"]}
+
+
+def exact_spring(p):
+    """x'' + c x' + k x = 0, x(0) = 1, x'(0) = 0 (underdamped); v = x'."""
+    t, k, c = p["t"], p["k"], p["c"]
+    wd = np.sqrt(k - c * c / 4.0)
+    decay = np.exp(-c * t / 2.0)
+    x = decay * (np.cos(wd * t) + c / (2.0 * wd) * np.sin(wd * t))
+    v = -decay * (k / wd) * np.sin(wd * t)
+    return {"x": x, "v": v}
+
+
+def exact_relaxation(p):
+    """u' = -k u + a sin(2t), u(0) = u0."""
+    t, k, a, u0 = p["t"], p["k"], p["a"], p["u0"]
+    e = np.exp(-k * t)
+    return {"u": u0 * e + a * (k * np.sin(2 * t) - 2 * np.cos(2 * t) + 2 * e) / (k * k + 4.0)}
+
+
+EXACT = {"parametric": exact_parametric, "spring": exact_spring, "relaxation": exact_relaxation}
+
+
+def random_points(domains: dict, n: int, seed: int, corners: bool = True) -> dict:
+    """``n`` points uniform in the box ``domains`` (name -> (low, high)), plus every corner.
+
+    Returns name -> 1D array, in the order of ``domains``.
+    """
+    rng = np.random.default_rng(seed)
+    names = list(domains)
+    cols = [rng.uniform(lo, hi, n) for lo, hi in domains.values()]
+    if corners:
+        box = np.array(list(itertools.product(*[(float(lo), float(hi)) for lo, hi in domains.values()])))
+        cols = [np.concatenate([c, box[:, j]]) for j, c in enumerate(cols)]
+    return dict(zip(names, cols))
+
+
+def codebook_points(cb, n: int, seed: int, corners: bool = True) -> dict:
+    return random_points({c.name: c.domain for c in cb.coordinates}, n, seed, corners)
+
+
+def max_abs_error(cb, exact, points) -> dict:
+    values = cb(**points)
+    ref = exact(points)
+    return {u: float(np.max(np.abs(values[u] - ref[u]))) for u in ref}
+
+
+# ----------------------------------------------------------------------------------------------
+# session fixtures: each shipped problem solved once, its codebook written once
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def solved():
+    """``solved(name)`` -> SolveResult of ``problems/<name>.yaml`` (solved once per session)."""
+    from pgdcli import load_spec, solve
+
+    cache: dict = {}
+
+    def get(name: str):
+        if name not in cache:
+            cache[name] = solve(load_spec(PROBLEMS / f"{name}.yaml"))
+        return cache[name]
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def codebook_path(solved, tmp_path_factory):
+    """``codebook_path(name)`` -> Path of the saved codebook of a shipped problem (written once)."""
+    directory = tmp_path_factory.mktemp("codebooks")
+    cache: dict = {}
+
+    def get(name: str) -> Path:
+        if name not in cache:
+            path = directory / f"{name}.h5"
+            solved(name).codebook.save(path)
+            cache[name] = path
+        return cache[name]
+
+    return get

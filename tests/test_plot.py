@@ -1,0 +1,526 @@
+"""Tests of pgdcli.plot and ``pgd plot`` (issue 5).
+
+The data handed to matplotlib is checked against the codebook (not pixels):
+mode curves at the nodes are the stored mode matrices, solution curves and maps
+are ``codebook.evaluate`` values, error data are ``|codebook - reference|``.
+Every kind is rendered for every shipped problem to a PNG whose IHDR size is
+checked, and to an SVG that is parsed; the CLI's exit codes and one-line errors
+are checked with click's CliRunner.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pgdcli import plot as P
+from pgdcli.cli import cli
+from pgdcli.codebook import Codebook
+from pgdcli.errors import PgdError, QueryError
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ("parametric", "relaxation", "spring")
+
+
+# ----------------------------------------------------------------------------------------------
+# fixtures: the shipped problems solved once per session, and exact references
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def plot_codebooks(tmp_path_factory):
+    """name -> (Codebook, Path of its saved file), the shipped problems solved once."""
+    from pgdcli import load_spec, solve
+
+    directory = tmp_path_factory.mktemp("plot-codebooks")
+    out = {}
+    for name in SHIPPED:
+        result = solve(load_spec(ROOT / "problems" / f"{name}.yaml"))
+        assert result.converged
+        path = result.codebook.save(directory / f"{name}.h5")
+        out[name] = (Codebook.load(path), path)
+    return out
+
+
+def _exact(name: str, p: dict, t: np.ndarray) -> dict:
+    """Exact solutions from the comments of problems/*.yaml; p values (S, 1), t (1, T)."""
+    if name == "parametric":
+        return {"u": (10.0 / p["k"] - 1.0) * t}
+    if name == "relaxation":
+        k, a, u0 = p["k"], p["a"], p["u0"]
+        e = np.exp(-k * t)
+        return {"u": u0 * e + a * (k * np.sin(2 * t) - 2 * np.cos(2 * t) + 2 * e) / (k * k + 4.0)}
+    k, c = p["k"], p["c"]
+    wd = np.sqrt(k - c * c / 4.0)
+    decay = np.exp(-c * t / 2.0)
+    return {"x": decay * (np.cos(wd * t) + c / (2.0 * wd) * np.sin(wd * t)),
+            "v": -decay * (k / wd) * np.sin(wd * t)}
+
+
+def exact_reference(name: str, calls: list | None = None):
+    """A reference callable with solve_reference's interface, from the exact solution."""
+
+    def solve(params, times):
+        params = {k: np.asarray(v, dtype=float) for k, v in params.items()}
+        S = len(next(iter(params.values())))
+        if calls is not None:
+            calls.append((params, np.asarray(times)))
+        values = _exact(name, {k: v[:, None] for k, v in params.items()}, np.asarray(times)[None, :])
+        values = {u: np.broadcast_to(v, (S, len(times))).copy() for u, v in values.items()}
+        return SimpleNamespace(values=values, success=np.ones(S, bool), messages=[""] * S)
+
+    solve.description = "exact"
+    return solve
+
+
+def _line_data(ax) -> list[np.ndarray]:
+    """xy data of the labelled lines of an axes (legend entries), in drawing order."""
+    return [ln.get_xydata() for ln in ax.get_lines() if not ln.get_label().startswith("_")]
+
+
+# ----------------------------------------------------------------------------------------------
+# modes
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", SHIPPED)
+def test_modes_data_equals_stored_modes_at_the_nodes(plot_codebooks, name):
+    cb, _ = plot_codebooks[name]
+    for field in cb.unknown_names:
+        data = P.modes_data(cb, field=field)
+        fm = cb.fields[field]
+        n = min(6, fm.rank)
+        assert data["count"] == n and data["field"] == field and data["rank"] == fm.rank
+        np.testing.assert_array_equal(data["alphas"], fm.alphas[:n])
+        assert [p["coordinate"] for p in data["panels"]] == cb.coordinate_names
+        for c, m, panel in zip(cb.coordinates, fm.modes, data["panels"]):
+            x = panel["x"]
+            assert x[0] == c.domain[0] and x[-1] == c.domain[1] and np.all(np.diff(x) > 0)
+            assert x.size > c.nodes  # a fine grid, not only the nodes
+            nodes = c.basis().nodes
+            idx = np.searchsorted(x, nodes)
+            np.testing.assert_array_equal(x[idx], nodes)
+            np.testing.assert_array_equal(panel["values"][idx], m[:, :n])  # exact at the nodes
+            np.testing.assert_array_equal(panel["node_values"], m[:, :n])
+            # between nodes: the codebook's own interpolant
+            np.testing.assert_allclose(panel["values"], c.basis().interpolate(m[:, :n], x), rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("name", ["relaxation", "spring"])
+def test_all_mode_curves_reassemble_the_codebook(plot_codebooks, name):
+    """sum_i alpha_i prod_j U_ij(x_j) over the plotted curves equals codebook(x) off the nodes."""
+    cb, _ = plot_codebooks[name]
+    field = cb.unknown_names[-1]
+    data = P.modes_data(cb, count=10_000, field=field, points=57)
+    assert data["count"] == cb.fields[field].rank
+    rng = np.random.default_rng(5)
+    picks = [rng.integers(0, p["x"].size, 40) for p in data["panels"]]
+    prod = np.prod([p["values"][i] for p, i in zip(data["panels"], picks)], axis=0)
+    assembled = prod @ data["alphas"]
+    coords = {p["coordinate"]: p["x"][i] for p, i in zip(data["panels"], picks)}
+    expected = cb.evaluate(coords, fields=[field])[field]
+    np.testing.assert_allclose(assembled, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+
+
+def test_modes_figure_draws_the_data(plot_codebooks):
+    cb, _ = plot_codebooks["spring"]
+    data = P.modes_data(cb, count=4, field="v")
+    fig = P.draw_modes(data)
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == 3
+    for ax, panel in zip(axes, data["panels"]):
+        lines = _line_data(ax)
+        assert len(lines) == 4
+        for i, xy in enumerate(lines):
+            np.testing.assert_array_equal(xy[:, 0], panel["x"])
+            np.testing.assert_array_equal(xy[:, 1], panel["values"][:, i])
+        assert ax.get_xlabel().startswith(panel["coordinate"])
+        assert "v" in ax.get_ylabel()
+    assert "spring" in fig._suptitle.get_text()
+    # curves differ in line style and marker as well as color (grayscale)
+    styles = {(ln.get_linestyle(), ln.get_marker()) for ln in axes[0].get_lines() if not ln.get_label().startswith("_")}
+    assert len(styles) == 4
+
+
+def test_modes_count_and_field_errors(plot_codebooks):
+    cb, _ = plot_codebooks["spring"]
+    assert P.modes_data(cb)["field"] == "x"  # default: the first unknown
+    with pytest.raises(QueryError, match="--count"):
+        P.modes_data(cb, count=0)
+    with pytest.raises(QueryError, match=r"--field: unknown 'w'; this codebook has x, v"):
+        P.modes_data(cb, field="w")
+
+
+# ----------------------------------------------------------------------------------------------
+# convergence
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", SHIPPED)
+def test_convergence_data_is_the_report(plot_codebooks, name):
+    cb, _ = plot_codebooks[name]
+    data = P.convergence_data(cb)
+    np.testing.assert_array_equal(data["residual"], cb.report["residual_history"])
+    np.testing.assert_array_equal(data["modes"], np.arange(len(cb.report["residual_history"])))
+    assert data["tolerance"] == cb.report["tolerance"] and data["converged"]
+    assert data["outer"] is None
+    fig = P.draw_convergence(data)
+    assert len(fig.axes) == 1
+    ax = fig.axes[0]
+    assert ax.get_yscale() == "log"
+    xy = ax.get_lines()[0].get_xydata()
+    np.testing.assert_array_equal(xy[:, 0], data["modes"])
+    np.testing.assert_array_equal(xy[:, 1], data["residual"])
+
+
+def test_convergence_outer_history_when_present(plot_codebooks):
+    cb0, _ = plot_codebooks["parametric"]
+    report = dict(cb0.report, outer_history=np.array([1e-1, 1e-3, 1e-6, 0.0]))
+    cb = Codebook(cb0.coordinates, cb0.fields, name="nonlinear", spec_text=cb0.spec_text, report=report)
+    data = P.convergence_data(cb)
+    np.testing.assert_array_equal(data["outer"]["iteration"], [1, 2, 3, 4])
+    np.testing.assert_array_equal(data["outer"]["change"], report["outer_history"])
+    fig = P.draw_convergence(data)
+    assert len(fig.axes) == 2
+    xy = fig.axes[1].get_lines()[0].get_xydata()
+    np.testing.assert_array_equal(xy[:3, 1], [1e-1, 1e-3, 1e-6])
+    assert np.isnan(xy[3, 1])  # a zero change is left off the log axis, not an error
+    no_history = Codebook(cb0.coordinates, cb0.fields, name="bare", report={})
+    with pytest.raises(PgdError, match="no residual history"):
+        P.convergence_data(no_history)
+
+
+# ----------------------------------------------------------------------------------------------
+# solution
+# ----------------------------------------------------------------------------------------------
+def test_solution_lines_equal_codebook_values(plot_codebooks):
+    cb, _ = plot_codebooks["spring"]
+    data = P.solution_data(cb, "v", at=["k=3.2", "k=1.5,c=0.1", {"c": 0.45}])
+    assert data["layout"] == "lines" and data["time"] == "t"
+    assert data["points"] == [{"k": 3.2, "c": 0.3}, {"k": 1.5, "c": 0.1}, {"k": 2.5, "c": 0.45}]  # midpoints
+    t = data["t"]
+    assert t[0] == 0.0 and t[-1] == 4.0 and t.size == P.LINE_POINTS
+    for p, row in zip(data["points"], data["values"]):
+        np.testing.assert_array_equal(row, cb(t=t, **p)["v"])
+    fig = P.draw_solution(data)
+    ax = fig.axes[0]
+    for xy, row in zip(_line_data(ax), data["values"]):
+        np.testing.assert_array_equal(xy[:, 0], t)
+        np.testing.assert_array_equal(xy[:, 1], row)
+    assert ax.get_xlabel() == "t" and ax.get_ylabel() == "v"
+    assert [tx.get_text() for tx in fig.legends[0].get_texts()] == data["labels"] == [
+        "k=3.2, c=0.3", "k=1.5, c=0.1", "k=2.5, c=0.45"]
+
+
+def test_solution_default_points_span_the_first_parameter(plot_codebooks):
+    cb, _ = plot_codebooks["relaxation"]
+    data = P.solution_data(cb)
+    ks = [p["k"] for p in data["points"]]
+    np.testing.assert_allclose(ks, np.linspace(0.5, 5, P.DEFAULT_AT_CURVES))
+    assert all(p["a"] == 0.0 and p["u0"] == 0.5 for p in data["points"])
+
+
+def test_solution_map_equals_codebook_values(plot_codebooks):
+    cb, _ = plot_codebooks["spring"]
+    data = P.solution_data(cb, "x", over="k,t", fix=["c=0.2"], points=23)
+    assert data["layout"] == "map" and (data["x"], data["y"]) == ("k", "t") and data["fixed"] == {"c": 0.2}
+    xv, yv, z = data["xv"], data["yv"], data["values"]
+    assert z.shape == (yv.size, xv.size) == (23, 23)
+    for j in (0, 7, 22):
+        for i in (0, 11, 22):
+            np.testing.assert_allclose(z[j, i], cb(k=xv[i], t=yv[j], c=0.2)["x"], rtol=1e-14, atol=1e-14)
+    fig = P.draw_solution(data)
+    ax = fig.axes[0]
+    mesh = ax.collections[0]
+    np.testing.assert_array_equal(np.asarray(mesh.get_array()).reshape(z.shape), z)
+    assert ax.get_xlabel() == "k" and ax.get_ylabel() == "t"
+    # defaults: the other coordinates at their midpoints
+    assert P.solution_data(cb, over="c,k", points=5)["fixed"] == {"t": 2.0}
+
+
+def test_solution_reference_markers(plot_codebooks):
+    cb, _ = plot_codebooks["relaxation"]
+    calls = []
+    data = P.solution_data(cb, at=["k=1,a=0.5", "k=4"], reference=exact_reference("relaxation", calls))
+    ref = data["reference"]
+    assert ref["t"].size == P.REFERENCE_MARKERS and ref["values"].shape == (2, P.REFERENCE_MARKERS)
+    params, times = calls[0]
+    assert set(params) == {"k", "a", "u0"}  # every non-time coordinate, never t
+    np.testing.assert_array_equal(params["k"], [1.0, 4.0])
+    np.testing.assert_array_equal(params["u0"], [0.5, 0.5])
+    np.testing.assert_array_equal(times, ref["t"])
+    fig = P.draw_solution(data)
+    markers = [ln for ln in fig.axes[0].get_lines() if ln.get_linestyle() == "None"]
+    assert len(markers) == 2
+    for ln, row in zip(markers, ref["values"]):
+        np.testing.assert_array_equal(ln.get_ydata(), row)
+
+
+def test_solution_map_with_reference_is_on_the_same_grid(plot_codebooks):
+    cb, _ = plot_codebooks["parametric"]
+    data = P.solution_data(cb, over="t,k", points=9, reference=exact_reference("parametric"))
+    exact = (10.0 / data["yv"][:, None] - 1.0) * data["xv"][None, :]
+    np.testing.assert_allclose(data["reference"]["values"], exact, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(data["values"], exact, rtol=0, atol=1e-11)
+    P.draw_solution(data)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(at=["k=12"]), r"--at k=12: outside the domain \[1, 4\]"),
+    (dict(at=["k"]), r"--at: expected NAME=VALUE"),
+    (dict(at=["k="]), r"--at: missing value for coordinate 'k'"),
+    (dict(at=["k=abc"]), r"--at k=abc: not a number"),
+    (dict(at=["z=1"]), r"--at: unknown coordinate 'z'; this codebook has t in \[0, 4\], k in \[1, 4\]"),
+    (dict(at=["k=1,k=2"]), r"--at: coordinate 'k' given twice"),
+    (dict(at=["t=1"]), r"--at: 't' is the time axis"),
+    (dict(at=["k=2"], over="t,k"), r"--at and --over"),
+    (dict(over="k"), r"--over: expected two different coordinate names"),
+    (dict(over="k,k"), r"--over: expected two different coordinate names"),
+    (dict(over="k,q"), r"--over: unknown coordinate 'q'"),
+    (dict(over="t,k", fix=["k=2"]), r"--fix: 'k' is an axis of the map"),
+    (dict(over="t,k", fix=["c=9"]), r"--fix c=9: outside the domain"),
+    (dict(fix=["c=0.2"]), r"--fix applies to maps"),
+    (dict(points=1), r"--points: expected an integer from 2 to 100000"),
+    (dict(over="k,c", points=5000), r"--points: expected an integer from 2 to 1000"),
+])
+def test_solution_option_errors(plot_codebooks, kwargs, message):
+    cb, _ = plot_codebooks["spring"]
+    with pytest.raises(QueryError, match=message) as info:
+        P.solution_data(cb, **kwargs)
+    assert "\n" not in str(info.value)
+
+
+# ----------------------------------------------------------------------------------------------
+# error
+# ----------------------------------------------------------------------------------------------
+def test_error_lines_equal_abs_difference(plot_codebooks):
+    cb, _ = plot_codebooks["spring"]
+    data = P.error_data(cb, "x", at=["k=2,c=0.1", "k=4"], points=33, reference=exact_reference("spring"))
+    assert data["layout"] == "lines" and data["values"].shape == (2, 33)
+    t = data["t"]
+    for p, err, cbv, ref in zip(data["points"], data["values"], data["codebook"], data["reference"]):
+        np.testing.assert_array_equal(cbv, cb(t=t, **p)["x"])
+        exact = _exact("spring", {k: np.array(v) for k, v in p.items()}, t)["x"]
+        np.testing.assert_array_equal(ref, exact)
+        np.testing.assert_array_equal(err, np.abs(cbv - exact))
+    assert data["max"] == data["values"].max()
+    i, j = np.unravel_index(np.argmax(data["values"]), data["values"].shape)
+    assert data["argmax"] == {**data["points"][i], "t": t[j]}
+    assert data["max"] < 1e-7
+    fig = P.draw_error(data)
+    ax = fig.axes[0]
+    assert ax.get_yscale() == "log"
+    for xy, err in zip(_line_data(ax), data["values"]):
+        np.testing.assert_array_equal(xy[:, 1], np.where(err > 0, err, np.nan))
+
+
+@pytest.mark.parametrize("over, fix", [(None, None), ("k,c", ["t=3"]), ("a,t", ["k=2,u0=0"])])
+def test_error_map_equals_abs_difference(plot_codebooks, over, fix):
+    cb, _ = plot_codebooks["relaxation" if over != "k,c" else "spring"]
+    name = cb.name
+    field = cb.unknown_names[0]
+    data = P.error_data(cb, over=over, fix=fix, points=17, reference=exact_reference(name))
+    assert data["layout"] == "map"
+    if over is None:  # default: time along x, the first parameter along y
+        assert (data["x"], data["y"]) == ("t", "k")
+    gx, gy = np.meshgrid(data["xv"], data["yv"])
+    coords = {data["x"]: gx, data["y"]: gy, **{k: np.full(gx.shape, v) for k, v in data["fixed"].items()}}
+    cbv = cb.evaluate(coords, fields=[field])[field]
+    t = coords.pop("t")
+    exact = _exact(name, coords, t)[field]
+    np.testing.assert_array_equal(data["codebook"], cbv)
+    np.testing.assert_allclose(data["reference"], exact, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(data["values"], np.abs(data["codebook"] - data["reference"]))
+    j, i = np.unravel_index(np.argmax(data["values"]), data["values"].shape)
+    assert data["argmax"][data["x"]] == data["xv"][i] and data["argmax"][data["y"]] == data["yv"][j]
+    fig = P.draw_error(data)
+    assert fig.axes[0].collections[0].norm.__class__.__name__ == "LogNorm"
+
+
+def test_reference_failures_become_nan_and_messages(plot_codebooks):
+    cb, _ = plot_codebooks["parametric"]
+    good = exact_reference("parametric")
+
+    def flaky(params, times):
+        r = good(params, times)
+        r.success[1] = False
+        r.values["u"][1] = np.nan
+        r.messages[1] = "integration failed at t = 3: step size too small"
+        return r
+
+    data = P.error_data(cb, at=["k=2", "k=5", "k=8"], points=11, reference=flaky)
+    assert np.isnan(data["values"][1]).all() and np.isfinite(data["values"][[0, 2]]).all()
+    assert data["failures"] == ["reference failed at k=5: integration failed at t = 3: step size too small"]
+    P.draw_error(data)
+
+
+def test_real_reference_agrees_with_the_exact_solution(plot_codebooks):
+    """The default reference (pgdcli.reference, solve_ivp) is wired with the right parameters."""
+    pytest.importorskip("pgdcli.reference")
+    for name in ("relaxation", "spring"):
+        cb, path = plot_codebooks[name]
+        ref = P.reference_solver(cb, source=str(path))
+        lines = P.error_data(cb, at=["k=1.2"], points=21, reference=ref)
+        p = {k: np.array([v]) for k, v in lines["points"][0].items()}
+        exact = _exact(name, {k: v[:, None] for k, v in p.items()}, lines["t"][None, :])[cb.unknown_names[0]]
+        np.testing.assert_allclose(lines["reference"], exact, rtol=0, atol=1e-9)
+        assert lines["max"] < 1e-7
+        grid = P.error_data(cb, over=",".join(cb.coordinate_names[1:3]), points=9, reference=ref)
+        assert grid["values"].shape == (9, 9) and grid["max"] < 1e-7 and not grid["failures"]
+
+
+def test_codebook_with_time_as_the_only_coordinate(tmp_path):
+    """No parameters: one curve, error along time, the reference called with no parameters."""
+    pytest.importorskip("pgdcli.reference")
+    from pgdcli.codebook import CoordinateInfo, FieldModes
+
+    c = CoordinateInfo("t", (0.0, 2.0), 14, "chebyshev", "time")
+    nodes = c.basis().nodes
+    spec = 'name: decay\ncoordinates:\n  t: {domain: [0, 2], nodes: 14}\nunknowns:\n  u: {initial: 1}\n' \
+           'equations:\n  - "der(u) = -u"\n'
+    cb = Codebook([c], {"u": FieldModes(np.array([1.0]), (np.exp(-nodes)[:, None],))}, name="decay",
+                  spec_text=spec, report={"residual_history": np.array([1.0, 1e-9]), "tolerance": 1e-8})
+    sol = P.solution_data(cb, reference=True)
+    assert sol["points"] == [{}] and sol["labels"] == ["(no parameters)"]
+    np.testing.assert_allclose(sol["reference"]["values"][0], np.exp(-sol["reference"]["t"]), atol=1e-11)
+    err = P.error_data(cb)
+    assert err["layout"] == "lines" and err["max"] < 1e-10
+    with pytest.raises(QueryError, match="--over"):
+        P.solution_data(cb, over="t,k")
+    for fig in (P.plot_modes(cb), P.draw_solution(sol), P.draw_error(err)):
+        P.save_figure(fig, tmp_path / "f.png")
+
+
+# ----------------------------------------------------------------------------------------------
+# files: PNG / SVG of the expected size
+# ----------------------------------------------------------------------------------------------
+def _png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert data[12:16] == b"IHDR"
+    return struct.unpack(">II", data[16:24])
+
+
+def _svg_root(path: Path):
+    root = ET.parse(path).getroot()
+    assert root.tag == "{http://www.w3.org/2000/svg}svg"
+    return root
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+@pytest.mark.parametrize("kind", P.KINDS)
+def test_render_png_of_the_expected_size(plot_codebooks, tmp_path, monkeypatch, name, kind):
+    cb, path = plot_codebooks[name]
+    # the error kind of the parametric problem exercises the real reference (if present)
+    if kind == "error" and name != "parametric":
+        monkeypatch.setattr(P, "reference_solver", lambda codebook, **kw: exact_reference(name))
+    out = P.render(path, kind, tmp_path / f"{name}-{kind}.png", dpi=40, size=(5.5, 3.25))
+    assert out == tmp_path / f"{name}-{kind}.png"
+    assert _png_size(out) == (220, 130)
+
+
+@pytest.mark.parametrize("kind", P.KINDS)
+def test_render_svg_and_default_sizes(plot_codebooks, tmp_path, kind):
+    cb, path = plot_codebooks["spring"]
+    options = {"reference": True} if kind == "solution" else {}
+    svg = P.render(path, kind, tmp_path / "figure.svg", size="6.5x4", **options)
+    root = _svg_root(svg)
+    assert root.get("width") == "468pt" and root.get("height") == "288pt"
+    # default figure size per kind at the default dpi
+    png = P.render(path, kind, tmp_path / "figure.png", **options)
+    data = {"modes": P.modes_data(cb), "convergence": P.convergence_data(cb)}.get(kind)
+    w, h = _png_size(png)
+    if data is not None:
+        fig = {"modes": P.draw_modes, "convergence": P.draw_convergence}[kind](data)
+        fw, fh = fig.get_size_inches() * P.DEFAULT_DPI
+        assert abs(w - fw) <= 1 and abs(h - fh) <= 1
+    else:
+        assert (w, h) == (round((8.4 if kind == "solution" else 7.0) * 150), round((4.6 if kind == "solution" else 5.2) * 150))
+
+
+def test_save_figure_rejects_other_suffixes(plot_codebooks, tmp_path):
+    cb, _ = plot_codebooks["parametric"]
+    fig = P.plot_convergence(cb)
+    with pytest.raises(PgdError, match=r"--output .*x\.pdf: unsupported file type '\.pdf'; expected a \.png or \.svg"):
+        P.save_figure(fig, tmp_path / "x.pdf")
+    with pytest.raises(PgdError, match="does not exist"):
+        P.save_figure(fig, tmp_path / "missing" / "x.png")
+    written = P.save_figure(fig, tmp_path / "UPPER.PNG")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert written.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's 0600
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["UPPER.PNG"]  # no temporary files left
+
+
+def test_default_output_is_next_to_the_codebook():
+    assert P.default_output("codebooks/spring.h5", "error") == Path("codebooks/spring-error.png")
+
+
+# ----------------------------------------------------------------------------------------------
+# the command line
+# ----------------------------------------------------------------------------------------------
+def _run(*args):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+def test_cli_writes_and_prints_the_path(plot_codebooks, tmp_path):
+    _, path = plot_codebooks["spring"]
+    out = tmp_path / "s.svg"
+    r = _run("plot", str(path), "--kind", "solution", "--at", "k=1.5", "--at", "k=3,c=0.1", "--field", "v",
+             "-o", str(out))
+    assert r.exit_code == 0, r.stderr
+    assert r.stdout == f"{out}\n" and r.stderr == ""
+    _svg_root(out)
+    # default output: <codebook stem>-<kind>.png next to the codebook
+    r = _run("plot", str(path), "--kind", "convergence")
+    assert r.exit_code == 0 and r.stdout == f"{path.with_name('spring-convergence.png')}\n"
+    assert _png_size(path.with_name("spring-convergence.png")) == (960, 630)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["-o", "x.pdf"], "--output x.pdf: unsupported file type '.pdf'"),
+    (["-o", "x"], "unsupported file type '(no suffix)'"),
+    (["--kind", "solution", "--at", "k=12"], "--at k=12: outside the domain [1, 4] of 'k'"),
+    (["--kind", "solution", "--at", "k"], "--at: expected NAME=VALUE[,NAME=VALUE...], got 'k'"),
+    (["--kind", "error", "--at", "c="], "--at: missing value for coordinate 'c'"),
+    (["--kind", "solution", "--at", "q=1"], "--at: unknown coordinate 'q'"),
+    (["--field", "w"], "--field: unknown 'w'; this codebook has x, v"),
+    (["--kind", "error", "--over", "k"], "--over: expected two different coordinate names"),
+    (["--kind", "convergence", "--count", "3"], "--count does not apply to --kind convergence"),
+    (["--kind", "error", "--reference"], "--reference does not apply to --kind error"),
+    (["--kind", "modes", "--at", "k=2"], "--at does not apply to --kind modes"),
+    (["--kind", "nope"], "Invalid value for '--kind'"),
+    (["--size", "big"], "--size: expected WIDTHxHEIGHT"),
+    (["--dpi", "0"], "--dpi: expected an integer between 10 and 1200"),
+])
+def test_cli_errors_are_one_line_exit_2(plot_codebooks, tmp_path, args, message):
+    _, path = plot_codebooks["spring"]
+    r = CliRunner().invoke(cli, ["plot", str(path), *args], catch_exceptions=False)
+    assert r.exit_code == 2
+    assert r.stdout == ""
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: ") and message in lines[0], r.stderr
+    assert not list(path.parent.glob("*.pdf"))
+
+
+def test_cli_missing_codebook(tmp_path):
+    r = _run("plot", str(tmp_path / "none.h5"))
+    assert r.exit_code == 2 and r.stderr.startswith("Error: ") and "no such file" in r.stderr
+
+
+def test_cli_needs_no_display_and_no_pyplot(plot_codebooks, tmp_path):
+    """A fresh process without DISPLAY: the image is written and pyplot is never imported."""
+    _, path = plot_codebooks["parametric"]
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MPLBACKEND")}
+    code = ("import sys; from pgdcli.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+            "assert 'matplotlib.pyplot' not in sys.modules\n")
+    out = tmp_path / "m.png"
+    r = subprocess.run([sys.executable, "-c", code, "plot", str(path), "-o", str(out)], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == str(out)
+    _png_size(out)

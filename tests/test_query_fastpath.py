@@ -1,0 +1,413 @@
+"""The lean ``pgd query`` (pgdcli._query) and the fast evaluation paths of Codebook.
+
+``pgd query`` runs without click when it can (the console script's entry point is
+``pgdcli._query:main``). These tests hold it to three things:
+
+- byte-identical output: for plain / csv / json, lists, ranges, ``--field``,
+  ``--points`` (file and stdin), the lean path prints exactly what the
+  in-process ``Codebook.evaluate`` gives (formatted as documented: ``repr`` of
+  the floats) and exactly what the click command prints;
+- anything else (errors, help, odd options) falls back to click, having
+  printed nothing, so messages and exit codes are click's own;
+- a lean import set: no click, rich or scipy.
+
+And the evaluation paths of Codebook (one point, broadcasting, chunks,
+threads) agree bitwise with each other and with the plain algorithm
+(``interpolation_matrix @ modes``, product over coordinates, ``@ alphas``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import pgdcli.codebook as codebook_module
+from pgdcli import _query
+from pgdcli.cli import cli
+from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.errors import QueryError
+
+SPRING_CASES = [
+    ["--t", "1", "--k", "2", "--c", "0.3"],
+    ["--t", "0", "--k", "1", "--c", "0.1"],  # a corner: nodes in every coordinate
+    ["--t", "4", "--k", "4", "--c", "0.5"],
+    ["--t", "0:4:41", "--k", "2", "--c", "0.3"],
+    ["--t", "0:4:41", "--k", "2", "--c", "0.3", "--field", "x", "--format", "csv"],
+    ["--t", "0:4:7", "--k", "1,2.5,4", "--c", "0.1,0.5", "--format", "json"],
+    ["--t", "0:4:7", "--k", "1,2.5,4", "--c", "0.1,0.5", "--format", "csv", "--field", "v", "--field", "x"],
+    ["--t=1.5", "--k=2", "--c=0.25"],
+    ["--format", "csv", "--t", "1", "--k", "2", "--c", "0.3"],
+    ["--t", "1", "--format=json", "--k", "2", "--c", "0.3", "--field=v"],
+    ["--c", "0.3", "--k", "2", "--t", "0.5,1.5,2.5"],
+    ["--t", "0:4:101", "--k", "1:4:31", "--c", "0.3"],
+    ["--t", "0:4:3", "--k", "1:4:3", "--c", "0.1:0.5:3", "--format", "csv"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "--field", "v", "--field", "x", "--field", "v"],
+]
+
+POINTS_CSV = "t,k,c\n0.5,2,0.3\n1.7,3.9,0.1\n4,1,0.5\n\n0,2.5,0.2\n"
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------
+def _lean(argv, monkeypatch, stdin_text=None):
+    """Run pgdcli._query.run in-process: (exit status or None, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    monkeypatch.setattr(sys, "stdout", out)
+    monkeypatch.setattr(sys, "stderr", err)
+    if stdin_text is not None:
+        stdin = io.TextIOWrapper(io.BytesIO(stdin_text.encode()), encoding="utf-8")
+        monkeypatch.setattr(sys, "stdin", stdin)
+    code = _query.run([str(a) for a in argv])
+    monkeypatch.undo()
+    return code, out.getvalue(), err.getvalue()
+
+
+def _click(argv, stdin_text=None):
+    result = CliRunner().invoke(cli, [str(a) for a in argv], prog_name="pgd", input=stdin_text)
+    return result.exit_code, result.stdout, result.stderr
+
+
+def _coordinate_values(cb, args):
+    """--NAME VALUE pairs -> {name: 1-D values}, parsed independently of pgdcli."""
+    given, i = {}, 0
+    while i < len(args):
+        arg = args[i]
+        if arg in ("--format", "--field"):
+            i += 2
+            continue
+        if arg.startswith(("--format=", "--field=")):
+            i += 1
+            continue
+        name, eq, value = arg[2:].partition("=")
+        if not eq:
+            value, i = args[i + 1], i + 1
+        i += 1
+        if ":" in value:
+            a, b, n = value.split(":")
+            given[name] = np.linspace(float(a), float(b), int(n))
+        else:
+            given[name] = np.array([float(v) for v in value.split(",")])
+    return {n: given[n] for n in cb.coordinate_names}
+
+
+def _options(args):
+    fmt, fields, i = "plain", [], 0
+    while i < len(args):
+        if args[i] == "--format":
+            fmt, i = args[i + 1], i + 2
+        elif args[i] == "--field":
+            fields.append(args[i + 1])
+            i += 2
+        elif args[i].startswith("--format="):
+            fmt, i = args[i].split("=", 1)[1], i + 1
+        elif args[i].startswith("--field="):
+            fields.append(args[i].split("=", 1)[1])
+            i += 1
+        else:
+            i += 1
+    return fmt, fields
+
+
+def _expected_text(cb, points, fmt, fields):
+    """The documented output, built from Codebook.evaluate on flat points (repr of float64)."""
+    values = cb.evaluate(points, fields=fields or None)
+    names = list(values)
+    coords = cb.coordinate_names
+    n = len(next(iter(points.values())))
+    rows = [[float(values[u][i]) for u in names] for i in range(n)]
+    pts = [[float(points[c][i]) for c in coords] for i in range(n)]
+    if fmt == "plain":
+        return "".join(" ".join(repr(v) for v in r) + "\n" for r in rows)
+    if fmt == "csv":
+        return ",".join(coords + names) + "\n" + "".join(",".join(repr(v) for v in p + r) + "\n"
+                                                         for p, r in zip(pts, rows))
+    return json.dumps([dict(zip(coords + names, p + r)) for p, r in zip(pts, rows)]) + "\n"
+
+
+def _product(cb, lists):
+    grids = np.meshgrid(*[lists[n] for n in cb.coordinate_names], indexing="ij")
+    return {n: g.reshape(-1) for n, g in zip(cb.coordinate_names, grids)}
+
+
+# ----------------------------------------------------------------------------------------------
+# byte-identical output
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("args", SPRING_CASES, ids=lambda a: " ".join(a))
+def test_lean_query_output_is_byte_identical(codebook_path, monkeypatch, args):
+    path = codebook_path("spring")
+    cb = Codebook.load(path)
+    code, out, err = _lean(["query", path, *args], monkeypatch)
+    assert code == 0 and err == ""
+    fmt, fields = _options(args)
+    assert out == _expected_text(cb, _product(cb, _coordinate_values(cb, args)), fmt, fields)
+    assert _click(["query", path, *args]) == (0, out, "")
+
+
+@pytest.mark.parametrize("name,args", [
+    ("relaxation", ["--t", "1", "--k", "2", "--a", "0.5", "--u0", "0.3"]),
+    ("relaxation", ["--t", "0:3:5", "--k", "0.5,5", "--a", "-1:1:3", "--u0", "0,1", "--format", "csv"]),
+    ("relaxation", ["--t", "0:3:4", "--k", "0.5:5:4", "--a", "-1", "--u0", "0.25", "--format", "json"]),
+    ("parametric", ["--t", "0:10:11", "--k", "2"]),
+    ("parametric", ["--t", "0:10:5", "--k", "1:10:4", "--format", "csv"]),
+    ("parametric", ["--t", "5", "--k", "2"]),
+])
+def test_lean_query_other_codebooks(codebook_path, monkeypatch, name, args):
+    path = codebook_path(name)
+    cb = Codebook.load(path)
+    code, out, err = _lean(["query", path, *args], monkeypatch)
+    assert code == 0 and err == ""
+    fmt, fields = _options(args)
+    assert out == _expected_text(cb, _product(cb, _coordinate_values(cb, args)), fmt, fields)
+    assert _click(["query", path, *args]) == (0, out, "")
+
+
+@pytest.mark.parametrize("fmt", ["plain", "csv", "json"])
+@pytest.mark.parametrize("stdin", [False, True])
+def test_lean_query_points(codebook_path, monkeypatch, tmp_path, fmt, stdin):
+    path = codebook_path("spring")
+    cb = Codebook.load(path)
+    csv_path = tmp_path / "points.csv"
+    csv_path.write_text(POINTS_CSV)
+    source = "-" if stdin else csv_path
+    args = ["query", path, "--points", source, "--format", fmt, "--field", "v", "--field", "x"]
+    code, out, err = _lean(args, monkeypatch, stdin_text=POINTS_CSV if stdin else None)
+    assert code == 0 and err == ""
+    rows = np.array([[float(v) for v in line.split(",")] for line in POINTS_CSV.splitlines()[1:] if line])
+    points = {n: rows[:, j] for j, n in enumerate(["t", "k", "c"])}
+    assert out == _expected_text(cb, points, fmt, ["v", "x"])
+    assert _click(args, stdin_text=POINTS_CSV if stdin else None) == (0, out, "")
+
+
+def test_lean_query_large_grid_matches_flat_evaluation(codebook_path, monkeypatch):
+    """A grid big enough for the chunked, threaded batch path."""
+    path = codebook_path("spring")
+    cb = Codebook.load(path)
+    args = ["--t", "0:4:97", "--k", "1:4:13", "--c", "0.1:0.5:7"]
+    code, out, _ = _lean(["query", path, *args], monkeypatch)
+    assert code == 0
+    assert out == _expected_text(cb, _product(cb, _coordinate_values(cb, args)), "plain", [])
+
+
+# ----------------------------------------------------------------------------------------------
+# everything else goes to click, untouched
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("args", [
+    ["--t", "5", "--k", "2", "--c", "0.3"],
+    ["--t", "1", "--k", "2"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "--z", "1"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "--field", "w"],
+    ["--t", "abc", "--k", "2", "--c", "0.3"],
+    ["--t", "1:2", "--k", "2", "--c", "0.3"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "--t", "2"],
+    ["--t", "1", "--k", "2", "--c"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "extra"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "--format", "xml"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "--format"],
+    ["--t", "nan", "--k", "2", "--c", "0.3"],
+    ["--help"],
+    ["--t", "1", "--k", "2", "--c", "0.3", "-h"],
+    ["--", "--t", "1", "--k", "2", "--c", "0.3"],
+    ["--points", "missing.csv"],
+])
+def test_lean_query_leaves_the_rest_to_click(codebook_path, monkeypatch, args):
+    path = codebook_path("spring")
+    assert _lean(["query", path, *args], monkeypatch) == (None, "", "")
+
+
+@pytest.mark.parametrize("text", ["t,k\n1,2\n", "t,k,c\n1,2,x\n", "", "t,k,c\n1,2\n"])
+def test_lean_query_points_errors_replay_stdin_to_click(codebook_path, monkeypatch, text):
+    """A bad --points - falls back to click, which reads the same input and reports it."""
+    path = codebook_path("spring")
+    expected = _click(["query", path, "--points", "-"], stdin_text=text)
+    assert expected[0] == 2 and expected[2].startswith("Error: stdin: ")
+    out, err = io.StringIO(), io.StringIO()
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(text.encode()), encoding="utf-8"))
+    monkeypatch.setattr(sys, "stdout", out)
+    monkeypatch.setattr(sys, "stderr", err)
+    code = _query.run(["query", str(path), "--points", "-"])
+    assert code is None and out.getvalue() == "" and err.getvalue() == ""
+    replay = sys.stdin.read()  # what click gets
+    monkeypatch.undo()
+    assert replay == text
+
+
+def test_lean_query_ignores_other_commands():
+    for argv in ([], ["query"], ["info", "x.h5"], ["--version"], ["solve", "spec.yaml"], ["query", "--t", "1"]):
+        assert _query.run(argv) is None
+
+
+def _console_script():
+    exe = shutil.which("pgd")
+    if exe is None:
+        pytest.skip("pgd console script not on PATH")
+    return exe
+
+
+@pytest.mark.parametrize("args,stdin", [
+    (["--t", "0:4:5", "--k", "2", "--c", "0.3", "--format", "csv"], None),
+    (["--points", "-", "--format", "json"], POINTS_CSV),
+    (["--t", "5", "--k", "2", "--c", "0.3"], None),            # out of domain: click's error
+    (["--t", "1", "--k", "2", "--c", "0.3", "--format", "xml"], None),
+    (["--points", "-"], "t,k\n1,2\n"),                         # stdin replayed to click
+    (["--help"], None),
+])
+def test_console_script_matches_click(codebook_path, args, stdin):
+    exe = _console_script()
+    path = codebook_path("spring")
+    proc = subprocess.run([exe, "query", str(path), *args], input=stdin, capture_output=True, text=True,
+                          timeout=120)
+    assert (proc.returncode, proc.stdout, proc.stderr) == _click(["query", path, *args], stdin_text=stdin)
+
+
+def test_lean_query_imports(codebook_path):
+    """No click, rich, scipy (or yaml, matplotlib) on the query path, and no threadpoolctl for small queries."""
+    path = codebook_path("spring")
+    code = (
+        "import sys, io\n"
+        "from pgdcli import _query\n"
+        "sys.stdout = io.StringIO()\n"
+        f"assert _query.run(['query', {str(path)!r}, '--t', '0:4:9', '--k', '2', '--c', '0.3']) == 0\n"
+        "sys.stdout = sys.__stdout__\n"
+        "print(' '.join(sorted({m.split('.')[0] for m in sys.modules})))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    loaded = set(proc.stdout.split())
+    assert "numpy" in loaded and "h5py" in loaded
+    for heavy in ("click", "rich", "scipy", "yaml", "matplotlib", "threadpoolctl", "pathlib", "tempfile"):
+        assert heavy not in loaded, heavy
+
+
+# ----------------------------------------------------------------------------------------------
+# Codebook evaluation paths agree bitwise
+# ----------------------------------------------------------------------------------------------
+def _plain_evaluation(cb, points):
+    """The textbook algorithm on flat points: per coordinate interpolation_matrix @ modes, product, @ alphas."""
+    product = None
+    for c, basis in zip(cb.coordinates, cb._bases):
+        modes = np.hstack([cb.fields[u].modes[cb.coordinate_names.index(c.name)] for u in cb.fields])
+        vals = basis.interpolation_matrix(np.clip(points[c.name], *c.domain)) @ modes
+        product = vals if product is None else product * vals
+    out, start = {}, 0
+    for u, fm in cb.fields.items():
+        out[u] = product[:, start:start + fm.rank] @ fm.alphas
+        start += fm.rank
+    return out
+
+
+def _with_nodes(cb, points, rng, fraction=0.2):
+    for c, basis in zip(cb.coordinates, cb._bases):
+        x = points[c.name]
+        hit = rng.random(x.size) < fraction
+        x[hit] = basis.nodes[rng.integers(0, basis.size, hit.sum())]
+    return points
+
+
+@pytest.mark.parametrize("name", ["spring", "relaxation", "parametric"])
+def test_one_point_is_the_plain_algorithm_bitwise(solved, name):
+    cb = solved(name).codebook
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        p = _with_nodes(cb, {c.name: rng.uniform(*c.domain, 1) for c in cb.coordinates}, rng, 0.3)
+        ref = _plain_evaluation(cb, p)
+        scalar = cb(**{k: float(v[0]) for k, v in p.items()})
+        array = cb(**p)
+        for u in cb.unknown_names:
+            assert scalar[u].shape == () and array[u].shape == (1,)
+            assert scalar[u].tobytes() == ref[u].tobytes() == array[u].tobytes()
+
+
+@pytest.mark.parametrize("name", ["spring", "relaxation"])
+def test_batches_agree_bitwise_whatever_the_chunks_and_threads(solved, monkeypatch, name):
+    cb = solved(name).codebook
+    rng = np.random.default_rng(8)
+    size = 3 * codebook_module._BLAS_LIMIT_MIN_POINTS + 65
+    p = _with_nodes(cb, {c.name: rng.uniform(*c.domain, size) for c in cb.coordinates}, rng)
+    ref = cb(**p)
+    plain = _plain_evaluation(cb, p)
+    for u in cb.unknown_names:
+        np.testing.assert_allclose(ref[u], plain[u], rtol=1e-13, atol=1e-13)
+    for chunk_bytes, threads in [(1, 1), (1, 2), (1 << 22, 1), (1 << 18, 3)]:
+        monkeypatch.setattr(codebook_module, "_CHUNK_BYTES", chunk_bytes)
+        monkeypatch.setattr(codebook_module, "_MAX_THREADS", threads)
+        monkeypatch.setattr(codebook_module, "_threads", lambda: threads)
+        other = cb(**p)
+        for u in cb.unknown_names:
+            assert other[u].tobytes() == ref[u].tobytes(), (chunk_bytes, threads)
+
+
+@pytest.mark.parametrize("name", ["spring", "relaxation", "parametric"])
+def test_broadcast_inputs_equal_the_flat_grid_bitwise(solved, name):
+    cb = solved(name).codebook
+    rng = np.random.default_rng(9)
+    d = len(cb.coordinates)
+    for counts in [(5, 1, 3, 2), (1, 7, 1, 1), (40, 30, 2, 2), (2, 2, 2, 2)]:
+        lists = {c.name: np.sort(rng.uniform(*c.domain, n)) for c, n in zip(cb.coordinates, counts)}
+        lists = _with_nodes(cb, lists, rng, 0.3)
+        shaped = {c.name: lists[c.name].reshape([-1 if i == j else 1 for i in range(d)])
+                  for j, c in enumerate(cb.coordinates)}
+        grid = cb(**shaped)
+        flat = cb(**_product(cb, lists))
+        for u in cb.unknown_names:
+            assert grid[u].shape == tuple(counts[:d])
+            assert grid[u].reshape(-1).tobytes() == flat[u].tobytes()
+
+
+def test_nodes_are_exact_on_every_path():
+    """Small-integer modes: every nodal sum is exact, so nodes must give nodal_values exactly."""
+    coords = [CoordinateInfo("t", (0.0, 2.0), 5, "chebyshev", "time"), CoordinateInfo("k", (1.0, 3.0), 4),
+              CoordinateInfo("a", (-1.0, 1.0), 3, "linear")]
+    rng = np.random.default_rng(0)
+    fields = {"u": FieldModes(np.array([1.0, -2.0, 0.5]), tuple(rng.integers(-4, 5, (c.nodes, 3)).astype(float)
+                                                                   for c in coords))}
+    cb = Codebook(coords, fields)
+    nodes = [c.basis().nodes for c in coords]
+    nodal = cb.nodal_values("u")
+    for index in np.ndindex(*nodal.shape):
+        x = {c.name: float(n[i]) for c, n, i in zip(coords, nodes, index)}
+        assert float(cb(**x)["u"]) == nodal[index]
+        assert float(cb(**{k: np.float64(v) for k, v in x.items()})["u"]) == nodal[index]
+    grid = cb(**{c.name: n.reshape([-1 if i == j else 1 for i in range(3)])
+                 for j, (c, n) in enumerate(zip(coords, nodes))})["u"]
+    assert np.array_equal(grid, nodal)
+
+
+def test_one_point_errors_match_the_array_path(solved):
+    cb = solved("spring").codebook
+    for bad in [5.0, -1.0, float("nan"), float("inf"), 4 + 1e-6]:
+        messages = []
+        for value in (bad, np.float64(bad), [bad], np.array(bad)):
+            with pytest.raises(QueryError) as info:
+                cb(t=value, k=2.0, c=0.3)
+            messages.append(str(info.value))
+        assert len(set(messages)) == 1, messages
+    # within the rounding slack of the domain: accepted and clipped, as for arrays
+    assert cb(t=4 + 1e-13, k=2, c=0.3)["x"].tobytes() == cb(t=[4.0], k=2, c=0.3)["x"].tobytes()
+
+
+def test_one_point_types(solved):
+    cb = solved("parametric").codebook
+    for t, k in [(5.0, 2.0), (5, 2), (np.float64(5), 2.0), (True, 2.0), ("5", 2.0)]:
+        out = cb(t=t, k=k)["u"]
+        assert isinstance(out, np.ndarray) and out.shape == () and out.dtype == np.float64
+        assert float(out) == pytest.approx((10.0 / 2.0 - 1.0) * float(t), abs=1e-12)
+    assert cb(t=[], k=2.0)["u"].shape == (0,)
+    assert cb(t=np.ones((2, 0)), k=2.0)["u"].shape == (2, 0)
+
+
+def test_blas_limit_is_restored_after_a_large_batch(solved):
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    cb = solved("spring").codebook
+    before = [m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"]
+    n = 2 * codebook_module._BLAS_LIMIT_MIN_POINTS
+    cb(t=np.linspace(0, 4, n), k=np.full(n, 2.0), c=np.full(n, 0.3))
+    after = [m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"]
+    assert before == after
