@@ -182,12 +182,11 @@ def test_cli_methods_match_the_reference():
     assert cli_module._VERIFY_METHODS == METHODS
 
 
-def test_module_and_function_both_callable(accurate):
+def test_package_verify_is_the_function_even_after_the_module_is_imported(accurate):
     import importlib
 
-    module = importlib.import_module("pgdcli.verify")
-    report = module(accurate["parametric"], samples=2, times=0, jobs=1)
-    assert report.passed(max_error=1e-10)
+    module = importlib.import_module("pgdcli.verification")
+    assert pgdcli.verify is module.verify
     assert pgdcli.verify(accurate["parametric"], samples=2, times=0, jobs=1).passed(max_error=1e-10)
 
 

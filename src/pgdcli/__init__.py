@@ -14,7 +14,7 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "load_spec", "parse_spec", "solve", "Codebook", "PgdError"]
+__all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "Codebook", "PgdError"]
 
 _LAZY = {
     "load_spec": ("spec", "load_spec"),
@@ -23,7 +23,7 @@ _LAZY = {
     "solve": ("solver", "solve"),
     "SolveResult": ("solver", "SolveResult"),
     "Codebook": ("codebook", "Codebook"),
-    "verify": ("verify", "verify"),
+    "verify": ("verification", "verify"),
     "PgdError": ("errors", "PgdError"),
 }
 

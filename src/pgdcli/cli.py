@@ -412,7 +412,7 @@ def verify_command(codebook, samples, sampling, seed, points, n_times, method, r
 
 def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error, max_rel_error,
             fmt, quiet):
-    from .verify import verify as verify_codebook
+    from .verification import verify as verify_codebook
 
     for hint, value in (("'--max-error'", max_error), ("'--max-rel-error'", max_rel_error)):
         if value is not None and not math.isfinite(value):

@@ -29,9 +29,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-import sys
 import time as _time
-import types
 import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
@@ -553,14 +551,3 @@ def verify(
         codebook_values=approx,
         wall_time=_time.perf_counter() - started,
     )
-
-
-# ``pgdcli.verify`` names the function (lazy attribute of the package) but becomes this module
-# when the module is imported first (``from pgdcli.verify import ...`` sets the package
-# attribute): calling the module calls the function, so ``pgdcli.verify(cb)`` works either way.
-class _CallableModule(types.ModuleType):
-    def __call__(self, *args, **kwargs):
-        return verify(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule
