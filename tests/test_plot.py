@@ -6,6 +6,11 @@ are ``codebook.evaluate`` values, error data are ``|codebook - reference|``.
 Every kind is rendered for every shipped problem to a PNG whose IHDR size is
 checked, and to an SVG that is parsed; the CLI's exit codes and one-line errors
 are checked with click's CliRunner.
+
+Tensor-train codebooks (the nonlinear time march: coupled.yaml, logistic.yaml):
+their HOSVD modes are checked against numpy's SVD of the unfoldings of
+``Codebook.nodal_values``, and the march convergence figure against the
+report's ``step_sizes`` and ``node_ranks``.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from pgdcli.errors import PgdError, QueryError
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ("parametric", "relaxation", "spring")
+MARCHED = ("coupled", "logistic")  # nonlinear: time march, tensor-train codebooks
 
 
 # ----------------------------------------------------------------------------------------------
@@ -524,3 +530,241 @@ def test_cli_needs_no_display_and_no_pyplot(plot_codebooks, tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == str(out)
     _png_size(out)
+
+
+# ----------------------------------------------------------------------------------------------
+# tensor-train codebooks (time march): HOSVD modes and the march's convergence
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def march_codebooks(tmp_path_factory):
+    """name -> (Codebook, Path): the nonlinear problems solved once per module (~1 s each), saved and
+    loaded back, so the report arrays are those read from the file."""
+    from pgdcli import load_spec, solve
+    from pgdcli.codebook import FieldTT
+
+    directory = tmp_path_factory.mktemp("march-codebooks")
+    out = {}
+    for name in MARCHED:
+        result = solve(load_spec(ROOT / "problems" / f"{name}.yaml"))
+        assert result.converged and result.codebook.report["method"] == "march"
+        path = result.codebook.save(directory / f"{name}.h5")
+        cb = Codebook.load(path)
+        assert all(isinstance(fm, FieldTT) for fm in cb.fields.values())
+        out[name] = (cb, path)
+    return out
+
+
+def _small_tt_codebook() -> Codebook:
+    """A random tensor train over (t, p, q, s) with its cores in the order (p, t, s, q).
+
+    p (piecewise linear, the first core, rank 3) has an unfolding of rank 3
+    below its 7 nodes; q (the last core) has 3 nodes, below its rank 5; t has
+    9 nodes below its core's 3 * 4 columns.
+    """
+    from pgdcli.codebook import CoordinateInfo, FieldTT
+
+    coords = [CoordinateInfo("t", (0.0, 2.0), 9, "chebyshev", "time"),
+              CoordinateInfo("p", (-1.0, 3.0), 7, "linear", "parameter"),
+              CoordinateInfo("q", (0.5, 1.5), 3, "chebyshev", "parameter"),
+              CoordinateInfo("s", (0.0, 1.0), 6, "chebyshev", "parameter")]
+    order = (1, 0, 3, 2)
+    ranks = (1, 3, 4, 5, 1)
+    rng = np.random.default_rng(11)
+    cores = tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1])) * (1.0 + k)
+                  for k, j in enumerate(order))
+    return Codebook(coords, {"w": FieldTT(cores, order)}, name="small-tt", report={})
+
+
+def _unfolding(full: np.ndarray, j: int) -> np.ndarray:
+    return np.moveaxis(full, j, 0).reshape(full.shape[j], -1)
+
+
+def _check_hosvd_panels(cb, field, data, atol_sigma=1e-12, atol_angle=1e-10):
+    """Panels of modes_data against numpy's SVD of the unfoldings of the full nodal tensor."""
+    full = cb.nodal_values(field)
+    assert [p["coordinate"] for p in data["panels"]] == cb.coordinate_names
+    for j, (c, panel) in enumerate(zip(cb.coordinates, data["panels"])):
+        u_np, s_np, _ = np.linalg.svd(_unfolding(full, j), full_matrices=False)
+        sigma = panel["singular_values"]
+        m = sigma.size
+        assert np.all(np.diff(sigma) <= 1e-12 * sigma[0])  # decreasing
+        np.testing.assert_allclose(sigma, s_np[:m], rtol=0, atol=atol_sigma * s_np[0])
+        np.testing.assert_allclose(s_np[m:], 0.0, atol=atol_sigma * s_np[0])  # nothing beyond the core's width
+        threshold = max(_unfolding(full, j).shape) * np.finfo(float).eps * s_np[0]  # numpy's matrix_rank
+        if not np.any(np.abs(s_np / threshold - 1.0) < 0.01):  # no singular value at the threshold
+            assert panel["rank"] == np.linalg.matrix_rank(_unfolding(full, j))
+        k = panel["count"]
+        assert k <= min(data["count"], panel["rank"])
+        vectors = panel["node_values"]
+        assert vectors.shape == (c.nodes, k)
+        np.testing.assert_allclose(vectors.T @ vectors, np.eye(k), rtol=0, atol=1e-12)  # normalized
+        # the same subspace as numpy's leading k left singular vectors ...
+        angles = scipy_linalg.subspace_angles(vectors, u_np[:, :k])
+        assert angles.max() < atol_angle
+        # ... and, where the singular values are well separated, the same vectors up to sign
+        for i in range(k):
+            gap = np.min(np.abs(np.delete(s_np, i) - s_np[i])) / s_np[0]
+            if gap > 1e-6:
+                assert abs(abs(vectors[:, i] @ u_np[:, i]) - 1.0) < 1e-9
+            big = np.argmax(np.abs(vectors[:, i]))
+            assert vectors[big, i] > 0  # sign convention
+        # plotted curves: the vectors at the nodes, the codebook's interpolant between them
+        x = panel["x"]
+        nodes = c.basis().nodes
+        idx = np.searchsorted(x, nodes)
+        np.testing.assert_array_equal(x[idx], nodes)
+        np.testing.assert_array_equal(panel["values"][idx], vectors)
+        np.testing.assert_allclose(panel["values"], c.basis().interpolate(vectors, x), rtol=0, atol=1e-14)
+
+
+scipy_linalg = pytest.importorskip("scipy.linalg")
+
+
+def test_tt_hosvd_modes_equal_svd_of_the_unfoldings():
+    cb = _small_tt_codebook()
+    fm = cb.fields["w"]
+    hosvd = P.tt_hosvd_modes(fm)
+    assert sorted(hosvd) == [0, 1, 2, 3]
+    widths = {j: min(cb.coordinates[j].nodes, fm.cores[k].shape[0] * fm.cores[k].shape[2])
+              for k, j in enumerate(fm.mode_order)}
+    for j, (u, s) in hosvd.items():
+        assert u.shape == (cb.coordinates[j].nodes, widths[j]) and s.shape == (widths[j],)
+    data = P.modes_data(cb, count=10, points=41)
+    assert data["representation"] == "tensor-train" and data["alphas"] is None
+    assert data["ranks"] == (3, 4, 5) and data["rank"] == 5
+    _check_hosvd_panels(cb, "w", data)
+    assert [p["rank"] for p in data["panels"]] == [9, 3, 3, 6]  # t, p, q, s: min(nodes, core columns)
+    assert [p["singular_values"].size for p in data["panels"]] == [9, 3, 3, 6]
+    assert [p["count"] for p in data["panels"]] == [9, 3, 3, 6]
+    assert data["count"] == 9
+    # count caps every panel
+    small = P.modes_data(cb, count=2)
+    assert [p["count"] for p in small["panels"]] == [2, 2, 2, 2]
+    for a, b in zip(small["panels"], data["panels"]):
+        np.testing.assert_array_equal(a["node_values"], b["node_values"][:, :2])
+
+
+@pytest.mark.parametrize("name", MARCHED)
+def test_march_modes_are_the_hosvd_of_the_nodal_values(march_codebooks, name):
+    cb, _ = march_codebooks[name]
+    field = cb.unknown_names[-1]
+    data = P.modes_data(cb, field=field)
+    assert data["field"] == field and data["count"] == 6
+    _check_hosvd_panels(cb, field, data, atol_sigma=1e-11, atol_angle=1e-8)
+
+
+def test_tt_modes_figure_draws_the_data(march_codebooks):
+    cb, _ = march_codebooks["coupled"]
+    data = P.modes_data(cb, count=4, field="u2")
+    fig = P.draw_modes(data)
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == 4
+    for ax, panel in zip(axes, data["panels"]):
+        lines = _line_data(ax)
+        assert len(lines) == panel["count"] == 4
+        for i, xy in enumerate(lines):
+            np.testing.assert_array_equal(xy[:, 0], panel["x"])
+            np.testing.assert_array_equal(xy[:, 1], panel["values"][:, i])
+        title = ax.get_title(loc="left")
+        assert f"rank {panel['rank']}" in title and "\u03c3 = " in title
+        assert P._compact(panel["singular_values"][0]) in title
+    legend = fig.legends[0]
+    assert [t.get_text() for t in legend.get_texts()] == ["mode 1", "mode 2", "mode 3", "mode 4"]
+    assert "normalized" in legend.get_title().get_text() and "HOSVD" in fig._suptitle.get_text()
+
+
+def test_march_convergence_data_is_the_report(march_codebooks):
+    for name in MARCHED:
+        cb, _ = march_codebooks[name]
+        rep = cb.report
+        data = P.convergence_data(cb)
+        assert data["method"] == "march" and data["time"] == "t"
+        np.testing.assert_array_equal(data["step_sizes"], rep["step_sizes"])
+        tc = cb.coordinates[0]
+        np.testing.assert_array_equal(data["step_end"], tc.domain[0] + np.cumsum(rep["step_sizes"]))
+        np.testing.assert_array_equal(data["step_start"][1:], data["step_end"][:-1])
+        assert data["step_start"][0] == tc.domain[0]
+        assert data["step_end"][-1] == pytest.approx(tc.domain[1], rel=1e-12)
+        np.testing.assert_array_equal(data["node_times"], tc.basis().nodes)
+        np.testing.assert_array_equal(data["node_ranks"], rep["node_ranks"])
+        np.testing.assert_array_equal(data["ranks"], np.asarray(rep["node_ranks"]).max(axis=2))
+        assert data["ranks"].shape == (tc.nodes, len(cb.unknown_names)) and data["unknowns"] == cb.unknown_names
+        assert data["steps"] == rep["steps"] == data["step_sizes"].size
+        assert data["rejected"] == rep["rejected_steps"]
+        assert data["error_estimate"] == rep["error_estimate"] and data["tolerance"] == rep["tolerance"]
+        assert data["converged"]
+
+
+def test_march_convergence_figure_draws_the_data(march_codebooks):
+    cb, _ = march_codebooks["coupled"]
+    data = P.convergence_data(cb)
+    fig = P.draw_convergence(data)
+    ax1, ax2 = fig.axes
+    (steps,) = _line_data(ax1)
+    np.testing.assert_array_equal(steps[:, 0], data["step_end"])
+    np.testing.assert_array_equal(steps[:, 1], data["step_sizes"])
+    (stairs,) = ax1.patches
+    values, edges, _ = stairs.get_data()
+    np.testing.assert_array_equal(values, data["step_sizes"])
+    np.testing.assert_array_equal(edges, np.concatenate([data["step_start"][:1], data["step_end"]]))
+    lines = _line_data(ax2)
+    assert len(lines) == len(data["unknowns"]) == 3
+    for i, xy in enumerate(lines):
+        np.testing.assert_array_equal(xy[:, 0], data["node_times"])
+        np.testing.assert_array_equal(xy[:, 1], data["ranks"][:, i])
+    labels = [t.get_text() for t in ax2.get_legend().get_texts()]
+    assert labels[0] == "u1" and all(lab.startswith(u) for lab, u in zip(labels, data["unknowns"]))
+    title = fig._suptitle.get_text()
+    assert P._sci(data["error_estimate"]) in title and P._sci(data["tolerance"]) in title
+    assert "tolerance 1e-9" in title
+    assert f"{data['steps']} accepted steps" in ax1.get_title(loc="left")
+
+
+def test_march_convergence_edge_cases(march_codebooks):
+    cb0, _ = march_codebooks["logistic"]
+    # no bonds (one parameter, or none): rank 1 at every node
+    report = dict(cb0.report, node_ranks=np.zeros((cb0.coordinates[0].nodes, 1, 0), dtype=int))
+    cb = Codebook(cb0.coordinates, cb0.fields, name="one-parameter", report=report)
+    data = P.convergence_data(cb)
+    np.testing.assert_array_equal(data["ranks"], np.ones((cb0.coordinates[0].nodes, 1)))
+    P.draw_convergence(data)
+    # a failed march stores no history: the error says so, with the solver's message
+    failed = {"converged": False, "method": "march", "message": "not converged: the solution blows up at t = 0.95",
+              "tolerance": 1e-9}
+    cb = Codebook(cb0.coordinates, cb0.fields, name="failed", report=failed)
+    with pytest.raises(PgdError, match=r"no time-march history .*blows up at t = 0\.95"):
+        P.convergence_data(cb)
+    bad = dict(cb0.report, node_ranks=np.ones((3, 1, 1), dtype=int))
+    with pytest.raises(PgdError, match="node_ranks has shape"):
+        P.convergence_data(Codebook(cb0.coordinates, cb0.fields, name="bad", report=bad))
+
+
+@pytest.mark.parametrize("name", MARCHED)
+@pytest.mark.parametrize("kind", ["modes", "convergence"])
+def test_render_march_png(march_codebooks, tmp_path, name, kind):
+    import warnings
+
+    _, path = march_codebooks[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # e.g. constrained layout collapsing: the figure would be unreadable
+        out = P.render(path, kind, tmp_path / f"{name}-{kind}.png", dpi=40, size=(5.5, 3.25))
+        assert _png_size(out) == (220, 130)
+        default = P.render(path, kind, tmp_path / f"{name}-{kind}-default.png")
+    data = P.modes_data(Codebook.load(path)) if kind == "modes" else P.convergence_data(Codebook.load(path))
+    fig = (P.draw_modes if kind == "modes" else P.draw_convergence)(data)
+    fw, fh = fig.get_size_inches() * P.DEFAULT_DPI
+    w, h = _png_size(default)
+    assert abs(w - fw) <= 1 and abs(h - fh) <= 1
+
+
+def test_cli_plots_a_tensor_train_codebook(march_codebooks, tmp_path):
+    """The reported failures: --kind modes raised AttributeError, --kind convergence found no history."""
+    _, path = march_codebooks["coupled"]
+    for kind in ("modes", "convergence"):
+        out = tmp_path / f"coupled-{kind}.svg"
+        r = _run("plot", str(path), "--kind", kind, "-o", str(out))
+        assert r.exit_code == 0, r.stderr
+        assert r.stdout == f"{out}\n" and r.stderr == ""
+        _svg_root(out)
+    r = _run("plot", str(path), "--field", "u3", "--count", "3", "-o", str(tmp_path / "u3.png"))
+    assert r.exit_code == 0, r.stderr

@@ -66,6 +66,10 @@ class PgdGroup(click.Group):
         return code
 
 
+def _warn(message: str) -> None:
+    click.echo(f"Warning: {' '.join(str(message).split())}", err=True)
+
+
 def _error(message: str) -> None:
     click.echo(f"Error: {' '.join(str(message).split())}", err=True)
 
@@ -147,7 +151,10 @@ def _solve(spec, output, tolerance, max_modes, fmt, quiet):
         result = solve_problem(problem, tolerance=tolerance, max_modes=max_modes)
     else:
         result = _solve_with_progress(console, problem, tol, nmax, solve_problem, tolerance, max_modes)
+    for warning in result.warnings:
+        _warn(warning)
     summary = _solve_summary(problem, result, target)
+    summary["warnings"] = list(result.warnings)
     if result.converged:
         result.codebook.save(target)
         summary["size_bytes"] = target.stat().st_size

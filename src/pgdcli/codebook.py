@@ -141,10 +141,13 @@ def _validate(name: str, coordinates: Sequence[CoordinateInfo], fm) -> None:
 # evaluation machinery (measurements: benchmarks/README.md)
 # ----------------------------------------------------------------------------------------------
 # Batches are evaluated in chunks of points whose working set (two (chunk, total rank) blocks and
-# two (chunk, nodes) blocks per coordinate) stays in a per-core L2 cache. Chunk lengths are
-# multiples of _ROW_ALIGN: BLAS kernels handle rows in small blocks and round a block's leftover
-# rows differently, so aligned chunks give each point bitwise the value that one product over
-# all points gives (as before chunking), whatever the chunk length or the number of threads.
+# two (chunk, nodes) blocks per coordinate) stays in a per-core L2 cache. A batch of at most one
+# chunk makes exactly the numpy/BLAS calls of the unchunked algorithm, so its values are bitwise
+# those of pgdcli <= 0.1.0. Larger batches: chunk lengths are multiples of _ROW_ALIGN, so every
+# row keeps its position in the row blocks of the BLAS kernels; the kernel a product takes still
+# depends on its shape (small-matrix kernels), so for some (nodes, rank) shapes a value can differ
+# in the last bit from the unchunked product over all points -- as that product's own values
+# depend on the number of points. One point takes a matrix-vector path (as before).
 _ROW_ALIGN = 64
 _CHUNK_BYTES = 1 << 20
 _MAX_CHUNK = 4096
@@ -157,7 +160,7 @@ _MAX_CHUNK = 4096
 _BLAS_LIMIT_MIN_POINTS = 4096
 _MAX_THREADS = 8
 _SCALAR_TYPES = frozenset({float, int, np.float64})
-_add_reduce = np.add.reduce
+_add_reduce, _dot, _multiply = np.add.reduce, np.dot, np.multiply
 _parallel_lock = threading.Lock()
 _blas_controller = None  # threadpoolctl.ThreadpoolController, built on first parallel batch; False: unavailable
 _basis_cache: dict = {}
@@ -201,7 +204,8 @@ def _chunk_length(rank: int, nodes: int) -> int:
 
 
 def _chunk_bounds(size: int, chunk: int) -> list[tuple[int, int]]:
-    """``[lo, hi)`` ranges of ``chunk`` points; a last range of one point joins the one before."""
+    """``[lo, hi)`` ranges of ``chunk`` points covering ``range(size)``; a last range of one point
+    joins the one before (a one-row product would take a matrix-vector path)."""
     edges = list(range(0, size, chunk)) + [size]
     if len(edges) > 2 and edges[-1] - edges[-2] == 1:
         del edges[-2]
@@ -301,6 +305,7 @@ class Codebook:
         bounds = np.cumsum([0] + [fm.rank for fm in cp.values()])
         self._slices = {u: slice(bounds[i], bounds[i + 1]) for i, u in enumerate(cp)}
         self._names = tuple(c.name for c in self.coordinates)
+        self._name_set = frozenset(self._names)
         self._point = [_PointData(c, b, m) for c, b, m in zip(self.coordinates, self._bases, self._stacked)]
 
     # ------------------------------------------------------------------ introspection
@@ -350,12 +355,13 @@ class Codebook:
             Missing, unknown or out-of-domain coordinates, unknown fields.
         """
         names = self._names
-        for key in coordinates:
-            if key not in names:
-                raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
-        for c in self.coordinates:
-            if c.name not in coordinates:
-                raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
+        if len(coordinates) != len(names) or not self._name_set.issuperset(coordinates):
+            for key in coordinates:
+                if key not in names:
+                    raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
+            for c in self.coordinates:
+                if c.name not in coordinates:
+                    raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
         selected = self._select(fields)
         if any(isinstance(self.fields[u], FieldTT) for u in selected):
             return self._evaluate_mixed(coordinates, selected)
@@ -363,25 +369,12 @@ class Codebook:
         if all(type(v) in _SCALAR_TYPES for v in raw):
             # one point given as Python numbers: a handful of small numpy calls, no broadcasting
             return self._evaluate_point([float(v) for v in raw], selected, ())
-        arrays = [np.asarray(v, dtype=float) for v in raw]
-        broadcast = np.broadcast_arrays(*arrays)
-        shape = broadcast[0].shape
-        size = math.prod(shape)
-        if self._stacked[0].shape[1] < 2:
-            # rank one: (points, nodes) @ (nodes, 1) is a matrix-vector product, whose rounding
-            # depends on a row's position; interpolate at every point as one batch, as always
-            arrays = broadcast
-        if size == 1:
+        arrays = np.broadcast_arrays(*[np.asarray(v, dtype=float) for v in raw])
+        shape = arrays[0].shape
+        if arrays[0].size == 1:
             return self._evaluate_point([float(a.reshape(-1)[0]) for a in arrays], selected, shape)
-        if size == 0:
-            return {u: np.empty(shape) for u in selected}
-        # every coordinate is checked and interpolated at its own (unbroadcast) values
         flat = [self._checked(c, a.reshape(-1)) for c, a in zip(self.coordinates, arrays)]
-        # where each point finds the value of a coordinate given at fewer values (None: one per point)
-        index = [None if x.size == size or x.size == 1 else
-                 np.broadcast_to(np.arange(x.size).reshape(a.shape), shape).reshape(-1)
-                 for x, a in zip(flat, arrays)]
-        values = self._evaluate_flat(flat, selected, size, index)
+        values = self._evaluate_flat(flat, selected)
         return {u: v.reshape(shape) for u, v in values.items()}
 
     def _evaluate_mixed(self, coordinates: Mapping[str, object], selected: list[str]) -> dict[str, np.ndarray]:
@@ -447,71 +440,48 @@ class Codebook:
                 row = np.zeros(len(nodes))
                 row[left] = 1.0 - theta
                 row[left + 1] = theta
-            vals = row @ p.modes  # (total rank,)
-            product = vals if product is None else product * vals
+            # np.dot: the gemv of `row @ modes` with less call overhead (for vector . vector it is
+            # not the same routine as `@`, whose rounding of zeros the last step keeps)
+            vals = _dot(row, p.modes)  # (total rank,)
+            product = vals if product is None else _multiply(product, vals, out=product)
         if shape == ():
             return {u: np.array(product[self._slices[u]] @ self.fields[u].alphas) for u in selected}
         return {u: np.array(product[self._slices[u]] @ self.fields[u].alphas).reshape(shape) for u in selected}
 
-    def _evaluate_flat(self, flat: list[np.ndarray], selected: list[str], size: int,
-                       index: list[np.ndarray | None]) -> dict[str, np.ndarray]:
-        """Evaluate ``size`` (>= 2) points.
+    def _evaluate_flat(self, flat: list[np.ndarray], selected: list[str]) -> dict[str, np.ndarray]:
+        """Evaluate at the points ``flat[j][i]`` (one array per coordinate, same length, not 1).
 
-        Coordinate ``j`` takes the values ``flat[j]``: one per point, or one for
-        all points, or ``flat[j][index[j]]``. Points are processed in cache-sized
-        chunks (:func:`_chunk_length`); a coordinate given at fewer values than
-        there are points is interpolated once, at its own values.
+        Chunk by chunk (:func:`_chunk_length` points, see the notes above it): per
+        coordinate the cardinal rows times the stacked modes of every unknown, their
+        product over coordinates, times each unknown's alphas.
         """
         bases, stacked, slices = self._bases, self._stacked, self._slices
-        rank = stacked[0].shape[1]
-        chunk = _chunk_length(rank, max(b.size for b in bases))
-        per_point = [x.size == size for x in flat]
-        # mode values of the coordinates not given one value per point: (values, total rank)
-        pre = [None if full else self._mode_values(j, x, chunk) for j, (x, full) in enumerate(zip(flat, per_point))]
+        size = flat[0].size
         out = {u: np.empty(size) for u in selected}
+        if size == 0:
+            return out
+        rank = stacked[0].shape[1]
+        chunk = min(size, _chunk_length(rank, max(b.size for b in bases)))
         alphas = {u: self.fields[u].alphas for u in selected}
 
         def run(bounds):
-            prod = np.empty((chunk + 1, rank))
-            vals = np.empty((chunk + 1, rank))
-            scratch = [(np.empty((chunk + 1, b.size)), np.empty((chunk + 1, b.size))) if full else None
-                       for b, full in zip(bases, per_point)]
+            rows = chunk + 1  # the last chunk may hold one more point (see _chunk_bounds)
+            prod = np.empty((rows, rank))
+            vals = np.empty((rows, rank))
+            scratch = [(np.empty((rows, b.size)), np.empty((rows, b.size))) for b in bases]
             for lo, hi in bounds:
                 m = hi - lo
                 p = prod[:m]
-                for j, (basis, modes, x, ix, v, buf) in enumerate(zip(bases, stacked, flat, index, pre, scratch)):
-                    target = p if j == 0 else vals[:m]
-                    if v is None:  # one value per point
-                        w = basis._interpolation_rows(x[lo:hi], buf[0][:m], buf[1][:m])
-                        np.matmul(w, modes, out=target)
-                    elif ix is None:  # one value for all points
-                        target[...] = v[0]
+                for j, (basis, modes, x, (weights, work)) in enumerate(zip(bases, stacked, flat, scratch)):
+                    w = basis._interpolation_rows(x[lo:hi], weights[:m], work[:m])
+                    if j == 0:
+                        np.matmul(w, modes, out=p)
                     else:
-                        np.take(v, ix[lo:hi], axis=0, out=target)
-                    if j:
-                        np.multiply(p, target, out=p)
+                        np.multiply(p, np.matmul(w, modes, out=vals[:m]), out=p)
                 for u in selected:
                     np.matmul(p[:, slices[u]], alphas[u], out=out[u][lo:hi])
 
         _run_chunks(run, _chunk_bounds(size, chunk))
-        return out
-
-    def _mode_values(self, j: int, x: np.ndarray, chunk: int) -> np.ndarray:
-        """All unknowns' modes of coordinate ``j`` at the points ``x``: shape (len(x), total rank).
-
-        One point is computed as the first of two (a 1-row product would be a
-        matrix-vector product, rounded differently from the rows of a batch).
-        """
-        basis, modes = self._bases[j], self._stacked[j]
-        if x.size == 1:
-            return self._mode_values(j, np.repeat(x, 2), chunk)[:1]
-        out = np.empty((x.size, modes.shape[1]))
-        weights = np.empty((min(chunk, x.size) + 1, basis.size))
-        work = np.empty_like(weights)
-        for lo, hi in _chunk_bounds(x.size, chunk):
-            m = hi - lo
-            w = basis._interpolation_rows(x[lo:hi], weights[:m], work[:m])
-            np.matmul(w, modes, out=out[lo:hi])
         return out
 
     def nodal_values(self, field_name: str) -> np.ndarray:
@@ -549,6 +519,11 @@ class Codebook:
             "solve_time": float(rep.get("wall_time", np.nan)),
             "pgdcli_version": str(rep.get("pgdcli_version", "")),
         }
+        if "resolution" in rep and "resolution_coordinates" in rep:
+            names = str(rep["resolution_coordinates"]).split(",")
+            table = np.asarray(rep["resolution"], dtype=float)
+            out["resolution"] = {u: {c: (float(v) if np.isfinite(v) else None) for c, v in zip(names, row)}
+                                 for u, row in zip(self.unknown_names, table)}
         if path is not None:
             out["size_bytes"] = os.path.getsize(path)
         return out

@@ -12,8 +12,11 @@ ranks stay near those of the solution instead of growing as N^2. The state is
 stored at the nodes of the time coordinate (steps land on them) and the
 codebook interpolates between them with the time basis.
 
-Error control, all in the Frobenius norm over the grid of parameter nodes
-(which bounds the largest nodal error): local Runge-Kutta error <=
+Error control, all in the root-mean-square norm over the nodes of the
+parameter grid (the Frobenius norm of the tensor divided by the square root
+of its size; a Frobenius bound would bound the largest nodal error but grows
+as sqrt(grid size), which in six dimensions asks for 512x the accuracy and
+ranks to match): local Runge-Kutta error <=
 ``0.3 * tolerance * h / T`` per step (error per unit step: the local errors
 add up to at most 0.3 tolerance), state rounding <= ``0.02 * tolerance`` per
 step, stage rounding <= ``0.05 * tolerance`` (its effect on the step is scaled
@@ -30,8 +33,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .basis import Basis1D, make_basis
+from .expressions import Separable, SepTerm, merge_to_function
 from .errors import SolverError
-from .tt import TT, tt_hadamard, tt_rank_one, tt_round, tt_round_many, tt_sum
+from .tt import (TT, _is_ones, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
+                 tt_round_sum_of_products, tt_sum)
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "march", "space_time_tt"]
 
@@ -49,6 +54,9 @@ LOCAL_FRACTION, STATE_FRACTION, STAGE_FRACTION = 0.3, 0.02, 0.05
 # by MAX_GROWTH_OF_NORM, ends the march (near a finite-time singularity the steps
 # shrink geometrically, so waiting for a floating-point underflow costs hundreds of steps).
 MIN_STEP = 1e-7
+# Above this implicit rank (sum over terms of the product ranks) a rounding goes
+# through the randomized sketch instead of forming the sum explicitly.
+EXACT_RANK_LIMIT = 160
 MAX_GROWTH_OF_NORM = 1e6
 
 
@@ -158,6 +166,10 @@ def compile_system(problem) -> NonlinearSystem:
         if atom.coordinate != tname or atom.order != 1:
             raise SolverError(f"{where}: equations[{eq.index}]: only first time derivatives are supported")
         if len(dsep.terms) != 1:
+            merged = merge_to_function(dsep)
+            if merged is not None:  # e.g. (a + 1)*der(u): one function of one coordinate
+                dsep = Separable((SepTerm(1.0, ((merged.coordinate, merged),) if merged.coordinate else ()),))
+        if len(dsep.terms) != 1:
             raise SolverError(f"{where}: equations[{eq.index}]: the coefficient of der({atom.unknown}) must be a "
                               f"single product of one-coordinate functions, got '{dsep}'")
         s = index[atom.unknown]
@@ -202,20 +214,56 @@ def _time_ratio(f, g):
     return None if f is None and g is None else _Ratio(f, g)
 
 
-def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: float, max_rank: int) -> list[TT]:
-    """``f_s(t, p, u)`` for every unknown, each rounded to absolute Frobenius error ``delta``."""
-    out = []
+def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: float, max_rank: int,
+                 rng: np.random.Generator | None = None) -> list[TT]:
+    """``f_s(t, p, u)`` for every unknown, each rounded to absolute Frobenius error ``delta``.
+
+    Every monomial becomes one Hadamard pair ``(coefficient * u_a, u_b)`` that
+    :func:`round_terms` sums without forming products of large rank.
+    """
+    ones = tt_ones(system.shape)
+    per_unknown = []
     for monomials in system.rhs:
-        parts = []
+        terms = []
         for coef, unknowns in monomials:
-            term = coef.at(t)
-            for k, s in enumerate(unknowns):
-                term = tt_hadamard(term, state[s])
-                if k < len(unknowns) - 1 and len(unknowns) > 2:
-                    term = tt_round(term, absolute=delta / 4, max_rank=max_rank)
-            parts.append(term)
-        out.append(tt_sum(parts) if parts else state[0].scaled(0.0))
-    return tt_round_many(out, absolute=delta, max_rank=max_rank)
+            a = coef.at(t)
+            factors = list(unknowns)
+            if factors:
+                a = tt_hadamard(a, state[factors.pop(0)])
+            while len(factors) > 1:  # degree >= 3: fold all but the last factor exactly
+                a = tt_round(tt_hadamard(a, state[factors.pop(0)]), absolute=delta / 4, max_rank=max_rank)
+            terms.append((1.0, a, state[factors[0]] if factors else ones))
+        if not terms:
+            terms.append((1.0, state[0].scaled(0.0), ones))
+        per_unknown.append(terms)
+    hints = [max(u.ranks, default=1) for u in state]
+    return round_terms(per_unknown, delta, hints, max_rank, rng)
+
+
+def round_terms(per_unknown: list[list[tuple[float, TT, TT]]], delta: float, hints: list[int], max_rank: int,
+                rng: np.random.Generator | None) -> list[TT]:
+    """Sum and round ``sum_m w_m A_m * B_m`` for every unknown (absolute Frobenius bound ``delta``).
+
+    Small implicit ranks: explicit sums rounded together (batched QR/SVD across
+    unknowns, the fast path for small problems). Large ones: each unknown by
+    the randomized sum-of-products rounding, sized from the unknown's current
+    rank, which never forms a product of rank r^2.
+    """
+    d = per_unknown[0][0][1].order
+
+    def implicit(terms):
+        if d == 1:
+            return 1
+        return sum(max(a.cores[k].shape[2] * b.cores[k].shape[2] for k in range(d - 1)) for _, a, b in terms)
+
+    if all(implicit(terms) <= EXACT_RANK_LIMIT for terms in per_unknown):
+        sums = []
+        for terms in per_unknown:
+            parts = [a if _is_ones(b) else tt_hadamard(a, b) for _, a, b in terms]
+            sums.append(tt_sum(parts, [w for w, _, _ in terms]))
+        return tt_round_many(sums, absolute=delta, max_rank=max_rank)
+    return [tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint + 4, rng=rng, max_rank=max_rank)
+            for terms, hint in zip(per_unknown, hints)]
 
 
 @dataclass
@@ -228,16 +276,6 @@ class MarchResult:
     error_estimate: float
     ranks: list[list[tuple[int, ...]]]  # [time node][unknown]
     step_sizes: list[float] = field(default_factory=list)
-
-
-def _combine(y: TT, ks: list[TT], weights, base_weight: float = 1.0) -> TT:
-    """``base_weight * y + sum_j w_j k_j`` (unrounded), skipping zero weights."""
-    pairs = [(k, float(w)) for k, w in zip(ks, weights) if w != 0.0]
-    terms = ([y] if base_weight != 0.0 else []) + [k for k, _ in pairs]
-    weights_ = ([base_weight] if base_weight != 0.0 else []) + [w for _, w in pairs]
-    if not terms:
-        return y.scaled(0.0)
-    return tt_sum(terms, weights_)
 
 
 def _frobenius_of_sum(terms: list[TT], weights) -> float:
@@ -279,7 +317,8 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     ----------
     system : NonlinearSystem
     tolerance : float
-        Absolute error target (Frobenius over the parameter grid, per unknown).
+        Error target: root mean square over the nodes of the parameter grid, per
+        unknown, of the local errors added up over the march.
     max_rank, max_steps : int
         Caps; exceeding them raises :class:`MarchFailure`.
     callback : callable, optional
@@ -298,12 +337,26 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     nodes = system.time_basis.nodes
     t_final = float(nodes[-1])
     q = len(system.unknowns)
-    local_tol = LOCAL_FRACTION * tolerance
-    state_delta = STATE_FRACTION * tolerance
-    stage_delta = STAGE_FRACTION * tolerance
+    # tolerance is a root-mean-square error over the parameter grid; the tensor
+    # arithmetic works with Frobenius norms, sqrt(grid size) times larger
+    frobenius = tolerance * np.sqrt(float(np.prod(system.shape)))
+    local_tol = LOCAL_FRACTION * frobenius
+    state_delta = STATE_FRACTION * frobenius
+    stage_delta = STAGE_FRACTION * frobenius
+
+    rng = np.random.default_rng(20240607)  # the randomized roundings: same spec, same codebook
+    ones = tt_ones(system.shape)
 
     def rhs(t, state):
-        return evaluate_rhs(system, t, state, stage_delta, max_rank)
+        return evaluate_rhs(system, t, state, stage_delta, max_rank, rng)
+
+    def combine(y, ks, weights, delta, base_weight=1.0):
+        """``base_weight * y + sum_j w_j k_j`` per unknown, rounded."""
+        per_unknown = []
+        for i in range(q):
+            terms = [(base_weight, y[i], ones)] + [(float(w), k[i], ones) for k, w in zip(ks, weights) if w != 0.0]
+            per_unknown.append([tm for tm in terms if tm[0] != 0.0])
+        return round_terms(per_unknown, delta, [max(u.ranks, default=1) for u in y], max_rank, rng)
 
     y = tt_round_many(system.initial, absolute=state_delta, max_rank=max_rank)
     t = float(nodes[0])
@@ -325,11 +378,10 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             raise MarchFailure("step size underflow (the solution blows up or is stiff)", t, y)
         K = [f]
         for s in range(1, n_stages):
-            stage = tt_round_many([_combine(y[i], [k[i] for k in K], h * A[s, :s]) for i in range(q)],
-                                  absolute=stage_delta, max_rank=max_rank)
+            stage = combine(y, K, h * A[s, :s], stage_delta)
             K.append(rhs(t + C[s] * h, stage))
-        y_new = tt_round_many([_combine(y[i], [k[i] for k in K], h * B) for i in range(q)],
-                              absolute=state_delta, max_rank=max_rank)
+        # the state's rounding budget is per unit step too: it adds up to STATE_FRACTION * tolerance
+        y_new = combine(y, K, h * B, state_delta * h / span)
         norm_new = max(u.norm() for u in y_new)
         if not np.isfinite(norm_new) or norm_new > MAX_GROWTH_OF_NORM * scale0:
             raise MarchFailure("the solution blows up", t, y)
@@ -360,20 +412,18 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             interior = [n for n in inside if nodes[n] < t_new]
             if interior:
                 for s, (a, c) in enumerate(zip(A_extra, C_extra), start=n_stages + 1):
-                    stage = tt_round_many([_combine(y[i], [k[i] for k in K], h * a[:s]) for i in range(q)],
-                                          absolute=stage_delta, max_rank=max_rank)
+                    stage = combine(y, K, h * a[:s], stage_delta)
                     K.append(rhs(t + c * h, stage))
             for n in inside:
                 if nodes[n] >= t_new:
                     states.append(y_new)
                     continue
                 w = _dense_weights((nodes[n] - t) / h, h, D)
-                values = [_combine(y[i], [y_new[i]] + [k[i] for k in K], w[1:], base_weight=w[0]) for i in range(q)]
-                states.append(tt_round_many(values, absolute=state_delta, max_rank=max_rank))
+                states.append(combine(y, [y_new] + K, w[1:], state_delta, base_weight=w[0]))
         t, y, f = t_new, y_new, f_new
         steps += 1
         sizes.append(h)
-        error_estimate += err + state_delta
+        error_estimate += err + state_delta * h / span
         # growth capped (a rejected step costs 12 stages) and none right after a rejection
         if not just_rejected or ratio < 0.5:
             h *= MAX_GROWTH if ratio == 0.0 else min(MAX_GROWTH, max(0.2, SAFETY * ratio ** (-1.0 / 7.0)))
@@ -381,7 +431,9 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
         if callback is not None:
             callback({"time": t, "end": t_final, "ranks": [u.ranks for u in y], "steps": steps})
     ranks = [[u.ranks for u in st] for st in states]
-    return MarchResult(states, steps, rejected, error_estimate, ranks, sizes)
+    error_estimate += state_delta  # the rounding of the values at the time nodes (once)
+    rms = error_estimate / np.sqrt(float(np.prod(system.shape)))
+    return MarchResult(states, steps, rejected, rms, ranks, sizes)
 
 
 def space_time_tt(states: list[TT], delta: float) -> TT:
@@ -483,11 +535,11 @@ def solve_march(problem, tolerance: float, callback=None):
                       description=problem.description)
         return SolveResult(cb, False, 3, message, np.array([np.inf]), np.zeros(0, dtype=int), wall)
     fields = {}
-    st_delta = STATE_FRACTION * tolerance
+    st_delta = STATE_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     for i, u in enumerate(system.unknowns):
         train = space_time_tt([states[i] for states in result.states], st_delta)
         fields[u] = FieldTT(train.cores, order)
-    estimate = result.error_estimate + st_delta
+    estimate = result.error_estimate + STATE_FRACTION * tolerance  # + the space-time rounding
     message = (f"converged: reached t = {system.time_basis.nodes[-1]:.6g} in {result.steps} steps "
                f"({result.rejected} rejected), error estimate {estimate:.3g} (tolerance {tolerance:.3g})")
     ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)

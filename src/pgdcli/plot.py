@@ -44,6 +44,7 @@ __all__ = [
     "FORMATS",
     "DEFAULT_DPI",
     "modes_data",
+    "tt_hosvd_modes",
     "convergence_data",
     "solution_data",
     "error_data",
@@ -253,57 +254,153 @@ def _reference_description(reference) -> str:
 # data
 # ----------------------------------------------------------------------------------------------
 def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *, points: int | None = None) -> dict:
-    """The first ``count`` stored modes of ``field`` per coordinate, on a fine grid.
+    """The first ``count`` modes of ``field`` per coordinate, on a fine grid.
+
+    A CP unknown (:class:`~pgdcli.codebook.FieldModes`) shows its stored modes.
+    A tensor-train unknown (:class:`~pgdcli.codebook.FieldTT`, the time march's
+    codebooks) has no per-coordinate modes of its own; it shows its HOSVD modes:
+    for coordinate ``j``, the leading left singular vectors of the tensor's
+    mode-``j`` unfolding (nodes of ``j`` x nodes of all other coordinates),
+    **normalized** to unit Euclidean norm over the nodes, with their singular
+    values. They are computed from the cores without forming the tensor (see
+    :func:`tt_hosvd_modes`), and each vector's entry of largest magnitude is
+    positive (the SVD leaves the sign free).
 
     Each coordinate's grid is ``points`` (default 201) equispaced samples of its
     domain merged with the basis nodes, and the modes are evaluated there with the
     codebook's own interpolant (``CoordinateInfo.basis().interpolation_matrix``), so
-    the curves pass through the stored nodal values.
+    the curves pass through the nodal values.
 
     Returns
     -------
     dict
-        ``kind``, ``problem``, ``field``, ``count`` (shown), ``rank`` (stored),
-        ``alphas`` (count,), and ``panels``: one dict per coordinate with
+        ``kind``, ``problem``, ``field``, ``representation`` ('cp' or
+        'tensor-train'), ``count`` (shown; for a tensor train the largest over
+        the panels), ``rank`` (CP: stored modes; tensor train: largest bond rank)
+        and ``panels``: one dict per coordinate (codebook order) with
         ``coordinate``, ``role``, ``domain``, ``x`` (P,), ``values`` (P, count),
         ``nodes`` (n,) and ``node_values`` (n, count).
+        CP: ``alphas`` (count,).
+        Tensor train: ``alphas`` None, ``ranks`` (bond ranks), and per panel
+        ``count``, ``rank`` (numerical rank of the unfolding: singular values
+        above ``max(unfolding shape) * eps * sigma_1``, numpy's ``matrix_rank``) and
+        ``singular_values`` (all min(n, r_{k-1} r_k) of them, decreasing).
     """
+    from .codebook import FieldTT
+
     name = _field(codebook, field)
     if int(count) != count or count < 1:
         raise QueryError(f"--count: expected an integer >= 1, got {count}")
     npts = _count_points(points, LINE_POINTS)
     fm = codebook.fields[name]
-    n = min(int(count), fm.rank)
+    tt = isinstance(fm, FieldTT)
+    if tt:
+        hosvd = tt_hosvd_modes(fm)
+        per_coordinate = [hosvd[j] for j in range(len(codebook.coordinates))]
+    else:
+        n = min(int(count), fm.rank)
+        per_coordinate = [(m[:, :n], None) for m in fm.modes]
     panels = []
-    for c, m in zip(codebook.coordinates, fm.modes):
+    grid = [c.nodes for c in codebook.coordinates]
+    for j, (c, (m, sigma)) in enumerate(zip(codebook.coordinates, per_coordinate)):
         basis = c.basis()
         x = np.union1d(np.linspace(c.domain[0], c.domain[1], npts), basis.nodes)
-        panels.append({
-            "coordinate": c.name,
-            "role": c.role,
-            "domain": tuple(c.domain),
-            "x": x,
-            "values": basis.interpolation_matrix(x) @ m[:, :n],
-            "nodes": np.array(basis.nodes),
-            "node_values": np.array(m[:, :n]),
-        })
-    return {"kind": "modes", "problem": codebook.name, "field": name, "count": n, "rank": fm.rank,
-            "alphas": np.array(fm.alphas[:n]), "panels": panels}
+        panel = {"coordinate": c.name, "role": c.role, "domain": tuple(c.domain), "x": x,
+                 "nodes": np.array(basis.nodes)}
+        if tt:
+            rank = _numerical_rank(sigma, (c.nodes, math.prod(grid) // c.nodes))
+            shown = min(int(count), rank)
+            m = m[:, :shown]
+            panel.update(count=shown, rank=rank, singular_values=sigma)
+        panel["values"] = basis.interpolation_matrix(x) @ m
+        panel["node_values"] = np.array(m)
+        panels.append(panel)
+    out = {"kind": "modes", "problem": codebook.name, "field": name, "panels": panels}
+    if tt:
+        out.update(representation="tensor-train", count=max(p["count"] for p in panels), rank=fm.rank,
+                   ranks=fm.ranks, alphas=None)
+    else:
+        out.update(representation="cp", count=n, rank=fm.rank, alphas=np.array(fm.alphas[:n]))
+    return out
 
 
-def convergence_data(codebook) -> dict:
-    """Relative residual against the number of modes, from the stored solver report.
+def _numerical_rank(sigma: np.ndarray, shape: tuple[int, int]) -> int:
+    """Singular values above ``max(shape) * eps * sigma_1``: numpy's ``matrix_rank`` of a matrix of
+    ``shape`` (here the unfolding: nodes of one coordinate x nodes of all the others)."""
+    if sigma.size == 0 or not sigma[0] > 0:
+        return 0
+    return int(np.count_nonzero(sigma > max(shape) * np.finfo(float).eps * sigma[0]))
+
+
+def tt_hosvd_modes(fm) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """HOSVD modes of a tensor train, without forming the tensor.
+
+    For each core ``k`` (coordinate ``j = fm.mode_order[k]``) the train is
+    orthogonalized around it -- QR sweeps from the left end up to core ``k``,
+    and from the right end down to it -- so that the mode-``j`` unfolding of the
+    tensor equals ``C_k`` (core ``k`` reshaped to ``(nodes_j, r_{k-1} r_k)``)
+    times a matrix with orthonormal rows. The SVD of ``C_k`` then gives the
+    unfolding's left singular vectors and singular values.
 
     Returns
     -------
     dict
-        ``modes`` (int array 0..n), ``residual`` (the report's ``residual_history``),
-        ``tolerance``, ``converged``, ``iterations`` (fixed-point iterations per mode
-        or None) and ``outer``: None, or ``{"iteration", "change"}`` from the report's
-        ``outer_history`` (nonlinear solvers: the outer iteration's change per
-        iteration).
+        Coordinate index ``j`` -> ``(U, s)``: ``U`` (nodes_j, m) orthonormal
+        columns, each with its entry of largest magnitude positive, and ``s``
+        (m,) the singular values in decreasing order, ``m = min(nodes_j,
+        r_{k-1} r_k)``.
+    """
+    cores = [np.asarray(c, dtype=float) for c in fm.cores]
+    d = len(cores)
+    out = {}
+    for k in range(d):
+        g = list(cores)
+        for i in range(k):  # left-orthogonal cores 0..k-1
+            r0, n, r1 = g[i].shape
+            q, r = np.linalg.qr(g[i].reshape(r0 * n, r1))
+            g[i] = q.reshape(r0, n, q.shape[1])
+            g[i + 1] = np.tensordot(r, g[i + 1], axes=(1, 0))
+        for i in range(d - 1, k, -1):  # right-orthogonal cores d-1..k+1
+            r0, n, r1 = g[i].shape
+            q, r = np.linalg.qr(g[i].reshape(r0, n * r1).T)
+            g[i] = q.T.reshape(q.shape[1], n, r1)
+            g[i - 1] = np.tensordot(g[i - 1], r.T, axes=(2, 0))
+        r0, n, r1 = g[k].shape
+        u, s, _ = np.linalg.svd(np.transpose(g[k], (1, 0, 2)).reshape(n, r0 * r1), full_matrices=False)
+        if u.size:
+            big = np.argmax(np.abs(u), axis=0)
+            u = u * np.where(u[big, np.arange(u.shape[1])] < 0, -1.0, 1.0)
+        out[fm.mode_order[k]] = (u, s)
+    return out
+
+
+def convergence_data(codebook) -> dict:
+    """How the solver converged, from the stored solver report.
+
+    PGD (enrichment) codebooks: relative residual against the number of modes.
+    Time-march codebooks (report ``method`` 'march'): the accepted step sizes
+    against time and the tensor-train ranks of the state at the time nodes.
+
+    Returns
+    -------
+    dict
+        Enrichment (``method`` 'pgd'): ``modes`` (int array 0..n), ``residual``
+        (the report's ``residual_history``), ``tolerance``, ``converged``,
+        ``iterations`` (fixed-point iterations per mode or None) and ``outer``:
+        None, or ``{"iteration", "change"}`` from the report's ``outer_history``
+        (nonlinear solvers: the outer iteration's change per iteration).
+        March (``method`` 'march'): ``step_sizes`` (N,) the report's accepted
+        step sizes; ``step_end`` (N,) the times they reach (start of the time
+        domain + their cumulative sum) and ``step_start`` (N,) where they begin;
+        ``time`` (name), ``node_times`` (T,) the time nodes; ``unknowns``;
+        ``ranks`` (T, unknowns) the largest bond rank of each unknown's state at
+        each time node (the report's ``node_ranks`` (T, unknowns, bonds) maxed
+        over the bonds; 1 when there are no bonds); ``node_ranks`` as stored;
+        ``steps``, ``rejected``, ``error_estimate``, ``tolerance``, ``converged``.
     """
     rep = codebook.report
+    if rep.get("method") == "march" or "step_sizes" in rep:
+        return _march_convergence_data(codebook)
     history = rep.get("residual_history")
     if history is None or np.size(history) == 0:
         raise PgdError(f"codebook {codebook.name!r} has no residual history in its solver report")
@@ -316,6 +413,7 @@ def convergence_data(codebook) -> dict:
         outer = {"iteration": np.arange(1, change.size + 1), "change": change}
     return {
         "kind": "convergence",
+        "method": "pgd",
         "problem": codebook.name,
         "modes": np.arange(residual.size),
         "residual": residual,
@@ -323,6 +421,43 @@ def convergence_data(codebook) -> dict:
         "converged": bool(rep.get("converged", False)),
         "iterations": None if iterations is None else np.asarray(iterations).reshape(-1),
         "outer": outer,
+    }
+
+
+def _march_convergence_data(codebook) -> dict:
+    rep = codebook.report
+    sizes, node_ranks = rep.get("step_sizes"), rep.get("node_ranks")
+    if sizes is None or node_ranks is None or np.size(sizes) == 0:
+        note = f" ({rep['message']})" if rep.get("message") else ""
+        raise PgdError(f"codebook {codebook.name!r} has no time-march history (step sizes and ranks) in its "
+                       f"solver report{note}")
+    tc = _time(codebook, "a time-march convergence plot")
+    node_times = np.array(tc.basis().nodes)
+    sizes = np.asarray(sizes, dtype=float).reshape(-1)
+    node_ranks = np.asarray(node_ranks)
+    unknowns = codebook.unknown_names
+    if node_ranks.ndim != 3 or node_ranks.shape[:2] != (node_times.size, len(unknowns)):
+        raise PgdError(f"codebook {codebook.name!r}: node_ranks has shape {node_ranks.shape}, expected "
+                       f"({node_times.size} time nodes, {len(unknowns)} unknowns, bonds)")
+    ranks = node_ranks.max(axis=2) if node_ranks.shape[2] else np.ones(node_ranks.shape[:2], dtype=int)
+    end = node_times[0] + np.cumsum(sizes)
+    return {
+        "kind": "convergence",
+        "method": "march",
+        "problem": codebook.name,
+        "time": tc.name,
+        "step_sizes": sizes,
+        "step_start": np.concatenate([node_times[:1], end[:-1]]),
+        "step_end": end,
+        "node_times": node_times,
+        "unknowns": list(unknowns),
+        "ranks": ranks,
+        "node_ranks": node_ranks,
+        "steps": int(rep.get("steps", sizes.size)),
+        "rejected": int(rep.get("rejected_steps", 0)),
+        "error_estimate": float(rep.get("error_estimate", np.nan)),
+        "tolerance": float(rep.get("tolerance", np.nan)),
+        "converged": bool(rep.get("converged", False)),
     }
 
 
@@ -534,13 +669,37 @@ def _fixed_note(fixed: Mapping[str, float]) -> str:
     return f" ({_label(fixed)})" if fixed else ""
 
 
+def _compact(v: float) -> str:
+    """Two significant digits, short exponents: 243 -> '240', 1.4e-05 -> '1.4e-5'."""
+    a = abs(v)
+    if a == 0 or 1e-3 <= a < 1e4:
+        return f"{v:.2g}" if a < 100 else f"{float(f'{v:.2g}'):.0f}"
+    mant, exp = f"{v:.1e}".split("e")
+    return f"{mant}e{int(exp)}"
+
+
+def _sci(v: float) -> str:
+    """Two significant digits, exponent without padding: 1e-09 -> '1e-9'."""
+    return f"{v:.2g}".replace("e-0", "e-").replace("e+0", "e+")
+
+
+def _sigma_list(sigma: np.ndarray, count: int) -> str:
+    shown = ", ".join(_compact(v) for v in sigma[:count])
+    return shown + (", \u2026" if sigma.size > count else "")
+
+
 def draw_modes(data: dict, *, fig=None, figsize=None):
-    """Figure of :func:`modes_data`: one panel per coordinate, one curve per mode."""
+    """Figure of :func:`modes_data`: one panel per coordinate, one curve per mode.
+
+    CP codebooks: the legend gives each mode's weight alpha. Tensor trains: the
+    HOSVD modes (unit norm over the nodes), the singular values above each panel.
+    """
     panels = data["panels"]
+    tt = data.get("representation") == "tensor-train"
     npan = len(panels)
     ncols = npan if npan <= 3 else (2 if npan == 4 else 3)
     nrows = math.ceil(npan / ncols)
-    fig = _new_figure(fig, figsize or (3.6 * ncols + 1.4, 2.9 * nrows + 0.6))
+    fig = _new_figure(fig, figsize or (3.6 * ncols + 1.4, (3.2 if tt else 2.9) * nrows + 0.6))
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     field = data["field"]
     for ax, panel in zip(axes, panels):
@@ -548,9 +707,10 @@ def draw_modes(data: dict, *, fig=None, figsize=None):
         step = max(1, x.size // 8)
         for i in range(vals.shape[1]):
             st = _style(i)
+            label = f"mode {i + 1}" if tt else f"mode {i + 1} (\u03b1={data['alphas'][i]:.3g})"
             ax.plot(x, vals[:, i], color=st["color"], linestyle=st["linestyle"], marker=st["marker"],
                     markersize=4.5, markerfacecolor="white", markevery=(i * step // max(vals.shape[1], 1), step),
-                    linewidth=1.6, label=f"mode {i + 1} (\u03b1={data['alphas'][i]:.3g})")
+                    linewidth=1.6, label=label)
         ax.axhline(0.0, color="0.6", linewidth=0.6, zorder=0)
         # the basis nodes as a rug along the bottom: where the stored values live
         ax.plot(panel["nodes"], np.zeros(panel["nodes"].size), linestyle="none", marker=2, markersize=6,
@@ -560,8 +720,21 @@ def draw_modes(data: dict, *, fig=None, figsize=None):
         ax.set_ylabel(f"modes of {field} in {panel['coordinate']}")
         ax.set_xlim(*panel["domain"])
         ax.grid(True, linewidth=0.4, alpha=0.5)
+        if tt:
+            sigma = panel["singular_values"]
+            ax.set_title(f"unfolding rank {panel['rank']}\n"
+                         f"\u03c3 = {_sigma_list(sigma, max(panel['count'], 1))}", fontsize="small", loc="left")
     for ax in axes[npan:]:
         ax.set_visible(False)
+    if tt:
+        widest = max(range(npan), key=lambda k: panels[k]["values"].shape[1])
+        handles, labels = axes[widest].get_legend_handles_labels()
+        ranks = "-".join(str(r) for r in data["ranks"]) or "none"
+        fig.legend(handles, labels, loc="outside right upper", fontsize="small", title_fontsize="small",
+                   title=f"{field}: tensor train\nranks {ranks}\n\nHOSVD modes,\nnormalized to\n"
+                         f"unit 2-norm\nat the nodes")
+        _title(fig, data, f"first {data['count']} HOSVD modes of {field}")
+        return fig
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right upper", fontsize="small", title=f"{field}: {data['rank']} modes")
     _title(fig, data, f"first {data['count']} modes of {field}")
@@ -569,7 +742,10 @@ def draw_modes(data: dict, *, fig=None, figsize=None):
 
 
 def draw_convergence(data: dict, *, fig=None, figsize=None):
-    """Figure of :func:`convergence_data`: residual (log) per mode, and the outer iteration if recorded."""
+    """Figure of :func:`convergence_data`: residual (log) per mode, and the outer iteration if recorded;
+    for a time march, the step sizes against time and the ranks at the time nodes."""
+    if data.get("method") == "march":
+        return _draw_march_convergence(data, fig=fig, figsize=figsize)
     outer = data["outer"]
     fig = _new_figure(fig, figsize or ((10.0, 4.2) if outer is not None else (6.4, 4.2)))
     axes = fig.subplots(1, 2 if outer is not None else 1, squeeze=False).ravel()
@@ -598,6 +774,56 @@ def draw_convergence(data: dict, *, fig=None, figsize=None):
         ax2.grid(True, which="both", linewidth=0.4, alpha=0.5)
         ax2.set_title("outer (nonlinear) iteration", fontsize="medium")
     _title(fig, data, "convergence")
+    return fig
+
+
+def _draw_march_convergence(data: dict, *, fig=None, figsize=None):
+    """(a) accepted step sizes against time, (b) tensor-train rank per time node and unknown."""
+    fig = _new_figure(fig, figsize or (8.4, 6.4))
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    tname, nodes = data["time"], data["node_times"]
+    sizes, start, end = data["step_sizes"], data["step_start"], data["step_end"]
+    # each step size held over the interval it covers, a marker where the step ends
+    ax1.stairs(sizes, np.concatenate([start[:1], end]), color=_COLORS[0], linewidth=1.6, baseline=None,
+               label="_intervals")
+    ax1.plot(end, sizes, linestyle="none", marker="o", markersize=4.5, markerfacecolor="white",
+             color=_COLORS[0], label="accepted step (marker at its end)", clip_on=False, zorder=4)
+    positive = sizes[sizes > 0]
+    if positive.size and positive.max() > 10 * positive.min():
+        ax1.set_yscale("log")
+    else:
+        ax1.set_ylim(0.0, 1.15 * float(sizes.max()) if sizes.size else 1.0)
+    ax1.plot(nodes, np.zeros(nodes.size), linestyle="none", marker=2, markersize=6, color="0.35",
+             transform=ax1.get_xaxis_transform(), clip_on=False, label="_nodes")
+    ax1.set_ylabel("step size")
+    ax1.grid(True, which="both", linewidth=0.4, alpha=0.5)
+    ax1.legend(fontsize="small", loc="best")
+    rejected = f", {data['rejected']} rejected" if data["rejected"] else ", none rejected"
+    ax1.set_title(f"(a) {sizes.size} accepted steps{rejected} (ticks on the axis: time nodes)",
+                  fontsize="medium", loc="left")
+    ranks = data["ranks"]
+    seen: dict[tuple, str] = {}
+    for i, u in enumerate(data["unknowns"]):
+        st = _style(i)
+        key = tuple(ranks[:, i].tolist())
+        label = u if key not in seen else f"{u} (same as {seen[key]})"
+        seen.setdefault(key, u)
+        # later lines drawn thinner with larger open markers: coinciding curves stay visible
+        ax2.plot(nodes, ranks[:, i], color=st["color"], linestyle=st["linestyle"], marker=st["marker"],
+                 markersize=4.5 + 2.0 * i, markerfacecolor="none", linewidth=max(0.8, 1.8 - 0.4 * i),
+                 label=label, zorder=3 + len(data["unknowns"]) - i, clip_on=False)
+    ax2.set_xlabel(f"{tname}  (time, {nodes.size} nodes)")
+    ax2.set_ylabel("tensor-train rank\n(largest bond)")
+    ax2.set_ylim(0, max(1, int(ranks.max()) if ranks.size else 1) * 1.15 + 0.5)
+    ax2.yaxis.get_major_locator().set_params(integer=True)
+    ax2.set_xlim(nodes[0], nodes[-1])
+    ax2.grid(True, linewidth=0.4, alpha=0.5)
+    ax2.legend(fontsize="small", loc="lower right", title="unknown", title_fontsize="small")
+    ax2.set_title("(b) rank of the state over the non-time coordinates, at the time nodes", fontsize="medium",
+                  loc="left")
+    state = "" if data["converged"] else ", not converged"
+    _title(fig, data, f"time march, error estimate {_sci(data['error_estimate'])} "
+                      f"(tolerance {_sci(data['tolerance'])}){state}")
     return fig
 
 

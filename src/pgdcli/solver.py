@@ -542,6 +542,9 @@ class SolveResult:
         Fixed-point iterations of each enrichment.
     wall_time : float
         Seconds.
+    warnings : list of str
+        Findings that do not stop the solve, e.g. a coordinate whose
+        Chebyshev tail suggests too few nodes.
     """
 
     codebook: object
@@ -551,6 +554,7 @@ class SolveResult:
     residuals: np.ndarray
     iterations: np.ndarray
     wall_time: float
+    warnings: list = field(default_factory=list)
 
     @property
     def residual(self) -> float:
@@ -607,7 +611,7 @@ def solve(problem, *, tolerance: float | None = None, max_modes: int | None = No
         from .march import solve_march
 
         with _blas_single_thread():
-            return solve_march(problem, tol, callback=callback)
+            return _with_resolution(solve_march(problem, tol, callback=callback), tol)
     started = _time.perf_counter()
     with _blas_single_thread():
         disc = discretize(problem)
@@ -639,7 +643,45 @@ def solve(problem, *, tolerance: float | None = None, max_modes: int | None = No
         "update": bool(opts.update),
     }
     codebook = codebook_from_solution(problem, disc, state.alphas, state.factors, report)
-    return SolveResult(codebook, converged, status, message, np.array(history), np.array(iterations, dtype=int), wall)
+    result = SolveResult(codebook, converged, status, message, np.array(history), np.array(iterations, dtype=int), wall)
+    return _with_resolution(result, None)
+
+
+def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveResult":
+    """Add the Chebyshev-tail resolution check to the report and to ``result.warnings``.
+
+    The tails estimate the interpolation error between nodes, which no residual
+    sees. The warning threshold is the tolerance for the march (an error
+    target) and 1e-6 of the largest nodal value for the enrichment (whose
+    tolerance is a relative residual).
+    """
+    from .resolution import resolution_tails
+
+    if not result.converged:
+        return result
+    cb = result.codebook
+    tails = resolution_tails(cb)
+    names = cb.coordinate_names
+    cb.report["resolution"] = np.array([[tails[u][c] for c in names] for u in cb.unknown_names])
+    cb.report["resolution_coordinates"] = ",".join(names)
+    for u in cb.unknown_names:
+        limit = tolerance
+        if limit is None:
+            limit = result.codebook.report.get("tolerance", 1e-8) * max(1.0, _nodal_scale(cb, u))
+        for c in names:
+            tail = tails[u][c]
+            if np.isfinite(tail) and tail > limit:
+                result.warnings.append(
+                    f"coordinate {c!r} may be under-resolved for {u!r}: Chebyshev tail {tail:.2g} > {limit:.2g}; "
+                    f"add nodes to {c!r}")
+    return result
+
+
+def _nodal_scale(cb, unknown: str) -> float:
+    fm = cb.fields[unknown]
+    if hasattr(fm, "alphas"):
+        return float(np.sum(np.abs(fm.alphas) * np.prod([np.abs(m).max(axis=0) for m in fm.modes], axis=0)))
+    return 1.0
 
 
 def _use_march(problem) -> bool:

@@ -1,0 +1,106 @@
+"""A posteriori resolution check of a codebook: Chebyshev tails per coordinate.
+
+A solver's residual or step error says how well the *discrete* problem was
+solved; between the nodes the codebook interpolates, and that error is only
+small if every coordinate has enough nodes. For a Chebyshev coordinate the
+size of the last Chebyshev coefficients of the solution along it estimates
+the interpolation error (they decay geometrically for smooth solutions), so
+this module reports, per unknown and coordinate, the root-mean-square over
+the other coordinates' nodes of ``max(|c_{n-2}|, |c_{n-1}|)``. Linear
+coordinates get the largest second difference over 8 instead (the
+piecewise-linear interpolation error of a smooth function).
+
+Computed from the separated form, never from the full tensor. numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["resolution_tails"]
+
+
+def _coefficient_matrix(n: int) -> np.ndarray:
+    """Values at the n Chebyshev-Lobatto points (increasing) -> Chebyshev coefficients."""
+    x = np.sin(np.pi * (2.0 * np.arange(n) - (n - 1)) / (2.0 * (n - 1)))
+    return np.linalg.inv(np.polynomial.chebyshev.chebvander(x, n - 1))
+
+
+def _tail_matrix(info) -> np.ndarray | None:
+    """Rows that map nodal values along a coordinate to its tail indicators."""
+    n = info.nodes
+    if info.discretization == "chebyshev":
+        if n < 4:
+            return None
+        return _coefficient_matrix(n)[-2:]
+    if n < 3:
+        return None
+    second = np.zeros((n - 2, n))
+    for i in range(n - 2):
+        second[i, i:i + 3] = (1.0, -2.0, 1.0)
+    return second / 8.0
+
+
+def _tt_centre_cores(cores: list[np.ndarray]) -> list[np.ndarray]:
+    """For each position k, core k of the train orthogonalized around k (others orthonormal)."""
+    d = len(cores)
+    right = [x.copy() for x in cores]
+    for k in range(d - 1, 0, -1):
+        r0, n, r1 = right[k].shape
+        q, r = np.linalg.qr(right[k].reshape(r0, n * r1).T)
+        right[k] = q.T.reshape(q.shape[1], n, r1)
+        right[k - 1] = np.tensordot(right[k - 1], r.T, axes=(2, 0))
+    centres = [right[0]]
+    for k in range(d - 1):
+        r0, n, r1 = centres[-1].shape
+        _, r = np.linalg.qr(centres[-1].reshape(r0 * n, r1))
+        centres.append(np.tensordot(r, right[k + 1], axes=(1, 0)))
+    return centres
+
+
+def resolution_tails(codebook) -> dict[str, dict[str, float]]:
+    """Tail indicator per unknown and coordinate (NaN when the coordinate is too coarse to tell).
+
+    Returns
+    -------
+    dict
+        ``{unknown: {coordinate: rms tail}}``.
+    """
+    from .codebook import FieldTT
+
+    coords = codebook.coordinates
+    sizes = [c.nodes for c in coords]
+    total = float(np.prod(sizes))
+    tails = [_tail_matrix(c) for c in coords]
+    out: dict[str, dict[str, float]] = {}
+    for name, fm in codebook.fields.items():
+        res = {}
+        if isinstance(fm, FieldTT):
+            centres = _tt_centre_cores(list(fm.cores))
+            for core, j in zip(centres, fm.mode_order):
+                t = tails[j]
+                if t is None:
+                    res[coords[j].name] = float("nan")
+                    continue
+                coef = np.einsum("kn,anb->akb", t, core)
+                per = np.sqrt(np.sum(coef * coef, axis=(0, 2)))  # Frobenius over the other coordinates
+                res[coords[j].name] = float(per.max() / np.sqrt(total / sizes[j]))
+        else:
+            a = fm.alphas
+            grams = [m.T @ m for m in fm.modes]
+            for j, c in enumerate(coords):
+                t = tails[j]
+                if t is None or a.size == 0:
+                    res[c.name] = float("nan") if t is None else 0.0
+                    continue
+                other = np.ones((a.size, a.size))
+                for m, g in enumerate(grams):
+                    if m != j:
+                        other *= g
+                worst = 0.0
+                for row in t @ fm.modes[j]:  # (rank,) coefficients of each tail row
+                    w = a * row
+                    worst = max(worst, float(np.sqrt(max(w @ other @ w, 0.0))))
+                res[c.name] = worst / np.sqrt(total / sizes[j])
+        out[name] = res
+    return out

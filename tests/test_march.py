@@ -1,0 +1,371 @@
+"""Nonlinear problems through the separated time march (pgdcli.march, issue 3).
+
+References are independent of pgdcli: scipy's solve_ivp (DOP853, rtol = atol =
+1e-12) for the coupled system, the closed form for the logistic and
+relaxation equations. Each expensive solve runs once per module.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import re
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+from conftest import PROBLEMS
+from scipy.integrate import solve_ivp
+
+import pgdcli
+from pgdcli import load_spec, parse_spec
+from pgdcli.cli import cli
+from pgdcli.codebook import Codebook, FieldTT
+from pgdcli.errors import SolverError
+from pgdcli.march import compile_system
+
+EPS = np.finfo(float).eps
+
+
+def _variant(name: str, edit) -> str:
+    """The YAML text of problems/<name>.yaml after ``edit(data)`` (the shipped file is not touched)."""
+    data = yaml.safe_load((PROBLEMS / f"{name}.yaml").read_text())
+    edit(data)
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def _invoke(args):
+    return CliRunner().invoke(cli, [str(a) for a in args], prog_name="pgd")
+
+
+def _one_error_line(result) -> str:
+    assert "Traceback" not in result.stderr, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: "), result.stderr
+    return lines[0]
+
+
+# ----------------------------------------------------------------------------------------------
+# module fixtures: each problem solved once
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def coupled():
+    return pgdcli.solve(load_spec(PROBLEMS / "coupled.yaml"))
+
+
+@pytest.fixture(scope="module")
+def logistic():
+    return pgdcli.solve(load_spec(PROBLEMS / "logistic.yaml"))
+
+
+def _relaxation_march(data):
+    data["solver"] = {"tolerance": 1e-9, "method": "march"}
+
+
+RELAXATION_MARCH = _variant("relaxation", _relaxation_march)
+
+
+@pytest.fixture(scope="module")
+def relaxation_march():
+    return pgdcli.solve(parse_spec(RELAXATION_MARCH, source="relaxation-march.yaml"))
+
+
+def _blowup(data):
+    data["coordinates"]["t"] = {"domain": [0, 1], "nodes": 12}
+    for c in ("a", "b", "c"):
+        data["coordinates"][c]["nodes"] = 6
+    data["solver"]["tolerance"] = 1e-6
+
+
+BLOWUP_TEXT = _variant("coupled", _blowup)
+
+
+@pytest.fixture(scope="module")
+def blowup():
+    return pgdcli.solve(parse_spec(BLOWUP_TEXT, source="blowup.yaml"))
+
+
+# ----------------------------------------------------------------------------------------------
+# accuracy
+# ----------------------------------------------------------------------------------------------
+def _coupled_rhs(t, y):
+    u1, u2, u3 = y.reshape(3, -1)
+    return np.concatenate([1.0 - u2 * u3, 2.0 - u1 * u3, 3.0 - u1 * u2])
+
+
+def _box_points(rng, n_random=200, per_face=8):
+    """Random points of [0, 1]^3, all 8 corners and random points on each of the 6 faces."""
+    pts = [rng.uniform(0.0, 1.0, (n_random, 3)), np.array(list(itertools.product((0.0, 1.0), repeat=3)))]
+    for axis in range(3):
+        for side in (0.0, 1.0):
+            face = rng.uniform(0.0, 1.0, (per_face, 3))
+            face[:, axis] = side
+            pts.append(face)
+    return np.concatenate(pts)
+
+
+def test_coupled_matches_solve_ivp(coupled, record_property):
+    cb = coupled.codebook
+    assert coupled.converged, coupled.message
+    tol = cb.report["tolerance"]
+    assert tol == load_spec(PROBLEMS / "coupled.yaml").solver.tolerance
+    rng = np.random.default_rng(2024)
+    ics = _box_points(rng)
+    assert ics.shape[0] >= 256
+    nodes = cb.coordinate("t").basis().nodes
+    assert nodes.size == 16
+    times = np.unique(np.concatenate([nodes, rng.uniform(0.0, 0.5, 8)]))
+    assert times.size >= 24
+    sol = solve_ivp(_coupled_rhs, (0.0, 0.5), ics.T.reshape(-1), method="DOP853", t_eval=times,
+                    rtol=1e-12, atol=1e-12)
+    assert sol.success, sol.message
+    ref = sol.y.reshape(3, ics.shape[0], times.size)  # (unknown, point, time)
+    values = cb(t=times[None, :], a=ics[:, :1], b=ics[:, 1:2], c=ics[:, 2:3])  # (point, time)
+    errors = {u: float(np.max(np.abs(values[u] - ref[i]))) for i, u in enumerate(("u1", "u2", "u3"))}
+    record_property("coupled_max_abs_error", errors)
+    print("coupled max abs error vs solve_ivp:", errors, "tolerance", tol)
+    for u, e in errors.items():
+        assert e <= 1e-7, (u, e)
+    for u, e in errors.items():  # the solver's own tolerance bounds the error it reports
+        assert e <= tol, (u, e, tol)
+
+
+def test_logistic_matches_exact_solution(logistic, record_property):
+    cb = logistic.codebook
+    assert logistic.converged, logistic.message
+    tol = cb.report["tolerance"]
+    rng = np.random.default_rng(7)
+    n = 500
+    domains = {c.name: c.domain for c in cb.coordinates}  # the shipped spec's box
+    p = {name: rng.uniform(*domains[name], n) for name in ("t", "r", "u0")}
+    corners = np.array(list(itertools.product(*(domains[name] for name in ("t", "r", "u0")))))
+    p = {k: np.concatenate([v, corners[:, j]]) for j, (k, v) in enumerate(p.items())}
+    e = np.exp(p["r"] * p["t"])
+    exact = p["u0"] * e / (1.0 - p["u0"] + p["u0"] * e)
+    err = float(np.max(np.abs(cb(**p)["u"] - exact)))
+    record_property("logistic_max_abs_error", err)
+    print("logistic max abs error:", err, "tolerance", tol)
+    assert err <= 1e-8
+    assert err <= tol, (err, tol)
+
+
+def test_linear_problem_forced_through_the_march(relaxation_march, record_property):
+    res = relaxation_march
+    cb = res.codebook
+    assert res.converged, res.message
+    assert cb.report["method"] == "march"
+    assert all(isinstance(f, FieldTT) for f in cb.fields.values())
+    tol = cb.report["tolerance"]
+    assert tol == 1e-9
+    rng = np.random.default_rng(11)
+    n = 1000
+    p = {"t": rng.uniform(0, 3, n), "k": rng.uniform(0.5, 5, n), "a": rng.uniform(-1, 1, n),
+         "u0": rng.uniform(0, 1, n)}
+    t, k, a, u0 = p["t"], p["k"], p["a"], p["u0"]
+    decay = np.exp(-k * t)
+    exact = u0 * decay + a * (k * np.sin(2 * t) - 2 * np.cos(2 * t) + 2 * decay) / (k * k + 4.0)
+    err = float(np.max(np.abs(cb(**p)["u"] - exact)))
+    record_property("relaxation_march_max_abs_error", err)
+    print("relaxation through the march: max abs error", err, "tolerance", tol)
+    assert err <= tol, (err, tol)
+
+
+# ----------------------------------------------------------------------------------------------
+# the solver report
+# ----------------------------------------------------------------------------------------------
+def test_coupled_report(coupled):
+    rep = coupled.codebook.report
+    assert rep["converged"] is True and rep["method"] == "march"
+    assert isinstance(rep["steps"], int) and rep["steps"] >= 1
+    sizes = np.asarray(rep["step_sizes"])
+    assert sizes.shape == (rep["steps"],)
+    assert np.all(sizes > 0)
+    assert float(np.sum(sizes)) == pytest.approx(0.5, rel=0, abs=1e-12)
+    assert 0.0 < rep["error_estimate"] <= rep["tolerance"]
+    ranks = np.asarray(rep["node_ranks"])
+    assert ranks.shape == (16, 3, 2)  # (time nodes, unknowns, bonds of the (a, b, c) train)
+    np.testing.assert_array_equal(ranks[0], np.ones((3, 2)))  # u(0) = (a, b, c): rank one
+    assert ranks.min() >= 1 and ranks.max() <= rep["max_rank"]
+    assert f"{rep['steps']} steps" in coupled.message
+
+
+@pytest.mark.parametrize("name", ["logistic", "relaxation_march"])
+def test_report_error_estimate_within_tolerance(name, request):
+    """A converged march must not report an error estimate above its tolerance."""
+    res = request.getfixturevalue(name)
+    rep = res.codebook.report
+    assert res.converged
+    nt = res.codebook.coordinate("t").nodes
+    assert np.asarray(rep["node_ranks"]).shape[:2] == (nt, len(res.codebook.fields))
+    assert float(np.sum(rep["step_sizes"])) == pytest.approx(res.codebook.coordinate("t").domain[1], abs=1e-12)
+    assert rep["error_estimate"] <= rep["tolerance"], (rep["error_estimate"], rep["tolerance"], rep["steps"])
+
+
+# ----------------------------------------------------------------------------------------------
+# the tensor-train codebook
+# ----------------------------------------------------------------------------------------------
+def test_save_load_round_trip_is_bitwise(coupled, tmp_path):
+    cb = coupled.codebook
+    path = cb.save(tmp_path / "coupled.h5")
+    back = Codebook.load(path)
+    assert back.unknown_names == cb.unknown_names
+    for u, fm in cb.fields.items():
+        fb = back.fields[u]
+        assert isinstance(fb, FieldTT)
+        assert tuple(fb.mode_order) == tuple(fm.mode_order)
+        assert len(fb.cores) == len(fm.cores)
+        for c0, c1 in zip(fm.cores, fb.cores):
+            assert c0.shape == c1.shape and np.array_equal(c0, c1)
+    rng = np.random.default_rng(3)
+    p = {"t": rng.uniform(0, 0.5, 300), "a": rng.uniform(0, 1, 300), "b": rng.uniform(0, 1, 300),
+         "c": rng.uniform(0, 1, 300)}
+    v0, v1 = cb(**p), back(**p)
+    for u in cb.unknown_names:
+        assert np.array_equal(v0[u], v1[u]), u
+    np.testing.assert_array_equal(back.report["node_ranks"], cb.report["node_ranks"])
+    np.testing.assert_array_equal(back.report["step_sizes"], cb.report["step_sizes"])
+
+
+def test_evaluation_at_nodes_equals_nodal_values(coupled):
+    cb = coupled.codebook
+    grids = [c.basis().nodes for c in cb.coordinates]
+    d = len(grids)
+    # every node of t and a; every third node of b and c, ends included (keeps the batch small)
+    picks = [np.arange(g.size) if j < 2 else np.unique(np.r_[np.arange(0, g.size, 3), g.size - 1])
+             for j, g in enumerate(grids)]
+    coords = {c.name: g[ix].reshape([-1 if j == i else 1 for j in range(d)])
+              for i, (c, g, ix) in enumerate(zip(cb.coordinates, grids, picks))}
+    values = cb(**coords)
+    sub = np.ix_(*picks)
+    for u, fm in cb.fields.items():
+        full_nodal = cb.nodal_values(u)
+        assert full_nodal.shape == tuple(g.size for g in grids)
+        nodal = full_nodal[sub]
+        assert nodal.shape == values[u].shape
+        # rounding of the contraction: gamma_n * (the contraction of |cores|), n = inner dimensions
+        bound_full = np.abs(fm.cores[0][0])
+        for core in fm.cores[1:]:
+            bound_full = np.tensordot(bound_full, np.abs(core), axes=(-1, 0))
+        bound = np.transpose(bound_full[..., 0], np.argsort(fm.mode_order))[sub]
+        n = sum(fm.ranks) + len(fm.cores)
+        assert np.all(np.abs(values[u] - nodal) <= 2 * n * EPS * bound), u
+
+
+def test_scalar_and_broadcast_shapes(coupled):
+    cb = coupled.codebook
+    out = cb(t=0.25, a=0.1, b=0.2, c=0.3)
+    assert list(out) == ["u1", "u2", "u3"]
+    for v in out.values():
+        assert isinstance(v, np.ndarray) and v.shape == ()
+    t = np.array([[0.0], [0.1], [0.5]])
+    a = np.array([0.0, 0.3, 0.7, 1.0])
+    grid = cb(t=t, a=a, b=0.5, c=0.5)
+    assert grid["u1"].shape == (3, 4)
+    for i in range(3):
+        for j in range(4):
+            one = cb(t=float(t[i, 0]), a=float(a[j]), b=0.5, c=0.5)
+            for u in cb.unknown_names:
+                assert grid[u][i, j] == pytest.approx(float(one[u]), rel=1e-13, abs=1e-13)
+    assert cb(t=[0.1, 0.2], a=0.5, b=0.5, c=0.5)["u2"].shape == (2,)
+    assert cb(t=np.full((2, 1, 3), 0.2), a=np.full((4, 1), 0.5), b=0.5, c=0.5)["u3"].shape == (2, 4, 3)
+    sel = cb.evaluate({"t": 0.2, "a": 0.5, "b": 0.5, "c": 0.5}, fields=["u3", "u1"])
+    assert list(sel) == ["u3", "u1"]
+    # at t = 0 the codebook gives the initial conditions
+    ic = cb(t=0.0, a=0.3, b=0.6, c=0.9)
+    for u, v in zip(cb.unknown_names, (0.3, 0.6, 0.9)):
+        assert float(ic[u]) == pytest.approx(v, abs=1e-9)
+
+
+def test_out_of_domain_query(coupled):
+    with pytest.raises(pgdcli.PgdError, match="'t'.*outside the domain"):
+        coupled.codebook(t=0.6, a=0.5, b=0.5, c=0.5)
+
+
+def test_info_json_shows_tensor_train(coupled, tmp_path):
+    path = coupled.codebook.save(tmp_path / "coupled.h5")
+    result = _invoke(["info", path, "--format", "json"])
+    assert result.exit_code == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert set(summary["unknowns"]) == {"u1", "u2", "u3"}
+    for u, s in summary["unknowns"].items():
+        fm = coupled.codebook.fields[u]
+        assert s["representation"] == "tensor-train"
+        assert s["ranks"] == list(fm.ranks)
+        assert len(s["ranks"]) == 3  # (t, a, b, c): three bonds
+        assert s["modes"] == max(fm.ranks)
+    assert summary["converged"] is True
+
+
+# ----------------------------------------------------------------------------------------------
+# blow-up on t in [0, 1]
+# ----------------------------------------------------------------------------------------------
+def test_blowup_is_reported_with_time_and_region(blowup):
+    assert blowup.converged is False
+    msg = blowup.message
+    m = re.search(r"t = ([0-9.eE+-]+)", msg)
+    assert m, msg
+    assert 0.95 <= float(m.group(1)) <= 0.96, msg
+    for needle in ("a=0", "b=1", "c=1"):
+        assert re.search(rf"\b{needle}(?![\d.])", msg), (needle, msg)
+    assert 0.95 <= blowup.codebook.report["failed_time"] <= 0.96
+
+
+def test_cli_solve_blowup_exits_1_without_codebook(tmp_path):
+    spec = tmp_path / "blowup.yaml"
+    spec.write_text(BLOWUP_TEXT)
+    out = tmp_path / "blowup.h5"
+    result = _invoke(["solve", spec, "-o", out, "-q"])
+    assert result.exit_code == 1, (result.exit_code, result.stdout, result.stderr)
+    assert result.stdout == ""
+    line = _one_error_line(result)
+    assert "t = 0.95" in line, line
+    for needle in ("a=0", "b=1", "c=1"):
+        assert re.search(rf"\b{needle}(?![\d.])", line), (needle, line)
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blowup.yaml"]
+
+
+# ----------------------------------------------------------------------------------------------
+# method selection and compile errors
+# ----------------------------------------------------------------------------------------------
+PGD_ON_NONLINEAR = _variant("coupled", lambda data: data["solver"].update(method="pgd"))
+
+
+def test_method_pgd_on_nonlinear_problem_is_a_solver_error(tmp_path):
+    with pytest.raises(SolverError, match=r"solver\.method.*'pgd'.*linear"):
+        pgdcli.solve(parse_spec(PGD_ON_NONLINEAR, source="coupled-pgd.yaml"))
+    spec = tmp_path / "coupled-pgd.yaml"
+    spec.write_text(PGD_ON_NONLINEAR)
+    out = tmp_path / "out.h5"
+    result = _invoke(["solve", spec, "-o", out, "-q"])
+    assert result.exit_code == 2, (result.stdout, result.stderr)
+    line = _one_error_line(result)
+    assert "pgd" in line and "coupled-pgd.yaml" in line, line
+    assert not out.exists()
+
+
+_SMALL = """
+coordinates:
+  t: {domain: [0, 0.5], nodes: 6}
+  a: {domain: [0, 1], nodes: 4}
+  b: {domain: [0, 1], nodes: 4}
+unknowns:
+  u1: {initial: a}
+  u2: {initial: b}
+equations:
+  - "%s"
+  - "der(u2) = u1*u1"
+"""
+
+
+def test_compile_rejects_two_derivatives_in_one_equation():
+    problem = parse_spec(_SMALL % "der(u1) + der(u2) = u1*u2", source="two-ders.yaml")
+    with pytest.raises(SolverError, match=r"two-ders\.yaml: equations\[0\].*exactly one der\(\.\.\.\).*got 2"):
+        compile_system(problem)
+
+
+def test_compile_rejects_a_derivative_coefficient_summed_over_coordinates():
+    problem = parse_spec(_SMALL % "(a + b)*der(u1) = u1*u2", source="sum-coef.yaml")
+    with pytest.raises(SolverError, match=r"sum-coef\.yaml: equations\[0\].*coefficient of der\(u1\).*a \+ b"):
+        compile_system(problem)
