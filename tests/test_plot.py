@@ -26,6 +26,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from scipy.linalg import subspace_angles
 
 from pgdcli import plot as P
 from pgdcli.cli import cli
@@ -599,7 +600,7 @@ def _check_hosvd_panels(cb, field, data, atol_sigma=1e-12, atol_angle=1e-10):
         assert vectors.shape == (c.nodes, k)
         np.testing.assert_allclose(vectors.T @ vectors, np.eye(k), rtol=0, atol=1e-12)  # normalized
         # the same subspace as numpy's leading k left singular vectors ...
-        angles = scipy_linalg.subspace_angles(vectors, u_np[:, :k])
+        angles = subspace_angles(vectors, u_np[:, :k])
         assert angles.max() < atol_angle
         # ... and, where the singular values are well separated, the same vectors up to sign
         for i in range(k):
@@ -615,9 +616,6 @@ def _check_hosvd_panels(cb, field, data, atol_sigma=1e-12, atol_angle=1e-10):
         np.testing.assert_array_equal(x[idx], nodes)
         np.testing.assert_array_equal(panel["values"][idx], vectors)
         np.testing.assert_allclose(panel["values"], c.basis().interpolate(vectors, x), rtol=0, atol=1e-14)
-
-
-scipy_linalg = pytest.importorskip("scipy.linalg")
 
 
 def test_tt_hosvd_modes_equal_svd_of_the_unfoldings():
@@ -637,6 +635,9 @@ def test_tt_hosvd_modes_equal_svd_of_the_unfoldings():
     assert [p["singular_values"].size for p in data["panels"]] == [9, 3, 3, 6]
     assert [p["count"] for p in data["panels"]] == [9, 3, 3, 6]
     assert data["count"] == 9
+    for j, panel in enumerate(data["panels"]):  # what is plotted at the nodes: tt_hosvd_modes' vectors
+        np.testing.assert_array_equal(panel["node_values"], hosvd[j][0][:, :panel["count"]])
+        np.testing.assert_array_equal(panel["singular_values"], hosvd[j][1])
     # count caps every panel
     small = P.modes_data(cb, count=2)
     assert [p["count"] for p in small["panels"]] == [2, 2, 2, 2]

@@ -94,19 +94,15 @@ def parse_values(name: str, text: str):
 
 
 def grid_from_args(args: list[str], cb) -> dict:
-    """The cartesian product of the coordinates' values (first coordinate slowest).
+    """The cartesian product of the coordinates' values, flat (first coordinate slowest)."""
+    import numpy as np
 
-    Each coordinate's values come back shaped to broadcast against the others
-    (axis ``j`` for coordinate ``j``), so that the codebook interpolates each
-    value once; :func:`write_rows` expands them for printing.
-    """
     given = parse_coordinate_args(args, cb)
     lists = [parse_values(c.name, given[c.name]) for c in cb.coordinates]
     for c, v in zip(cb.coordinates, lists):
         check_domain(c, v)
-    d = len(lists)
-    return {c.name: v.reshape([-1 if i == j else 1 for i in range(d)])
-            for j, (c, v) in enumerate(zip(cb.coordinates, lists))}
+    grids = np.meshgrid(*lists, indexing="ij")
+    return {c.name: g.reshape(-1) for c, g in zip(cb.coordinates, grids)}
 
 
 def check_domain(c, values) -> None:
@@ -156,22 +152,17 @@ def read_points(handle, cb) -> dict:
 
 
 def format_rows(fmt, coord_names, coords, selected, values) -> str:
-    """The output text: one line per point (plain, csv) or a JSON list of objects.
-
-    ``coords`` may be shaped to broadcast (see :func:`grid_from_args`); they
-    are expanded to the points' shape, ``values[f]``.
-    """
+    """The output text: one line per point (plain, csv) or a JSON list of objects."""
     import numpy as np
 
     cols = [np.asarray(values[f]).reshape(-1).tolist() for f in selected]
-    shape = np.shape(values[selected[0]]) if selected else ()
     buf = io.StringIO()
     if fmt == "plain":
         for row in zip(*cols):
             buf.write(" ".join(map(repr, row)))
             buf.write("\n")
         return buf.getvalue()
-    ccols = [np.broadcast_to(np.asarray(coords[c]), shape).reshape(-1).tolist() for c in coord_names]
+    ccols = [np.asarray(coords[c]).reshape(-1).tolist() for c in coord_names]
     if fmt == "csv":
         buf.write(",".join(coord_names + selected) + "\n")
         for row in zip(*ccols, *cols):

@@ -259,6 +259,8 @@ def query(ctx, codebook, fmt, fields, points):
       pgd query codebooks/parametric.h5 --t 5 --k 2
       pgd query codebooks/spring.h5 --t 0:4:41 --k 2 --c 0.3 --field x --format csv
     """
+    # the parsing, checking and printing helpers live in pgdcli._query, where a plain `pgd query`
+    # runs without click (see main): both paths print the same bytes
     from . import _query
     from .codebook import Codebook
 
@@ -281,8 +283,6 @@ def query(ctx, codebook, fmt, fields, points):
         raise click.UsageError(exc.message) from None
     values = cb.evaluate(coords, fields=selected)
     _query.write_rows(sys.stdout, fmt, cb.coordinate_names, coords, selected, values)
-    # the parsing, checking and printing helpers live in pgdcli._query: `pgd query` runs there without
-    # click when it can (see main), and both paths must print the same bytes
 
 
 # ----------------------------------------------------------------------------------------------

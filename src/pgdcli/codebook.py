@@ -719,8 +719,10 @@ def _contract_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
         if v is None:
             v = mats[j] @ core[0]  # (P, r1)
         else:
-            w = (v @ core.reshape(r0, n * r1)).reshape(-1, n, r1)
-            v = np.einsum("pn,pnr->pr", mats[j], w)
+            # row-wise Khatri-Rao product of the running contraction and the cardinal rows,
+            # then one matrix product with the unfolded core
+            kr = (v[:, :, None] * mats[j][:, None, :]).reshape(v.shape[0], r0 * n)
+            v = kr @ core.reshape(r0 * n, r1)
     return v[:, 0]
 
 

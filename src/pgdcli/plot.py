@@ -21,6 +21,10 @@ Conventions
   its domain.
 - Maps ("map" layout) are drawn over two coordinates ``(x, y)``; every other
   coordinate is fixed, by default at the midpoint of its domain.
+- Tensor-train codebooks (the nonlinear time march) have no stored modes:
+  ``modes`` shows their HOSVD modes (:func:`tt_hosvd_modes`, normalized, with
+  the singular values), and ``convergence`` the march's accepted step sizes
+  and the state's tensor-train ranks at the time nodes.
 - The independent reference is :func:`pgdcli.reference.solve_reference`
   (scipy ``solve_ivp``) on the spec embedded in the codebook; any callable
   ``reference(params, times) -> result`` with ``result.values[unknown]`` of
@@ -683,9 +687,26 @@ def _sci(v: float) -> str:
     return f"{v:.2g}".replace("e-0", "e-").replace("e+0", "e+")
 
 
-def _sigma_list(sigma: np.ndarray, count: int) -> str:
-    shown = ", ".join(_compact(v) for v in sigma[:count])
-    return shown + (", \u2026" if sigma.size > count else "")
+def _sigma_title(rank: int, sigma: np.ndarray, count: int, chars: int) -> str:
+    """'unfolding rank R' and the first ``count`` singular values, wrapped at ``chars`` characters a
+    line on at most two lines (values that do not fit are left out, as the ones after ``count`` are)."""
+    lines, line = [], "\u03c3 = "
+    values = [_compact(v) for v in sigma[:max(count, 1)]]
+    shown = 0
+    for i, v in enumerate(values):
+        piece = v + ("," if i < len(values) - 1 else "")
+        if len(line) + len(piece) + 2 > chars and shown:  # room for ' …'
+            if len(lines) == 1:
+                break
+            lines.append(line.rstrip())
+            line = ""
+        line += piece + " "
+        shown += 1
+    line = line.rstrip()
+    if shown < sigma.size:
+        line = line.rstrip(",") + ", \u2026"
+    lines.append(line)
+    return "\n".join([f"unfolding rank {rank}"] + lines)
 
 
 def draw_modes(data: dict, *, fig=None, figsize=None):
@@ -721,9 +742,10 @@ def draw_modes(data: dict, *, fig=None, figsize=None):
         ax.set_xlim(*panel["domain"])
         ax.grid(True, linewidth=0.4, alpha=0.5)
         if tt:
-            sigma = panel["singular_values"]
-            ax.set_title(f"unfolding rank {panel['rank']}\n"
-                         f"\u03c3 = {_sigma_list(sigma, max(panel['count'], 1))}", fontsize="small", loc="left")
+            # about 15 characters of the small font per inch of panel
+            chars = max(12, int(15 * (fig.get_size_inches()[0] - 1.4) / ncols))
+            ax.set_title(_sigma_title(panel["rank"], panel["singular_values"], panel["count"], chars),
+                         fontsize="small", loc="left")
     for ax in axes[npan:]:
         ax.set_visible(False)
     if tt:
@@ -733,7 +755,8 @@ def draw_modes(data: dict, *, fig=None, figsize=None):
         fig.legend(handles, labels, loc="outside right upper", fontsize="small", title_fontsize="small",
                    title=f"{field}: tensor train\nranks {ranks}\n\nHOSVD modes,\nnormalized to\n"
                          f"unit 2-norm\nat the nodes")
-        _title(fig, data, f"first {data['count']} HOSVD modes of {field}")
+        _title(fig, data, f"first {data['count']} HOSVD modes of {field}" if data["count"]
+               else f"{field} is zero at every node: no HOSVD modes")
         return fig
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right upper", fontsize="small", title=f"{field}: {data['rank']} modes")

@@ -1,0 +1,503 @@
+"""Build speed of pgdcli codebooks for nonlinear problems, beside scipy's solve_ivp, in one run.
+
+    python benchmarks/build_speed.py            # full run (about 5 minutes, ~3 GB RAM at the peak)
+    python benchmarks/build_speed.py --quick    # no rigid-body brute-force grid, no 1e-6 run (~1 minute)
+
+coupled (problems/coupled.yaml: t in [0, 0.5], ICs (a, b, c) in [0, 1]^3, 20 Chebyshev-Lobatto
+nodes per IC, 16 time nodes): the build of the codebook, ``pgdcli.solve(pgdcli.load_spec(...))``
+(median of 3), beside, on the same 8000 grid ICs and the same 16 time nodes,
+
+- a Python loop of ``solve_ivp`` (DOP853), one call per IC with ``t_eval`` = the time nodes. A random
+  subset of 400 of the 8000 ICs is timed and the time scaled by 20. The right-hand side is the fastest
+  per-IC form we found (a scalar unpack returning a 3-array); the array form of the vectorized call
+  below is ~2x slower per IC and is not what a loop should use;
+- ONE vectorized ``solve_ivp`` call over all 8000 ICs (state of 3 x 8000, ``t_eval`` = the nodes),
+  median of 3.
+
+Both at rtol = atol = 1e-8 and 1e-12. Note that a vectorized call controls the error norm of the
+whole 24000-vector (scipy's RMS norm), not each IC's: its worst IC is less accurate than the same
+tolerance in a loop, which the "accuracy of the alternatives" row measures (at the 400 timed ICs,
+against the loop at 1e-12).
+
+rigid_body (problems/rigid_body.yaml: six initial velocities on [0.5, 1.5] with 8 nodes each, t in
+[0, 1], 16 time nodes; solver tolerance 1e-5): the build (one run) beside one vectorized ``solve_ivp``
+over the brute-force grid with 10 Chebyshev-Lobatto nodes per IC (10^6 ICs x 6 unknowns, DOP853 at
+rtol = atol = 1e-6, storing the 16 time nodes: the grid is 10^6 x 6 x 16 float64). The grid's own
+accuracy as a codebook (tensor-product Chebyshev interpolation between its nodes, at the error
+sample's ICs and the 16 time nodes) is reported beside the codebook's. Also one build at
+``solver.tolerance: 1e-6`` (the issue's stretch error is 1e-6).
+
+Errors: max abs error over all unknowns against a per-IC loop of ``solve_ivp`` (DOP853,
+rtol = atol = 1e-12) at random ICs plus points on the faces (1 to d-1 coordinates on a bound) plus
+all corners of the IC box, at every time node (and, for the rigid body, 10 random times too).
+
+Sizes: the codebook's floats (sum of the tensor-train core sizes) and its HDF5 file on disk, beside
+the grid's values (grid ICs x unknowns x time nodes x 8 bytes).
+
+The scipy runs are limited to one BLAS thread (threadpoolctl), as the solver limits itself. The
+machine may be shared and noisy: timings are medians where repeated, and every comparison is made
+within this run.
+
+The printed table (Markdown) is what benchmarks/README.md quotes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+COUPLED = ROOT / "problems" / "coupled.yaml"
+RIGID = ROOT / "problems" / "rigid_body.yaml"
+LOOP_SUBSET = 400
+TOLERANCES = (1e-8, 1e-12)
+REFERENCE_TOL = 1e-12
+BRUTE_NODES = 10
+BRUTE_TOL = 1e-6
+TARGET_LOOP_RATIO = 50.0
+TARGET_COUPLED_ERROR = 1e-7
+TARGET_RIGID_TIME = 60.0
+TARGET_RIGID_ERROR = 1e-4
+STRETCH_RIGID_ERROR = 1e-6
+TARGET_SIZE_FRACTION = 0.01
+
+# problems/rigid_body.yaml, constants block (checked against the file at start)
+RB = dict(m=1.0, M1=0.2, M2=0.5, M3=0.8, I1=1.0, I2=1.5, I3=2.0, J1=0.1, J2=0.2, J3=0.3, fg3=-0.5)
+
+
+# ----------------------------------------------------------------------------------------------
+# right-hand sides (written from the equations, independent of pgdcli)
+# ----------------------------------------------------------------------------------------------
+def coupled_scalar(t, y):
+    """One IC: u1' = 1 - u2 u3, u2' = 2 - u1 u3, u3' = 3 - u1 u2."""
+    a, b, c = y
+    return np.array([1.0 - b * c, 2.0 - a * c, 3.0 - a * b])
+
+
+def coupled_vector(t, y):
+    """Many ICs: state (3, S) flattened unknown-major."""
+    a, b, c = y.reshape(3, -1)
+    return np.concatenate([1.0 - b * c, 2.0 - a * c, 3.0 - a * b])
+
+
+def rigid_vector(t, y):
+    """Kirchhoff equations of problems/rigid_body.yaml; state (6, S) flattened unknown-major."""
+    k = RB
+    mu1, mu2, mu3 = k["m"] + k["M1"], k["m"] + k["M2"], k["m"] + k["M3"]
+    j1, j2, j3 = k["J1"] + k["I1"], k["J2"] + k["I2"], k["J3"] + k["I3"]
+    u1, u2, u3, w1, w2, w3 = y.reshape(6, -1)
+    return np.concatenate([
+        (mu2 * u2 * w3 - mu3 * u3 * w2) / mu1,
+        (mu3 * u3 * w1 - mu1 * u1 * w3) / mu2,
+        (mu1 * u1 * w2 - mu2 * u2 * w1 + k["fg3"]) / mu3,
+        ((j2 - j3) * w2 * w3 + (k["M2"] - k["M3"]) * u2 * u3) / j1,
+        ((j3 - j1) * w3 * w1 + (k["M3"] - k["M1"]) * u3 * u1) / j2,
+        ((j1 - j2) * w1 * w2 + (k["M1"] - k["M2"]) * u1 * u2) / j3,
+    ])
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------
+def blas1():
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def timed(func):
+    start = time.perf_counter()
+    value = func()
+    return time.perf_counter() - start, value
+
+
+def median_of(func, repeats: int):
+    """Median wall time of ``repeats`` runs of ``func()`` and the last value (no warm-up run)."""
+    times, value = [], None
+    for _ in range(repeats):
+        elapsed, value = timed(func)
+        times.append(elapsed)
+    return statistics.median(times), times, value
+
+
+def fmt_time(seconds: float) -> str:
+    if seconds < 1:
+        return f"{seconds * 1e3:.0f} ms"
+    return f"{seconds:.2f} s"
+
+
+def fmt_bytes(n: float) -> str:
+    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{n:.0f} B"
+
+
+def grid_ics(bases: list[np.ndarray]) -> np.ndarray:
+    """(d, prod n) tensor grid of initial conditions, first coordinate slowest."""
+    return np.stack(np.meshgrid(*bases, indexing="ij")).reshape(len(bases), -1)
+
+
+def sample_ics(lows, highs, n_random: int, n_faces: int, seed: int) -> np.ndarray:
+    """(n, d): all 2^d corners, ``n_faces`` points with 1..d-1 coordinates on a bound, random interior."""
+    rng = np.random.default_rng(seed)
+    lows, highs = np.asarray(lows, float), np.asarray(highs, float)
+    d = lows.size
+    corners = np.array([[(i >> k) & 1 for k in range(d)] for i in range(2 ** d)], dtype=float)
+    corners = lows + corners * (highs - lows)
+    faces = rng.uniform(lows, highs, (n_faces, d))
+    for row in faces:
+        on = rng.choice(d, size=rng.integers(1, d), replace=False)
+        row[on] = np.where(rng.random(on.size) < 0.5, lows[on], highs[on])
+    interior = rng.uniform(lows, highs, (n_random, d))
+    return np.vstack([corners, faces, interior])
+
+
+def loop_solve(fun, ics: np.ndarray, t_span, t_eval, tol: float) -> np.ndarray:
+    """(n, q, T): one solve_ivp per IC (rows of ``ics``)."""
+    from scipy.integrate import solve_ivp
+
+    out = np.empty((ics.shape[0], ics.shape[1], len(t_eval)))
+    for i, y0 in enumerate(ics):
+        sol = solve_ivp(fun, t_span, y0, method="DOP853", rtol=tol, atol=tol, t_eval=t_eval)
+        if not sol.success:
+            raise SystemExit(f"solve_ivp failed at IC {y0}: {sol.message}")
+        out[i] = sol.y
+    return out
+
+
+def vector_solve(fun, ics: np.ndarray, t_span, t_eval, tol: float) -> np.ndarray:
+    """(q * S, T): one solve_ivp over all ICs (columns of ``ics``, shape (q, S))."""
+    from scipy.integrate import solve_ivp
+
+    sol = solve_ivp(fun, t_span, ics.ravel(), method="DOP853", rtol=tol, atol=tol, t_eval=t_eval)
+    if not sol.success:
+        raise SystemExit(f"vectorized solve_ivp failed: {sol.message}")
+    return sol.y
+
+
+def build(problem_or_path, repeats: int = 1):
+    """Median wall time of ``solve(load_spec(path))`` (or ``solve(problem)``), the runs, the last result."""
+    import pgdcli
+
+    def run():
+        problem = pgdcli.load_spec(problem_or_path) if isinstance(problem_or_path, Path) else problem_or_path
+        return pgdcli.solve(problem)
+
+    median, times, result = median_of(run, repeats)
+    if not result.converged:
+        raise SystemExit(f"build failed: {result.message}")
+    for w in getattr(result, "warnings", None) or []:
+        print(f"warning: {w}", file=sys.stderr)
+    return median, times, result
+
+
+def with_tolerance(path: Path, tolerance: float):
+    """The spec at ``path`` with ``solver.tolerance`` replaced (parse_spec on the modified YAML text)."""
+    import re
+
+    import pgdcli
+
+    text, count = re.subn(r"(?m)^(\s+tolerance:\s*)\S+", lambda m: f"{m.group(1)}{tolerance:g}", path.read_text())
+    problem = pgdcli.parse_spec(text, source=f"{path} (solver.tolerance: {tolerance:g})")
+    if count != 1 or problem.solver.tolerance != tolerance:
+        raise SystemExit(f"could not set solver.tolerance in {path}")
+    return problem
+
+
+def codebook_error(cb, ics: np.ndarray, names: list[str], times: np.ndarray, reference: np.ndarray) -> float:
+    """Max abs error of ``cb`` at ICs x times against ``reference`` (n, q, T)."""
+    n = ics.shape[0]
+    err = 0.0
+    for j, t in enumerate(times):
+        args = {"t": np.full(n, t), **{p: ics[:, k] for k, p in enumerate(names)}}
+        values = cb.evaluate(args)
+        for i, u in enumerate(cb.unknown_names):
+            err = max(err, float(np.max(np.abs(values[u] - reference[:, i, j]))))
+    return err
+
+
+def codebook_size(cb, directory: Path, name: str) -> tuple[int, int]:
+    floats = sum(f.size for f in cb.fields.values())
+    path = cb.save(directory / f"{name}.h5")
+    return floats, os.path.getsize(path)
+
+
+def ranks_text(cb) -> str:
+    return "; ".join(f"{u} {list(f.ranks)}" for u, f in cb.fields.items())
+
+
+# ----------------------------------------------------------------------------------------------
+# coupled
+# ----------------------------------------------------------------------------------------------
+def bench_coupled(rows: list, work: Path) -> None:
+    import pgdcli
+    import pgdcli.march  # noqa: F401  (imports outside the timed builds)
+    import pgdcli.solver  # noqa: F401
+
+    problem = pgdcli.load_spec(COUPLED)
+    coords = {c.name: c for c in problem.coordinates}
+    from pgdcli.basis import make_basis
+
+    tnodes = make_basis(coords["t"].discretization, coords["t"].domain, coords["t"].nodes).nodes
+    params = ["a", "b", "c"]
+    axes = [make_basis(coords[p].discretization, coords[p].domain, coords[p].nodes).nodes for p in params]
+    grid = grid_ics(axes)  # (3, 8000)
+    n_grid = grid.shape[1]
+    t_span = (float(tnodes[0]), float(tnodes[-1]))
+    label = f"coupled ({n_grid} grid ICs x {tnodes.size} t)"
+
+    print("coupled: building (3 runs)", file=sys.stderr)
+    build_time, build_runs, result = build(COUPLED, repeats=3)
+    cb = result.codebook
+    report = cb.report
+    rows.append((label, "build: solve(load_spec(coupled.yaml)), median of 3", fmt_time(build_time),
+                 "runs " + ", ".join(f"{t:.2f}" for t in build_runs) + " s", "", "", None))
+
+    # the same problem built at a tolerance matched to the loop's (is the gap the shipped 1e-9?)
+    matched = 1e-8
+    problem_matched = with_tolerance(COUPLED, matched)
+    print(f"coupled: building at tolerance {matched:g} (3 runs)", file=sys.stderr)
+    matched_time, _, matched_result = build(problem_matched, repeats=3)
+
+    rng = np.random.default_rng(7)
+    subset = np.sort(rng.choice(n_grid, LOOP_SUBSET, replace=False))
+    scale = n_grid / LOOP_SUBSET
+    loop_values, loop_times, vector_values = {}, {}, {}
+    with blas1():
+        for tol in TOLERANCES:
+            print(f"coupled: loop of solve_ivp over {LOOP_SUBSET} ICs, tol {tol:g}", file=sys.stderr)
+            elapsed, loop_values[tol] = timed(lambda: loop_solve(coupled_scalar, grid[:, subset].T, t_span, tnodes, tol))
+            loop_time = loop_times[tol] = elapsed * scale
+            ratio = loop_time / build_time
+            rows.append((label, f"vs loop of solve_ivp DOP853 rtol=atol={tol:g} ({LOOP_SUBSET} ICs timed, x{scale:g})",
+                         fmt_time(build_time), f"loop: {fmt_time(loop_time)}", f"loop/build {ratio:.1f}x",
+                         f">= {TARGET_LOOP_RATIO:g}x", ratio >= TARGET_LOOP_RATIO))
+        print(f"coupled: loop with the array right-hand side over {LOOP_SUBSET} ICs", file=sys.stderr)
+        array_loop = {tol: timed(lambda: loop_solve(coupled_vector, grid[:, subset].T, t_span, tnodes, tol))[0] * scale
+                      for tol in TOLERANCES}
+        rows.append((label, "(loop with the vectorized call's array right-hand side instead, as scaled above)",
+                     fmt_time(build_time), "; ".join(f"{tol:g}: {fmt_time(v)}" for tol, v in array_loop.items()),
+                     "loop/build " + ", ".join(f"{v / build_time:.1f}x" for v in array_loop.values()), "", None))
+        for tol in TOLERANCES:
+            print(f"coupled: one vectorized solve_ivp over {n_grid} ICs, tol {tol:g}", file=sys.stderr)
+            vtime, vruns, vector_values[tol] = median_of(lambda: vector_solve(coupled_vector, grid, t_span, tnodes, tol), 3)
+            ratio = vtime / build_time
+            rows.append((label, f"vs ONE vectorized solve_ivp DOP853 rtol=atol={tol:g}, median of 3",
+                         fmt_time(build_time), f"vectorized: {fmt_time(vtime)}",
+                         f"vectorized/build {ratio:.2f}x", "stretch: >= 1x", ratio >= 1.0))
+
+    # accuracy of the alternatives at the timed ICs (nodal values, the grid's own points)
+    ref = loop_values[REFERENCE_TOL]  # (400, 3, 16)
+    loop_err = float(np.max(np.abs(loop_values[1e-8] - ref)))
+    vec_errs = {}
+    for tol, y in vector_values.items():
+        v = y.reshape(3, n_grid, tnodes.size)[:, subset, :].transpose(1, 0, 2)
+        vec_errs[tol] = float(np.max(np.abs(v - ref)))
+    rows.append((label, f"accuracy of the alternatives at the {LOOP_SUBSET} timed ICs x {tnodes.size} t "
+                        f"(vs the loop at 1e-12)", "",
+                 f"loop 1e-8: {loop_err:.1e}; vectorized 1e-8: {vec_errs[1e-8]:.1e}; "
+                 f"vectorized 1e-12: {vec_errs[1e-12]:.1e}", "", "", None))
+
+    # the codebook's error at off-grid ICs
+    lows = [coords[p].domain[0] for p in params]
+    highs = [coords[p].domain[1] for p in params]
+    ics = sample_ics(lows, highs, n_random=200, n_faces=48, seed=11)
+    print(f"coupled: reference at {ics.shape[0]} ICs (loop, tol {REFERENCE_TOL:g})", file=sys.stderr)
+    with blas1():
+        reference = loop_solve(coupled_scalar, ics, t_span, tnodes, REFERENCE_TOL)
+    err = codebook_error(cb, ics, params, tnodes, reference)
+    rows.append((label, f"codebook max abs error, {ics.shape[0]} ICs (200 random, 48 on faces, 8 corners) x "
+                        f"{tnodes.size} t, vs solve_ivp 1e-12",
+                 f"{err:.2e}", f"solver tolerance {report['tolerance']:g} (RMS), estimate "
+                               f"{report['error_estimate']:.2e}; {report['steps']} steps",
+                 "", f"<= {TARGET_COUPLED_ERROR:g}", err <= TARGET_COUPLED_ERROR))
+
+    matched_err = codebook_error(matched_result.codebook, ics, params, tnodes, reference)
+    rows.append((label, f"build at solver.tolerance {matched:g} (parse_spec), median of 3; its max abs error "
+                        f"(same sample)", f"{fmt_time(matched_time)}; error {matched_err:.2e}",
+                 f"loop 1e-8: {fmt_time(loop_times[1e-8])}", f"loop/build {loop_times[1e-8] / matched_time:.1f}x",
+                 "", None))
+
+    floats, disk = codebook_size(cb, work, "coupled")
+    grid_floats = n_grid * 3 * tnodes.size
+    rows.append((label, "size: codebook floats (HDF5 file) vs grid ICs x 3 unknowns x 16 t",
+                 f"{floats} ({fmt_bytes(disk)})", f"{grid_floats} ({fmt_bytes(grid_floats * 8)})",
+                 f"{100 * floats / grid_floats:.1f}% (file {100 * disk / (grid_floats * 8):.1f}%)", "", None))
+    rows.append((label, "tensor-train ranks per unknown", ranks_text(cb), "", "", "", None))
+
+
+# ----------------------------------------------------------------------------------------------
+# rigid body
+# ----------------------------------------------------------------------------------------------
+def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
+    import pgdcli
+    from pgdcli.basis import make_basis
+
+    text = RIGID.read_text()
+    problem = pgdcli.parse_spec(text, source=str(RIGID))
+    import yaml
+
+    constants = {k: float(v) for k, v in yaml.safe_load(text)["constants"].items()}
+    if constants != RB:
+        raise SystemExit(f"{RIGID} constants changed: {constants}; update RB in {__file__}")
+    coords = {c.name: c for c in problem.coordinates}
+    params = [c.name for c in problem.coordinates if c.name != "t"]
+    tnodes = make_basis(coords["t"].discretization, coords["t"].domain, coords["t"].nodes).nodes
+    t_span = (float(tnodes[0]), float(tnodes[-1]))
+    lows = [coords[p].domain[0] for p in params]
+    highs = [coords[p].domain[1] for p in params]
+    spec_nodes = coords[params[0]].nodes
+    label = f"rigid_body (6 ICs x {spec_nodes} nodes, {tnodes.size} t)"
+    tol_spec = problem.solver.tolerance
+
+    # error sample and its reference (shared by the builds and the brute-force grid)
+    ics = sample_ics(lows, highs, n_random=200, n_faces=64, seed=13)
+    extra = np.sort(np.random.default_rng(17).uniform(*t_span, 10))
+    times = np.concatenate([tnodes, extra])
+    order = np.argsort(times)
+    print(f"rigid_body: reference at {ics.shape[0]} ICs x {times.size} t (loop, tol {REFERENCE_TOL:g})",
+          file=sys.stderr)
+    with blas1():
+        ref_sorted = loop_solve(rigid_vector, ics, t_span, times[order], REFERENCE_TOL)
+    reference = np.empty_like(ref_sorted)
+    reference[:, :, order] = ref_sorted
+    sample_text = f"{ics.shape[0]} ICs (200 random, 64 on faces, 64 corners) x ({tnodes.size} nodes + 10 random t)"
+
+    def report_build(name: str, build_time: float, result, target_error: float, stretch: bool) -> None:
+        cb = result.codebook
+        rep = cb.report
+        err = codebook_error(cb, ics, params, times, reference)
+        rows.append((name, f"build: solve(...), one run", fmt_time(build_time),
+                     f"{rep['steps']} steps, error estimate {rep['error_estimate']:.2e} (RMS)", "",
+                     f"<= {TARGET_RIGID_TIME:g} s", build_time <= TARGET_RIGID_TIME))
+        target = f"<= {target_error:g}" + (" (stretch)" if stretch else "")
+        rows.append((name, f"codebook max abs error, {sample_text}, vs solve_ivp 1e-12", f"{err:.2e}", "", "",
+                     target, err <= target_error))
+        floats, disk = codebook_size(cb, work, name.split()[0])
+        grid_floats = BRUTE_NODES ** 6 * 6 * tnodes.size
+        rows.append((name, f"size: codebook floats (HDF5 file) vs {BRUTE_NODES}^6 grid x 6 unknowns x {tnodes.size} t",
+                     f"{floats} ({fmt_bytes(disk)})", f"{grid_floats:.3g} ({fmt_bytes(grid_floats * 8)})",
+                     f"{100 * floats / grid_floats:.3f}% (file {100 * disk / (grid_floats * 8):.3f}%)",
+                     f"<= {100 * TARGET_SIZE_FRACTION:g}%", disk <= TARGET_SIZE_FRACTION * grid_floats * 8))
+        rows.append((name, "tensor-train ranks per unknown", ranks_text(cb), "", "", "", None))
+
+    print(f"rigid_body: building (tolerance {tol_spec:g})", file=sys.stderr)
+    build_time, _, result = build(RIGID)
+    report_build(f"{label}, tol {tol_spec:g}", build_time, result, TARGET_RIGID_ERROR, False)
+    del result
+    gc.collect()
+
+    if quick:
+        return
+
+    # brute force: one vectorized solve_ivp over the 10-node grid
+    axis = make_basis(coords[params[0]].discretization, coords[params[0]].domain, BRUTE_NODES).nodes
+    grid = grid_ics([axis] * 6)  # (6, 10^6)
+    n_grid = grid.shape[1]
+    print(f"rigid_body: one vectorized solve_ivp over {n_grid} ICs, tol {BRUTE_TOL:g}", file=sys.stderr)
+    with blas1():
+        brute_time, values = timed(lambda: vector_solve(rigid_vector, grid, t_span, tnodes, BRUTE_TOL))
+    ratio = brute_time / build_time
+    rows.append((f"{label}, tol {tol_spec:g}",
+                 f"vs ONE vectorized solve_ivp DOP853 rtol=atol={BRUTE_TOL:g} over the {BRUTE_NODES}^6 grid ({n_grid} ICs)",
+                 fmt_time(build_time), f"vectorized: {fmt_time(brute_time)}",
+                 f"vectorized/build {ratio:.2f}x", "", None))
+    # the grid as a codebook: tensor-product Chebyshev interpolation between its nodes
+    grid_values = values.reshape(6, n_grid, tnodes.size).transpose(1, 0, 2).reshape(n_grid, 6 * tnodes.size)
+    del values
+    basis = make_basis(coords[params[0]].discretization, coords[params[0]].domain, BRUTE_NODES)
+    mats = [basis.interpolation_matrix(ics[:, k]) for k in range(6)]  # (n, 10) each
+    interp = np.empty((ics.shape[0], 6 * tnodes.size))
+    for start in range(0, ics.shape[0], 32):
+        w = mats[0][start:start + 32]
+        for m in mats[1:]:
+            w = (w[:, :, None] * m[start:start + 32, None, :]).reshape(w.shape[0], -1)
+        interp[start:start + 32] = w @ grid_values
+    interp = interp.reshape(-1, 6, tnodes.size)
+    grid_err = float(np.max(np.abs(interp - reference[:, :, :tnodes.size])))
+    on_grid = np.random.default_rng(19).choice(n_grid, 64, replace=False)
+    with blas1():
+        nodal_ref = loop_solve(rigid_vector, grid[:, on_grid].T, t_span, tnodes, REFERENCE_TOL)
+    nodal_err = float(np.max(np.abs(grid_values[on_grid].reshape(-1, 6, tnodes.size) - nodal_ref)))
+    rows.append((f"{label}, tol {tol_spec:g}",
+                 f"accuracy of the brute-force grid: at 64 of its ICs x {tnodes.size} t; as a codebook "
+                 f"(Chebyshev interpolation), error sample x {tnodes.size} t", "",
+                 f"nodal {nodal_err:.1e}; interpolated {grid_err:.1e}", "", "", None))
+    del grid_values, grid, interp
+    gc.collect()
+
+    stretch = 1e-6
+    problem6 = with_tolerance(RIGID, stretch)
+    print(f"rigid_body: building (tolerance {stretch:g})", file=sys.stderr)
+    build_time6, _, result6 = build(problem6)
+    report_build(f"{label}, tol {stretch:g}", build_time6, result6, STRETCH_RIGID_ERROR, True)
+
+
+# ----------------------------------------------------------------------------------------------
+# report
+# ----------------------------------------------------------------------------------------------
+def print_table(rows: list) -> None:
+    header = ("problem", "measure", "pgdcli", "beside", "ratio", "target", "met")
+    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else str(v))
+                              for v in row) for row in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    line = lambda r: "| " + " | ".join(v.ljust(w) for v, w in zip(r, widths)) + " |"
+    print(line(cells[0]))
+    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
+    for r in cells[1:]:
+        print(line(r))
+
+
+def describe_machine() -> str:
+    import numpy
+    import scipy
+
+    try:
+        from threadpoolctl import threadpool_info
+
+        blas = ", ".join(f"{i['internal_api']} {i['version']} ({i['num_threads']} threads)"
+                         for i in threadpool_info() if i["user_api"] == "blas")
+    except Exception:  # pragma: no cover
+        blas = "?"
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    load = " ".join(f"{v:.2f}" for v in os.getloadavg()) if hasattr(os, "getloadavg") else "?"
+    return (f"{platform.processor() or platform.machine()}, {cpus} CPUs, shared (load average {load}); "
+            f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}, "
+            f"BLAS {blas}; solver and scipy runs limited to 1 BLAS thread (threadpoolctl)")
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="skip the rigid-body brute-force grid and the rigid body at tolerance 1e-6")
+    args = parser.parse_args(argv)
+    rows: list = []
+    started = time.perf_counter()
+    machine_before = describe_machine()
+    with tempfile.TemporaryDirectory(prefix="pgdcli-build-") as tmp:
+        work = Path(tmp)
+        bench_coupled(rows, work)
+        bench_rigid_body(rows, work, args.quick)
+    print(f"Machine: {machine_before}\n")
+    print_table(rows)
+    missed = [r for r in rows if r[6] is False]
+    print(f"\n{len([r for r in rows if r[6] is True])} targets met, {len(missed)} missed"
+          + "".join(f"\n  missed: {r[0]}: {r[1]}: {r[2]} {r[4]} (target {r[5]})" for r in missed)
+          + f"\nTotal wall time {time.perf_counter() - started:.0f} s; load average at the end "
+          + " ".join(f"{v:.2f}" for v in os.getloadavg()))
+
+
+if __name__ == "__main__":
+    with contextlib.suppress(KeyboardInterrupt):
+        main()
