@@ -1,7 +1,7 @@
 """Build speed of pgdcli codebooks for nonlinear problems, beside scipy's solve_ivp, in one run.
 
-    python benchmarks/build_speed.py            # full run (about 5 minutes, ~3 GB RAM at the peak)
-    python benchmarks/build_speed.py --quick    # no rigid-body brute-force grid, no 1e-6 run (~1 minute)
+    python benchmarks/build_speed.py            # full run (1-3 minutes, ~3 GB RAM at the peak)
+    python benchmarks/build_speed.py --quick    # no rigid-body brute-force grid, no 1e-6 run (~30 s)
 
 coupled (problems/coupled.yaml: t in [0, 0.5], ICs (a, b, c) in [0, 1]^3, 20 Chebyshev-Lobatto
 nodes per IC, 16 time nodes): the build of the codebook, ``pgdcli.solve(pgdcli.load_spec(...))``
@@ -10,14 +10,15 @@ nodes per IC, 16 time nodes): the build of the codebook, ``pgdcli.solve(pgdcli.l
 - a Python loop of ``solve_ivp`` (DOP853), one call per IC with ``t_eval`` = the time nodes. A random
   subset of 400 of the 8000 ICs is timed and the time scaled by 20. The right-hand side is the fastest
   per-IC form we found (a scalar unpack returning a 3-array); the array form of the vectorized call
-  below is ~2x slower per IC and is not what a loop should use;
+  below is ~1.4x slower per IC and is shown on its own row (no target);
 - ONE vectorized ``solve_ivp`` call over all 8000 ICs (state of 3 x 8000, ``t_eval`` = the nodes),
   median of 3.
 
 Both at rtol = atol = 1e-8 and 1e-12. Note that a vectorized call controls the error norm of the
 whole 24000-vector (scipy's RMS norm), not each IC's: its worst IC is less accurate than the same
 tolerance in a loop, which the "accuracy of the alternatives" row measures (at the 400 timed ICs,
-against the loop at 1e-12).
+against the loop at 1e-12). The coupled codebook is also built at ``solver.tolerance: 1e-8`` (the
+shipped spec asks 1e-9) to see whether the gap to the loop is the tolerance.
 
 rigid_body (problems/rigid_body.yaml: six initial velocities on [0.5, 1.5] with 8 nodes each, t in
 [0, 1], 16 time nodes; solver tolerance 1e-5): the build (one run) beside one vectorized ``solve_ivp``
@@ -215,16 +216,22 @@ def with_tolerance(path: Path, tolerance: float):
     return problem
 
 
-def codebook_error(cb, ics: np.ndarray, names: list[str], times: np.ndarray, reference: np.ndarray) -> float:
-    """Max abs error of ``cb`` at ICs x times against ``reference`` (n, q, T)."""
+def codebook_errors(cb, ics: np.ndarray, names: list[str], times: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(n,): max abs error of ``cb`` over unknowns and times at each IC, against ``reference`` (n, q, T)."""
     n = ics.shape[0]
-    err = 0.0
+    err = np.zeros(n)
     for j, t in enumerate(times):
         args = {"t": np.full(n, t), **{p: ics[:, k] for k, p in enumerate(names)}}
         values = cb.evaluate(args)
         for i, u in enumerate(cb.unknown_names):
-            err = max(err, float(np.max(np.abs(values[u] - reference[:, i, j]))))
+            err = np.maximum(err, np.abs(values[u] - reference[:, i, j]))
     return err
+
+
+def where_text(errors: np.ndarray, n_corners: int, n_faces: int) -> str:
+    """Max error on the corners / faces / interior of the IC box (the sample_ics layout)."""
+    parts = (errors[:n_corners], errors[n_corners:n_corners + n_faces], errors[n_corners + n_faces:])
+    return "corners {:.1e} / faces {:.1e} / interior {:.1e}".format(*(float(p.max()) for p in parts))
 
 
 def codebook_size(cb, directory: Path, name: str) -> tuple[int, int]:
@@ -316,14 +323,15 @@ def bench_coupled(rows: list, work: Path) -> None:
     print(f"coupled: reference at {ics.shape[0]} ICs (loop, tol {REFERENCE_TOL:g})", file=sys.stderr)
     with blas1():
         reference = loop_solve(coupled_scalar, ics, t_span, tnodes, REFERENCE_TOL)
-    err = codebook_error(cb, ics, params, tnodes, reference)
+    errors = codebook_errors(cb, ics, params, tnodes, reference)
+    err = float(errors.max())
     rows.append((label, f"codebook max abs error, {ics.shape[0]} ICs (200 random, 48 on faces, 8 corners) x "
                         f"{tnodes.size} t, vs solve_ivp 1e-12",
-                 f"{err:.2e}", f"solver tolerance {report['tolerance']:g} (RMS), estimate "
-                               f"{report['error_estimate']:.2e}; {report['steps']} steps",
+                 f"{err:.2e}", f"{where_text(errors, 8, 48)}; solver tolerance {report['tolerance']:g} (RMS), "
+                               f"estimate {report['error_estimate']:.2e}, {report['steps']} steps",
                  "", f"<= {TARGET_COUPLED_ERROR:g}", err <= TARGET_COUPLED_ERROR))
 
-    matched_err = codebook_error(matched_result.codebook, ics, params, tnodes, reference)
+    matched_err = float(codebook_errors(matched_result.codebook, ics, params, tnodes, reference).max())
     rows.append((label, f"build at solver.tolerance {matched:g} (parse_spec), median of 3; its max abs error "
                         f"(same sample)", f"{fmt_time(matched_time)}; error {matched_err:.2e}",
                  f"loop 1e-8: {fmt_time(loop_times[1e-8])}", f"loop/build {loop_times[1e-8] / matched_time:.1f}x",
@@ -374,27 +382,35 @@ def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
     reference[:, :, order] = ref_sorted
     sample_text = f"{ics.shape[0]} ICs (200 random, 64 on faces, 64 corners) x ({tnodes.size} nodes + 10 random t)"
 
-    def report_build(name: str, build_time: float, result, target_error: float, stretch: bool) -> None:
+    def report_build(name: str, how: str, build_time: float, result, target_error: float, stretch: bool) -> None:
         cb = result.codebook
         rep = cb.report
-        err = codebook_error(cb, ics, params, times, reference)
-        rows.append((name, f"build: solve(...), one run", fmt_time(build_time),
+        errors = codebook_errors(cb, ics, params, times, reference)
+        err = float(errors.max())
+        also = " (as at 1e-4)" if stretch else ""  # the issue sets time and size targets for the 1e-4 build
+        rows.append((name, f"build: {how}, one run", fmt_time(build_time),
                      f"{rep['steps']} steps, error estimate {rep['error_estimate']:.2e} (RMS)", "",
-                     f"<= {TARGET_RIGID_TIME:g} s", build_time <= TARGET_RIGID_TIME))
+                     f"<= {TARGET_RIGID_TIME:g} s{also}", build_time <= TARGET_RIGID_TIME))
         target = f"<= {target_error:g}" + (" (stretch)" if stretch else "")
-        rows.append((name, f"codebook max abs error, {sample_text}, vs solve_ivp 1e-12", f"{err:.2e}", "", "",
+        rows.append((name, f"codebook max abs error, {sample_text}, vs solve_ivp 1e-12", f"{err:.2e}",
+                     where_text(errors, 64, 64), "",
                      target, err <= target_error))
         floats, disk = codebook_size(cb, work, name.split()[0])
         grid_floats = BRUTE_NODES ** 6 * 6 * tnodes.size
         rows.append((name, f"size: codebook floats (HDF5 file) vs {BRUTE_NODES}^6 grid x 6 unknowns x {tnodes.size} t",
                      f"{floats} ({fmt_bytes(disk)})", f"{grid_floats:.3g} ({fmt_bytes(grid_floats * 8)})",
                      f"{100 * floats / grid_floats:.3f}% (file {100 * disk / (grid_floats * 8):.3f}%)",
-                     f"<= {100 * TARGET_SIZE_FRACTION:g}%", disk <= TARGET_SIZE_FRACTION * grid_floats * 8))
+                     f"<= {100 * TARGET_SIZE_FRACTION:g}%{also}", disk <= TARGET_SIZE_FRACTION * grid_floats * 8))
         rows.append((name, "tensor-train ranks per unknown", ranks_text(cb), "", "", "", None))
+        warnings = list(getattr(result, "warnings", None) or [])
+        if warnings:
+            rows.append((name, "solver warnings (resolution check)", f"{len(warnings)}", f"first: {warnings[0]}",
+                         "", "", None))
 
     print(f"rigid_body: building (tolerance {tol_spec:g})", file=sys.stderr)
     build_time, _, result = build(RIGID)
-    report_build(f"{label}, tol {tol_spec:g}", build_time, result, TARGET_RIGID_ERROR, False)
+    report_build(f"{label}, tol {tol_spec:g}", "solve(load_spec(rigid_body.yaml))", build_time, result,
+                 TARGET_RIGID_ERROR, False)
     del result
     gc.collect()
 
@@ -434,14 +450,15 @@ def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
                  f"accuracy of the brute-force grid: at 64 of its ICs x {tnodes.size} t; as a codebook "
                  f"(Chebyshev interpolation), error sample x {tnodes.size} t", "",
                  f"nodal {nodal_err:.1e}; interpolated {grid_err:.1e}", "", "", None))
-    del grid_values, grid, interp
+    del grid_values, interp
     gc.collect()
 
     stretch = 1e-6
     problem6 = with_tolerance(RIGID, stretch)
     print(f"rigid_body: building (tolerance {stretch:g})", file=sys.stderr)
     build_time6, _, result6 = build(problem6)
-    report_build(f"{label}, tol {stretch:g}", build_time6, result6, STRETCH_RIGID_ERROR, True)
+    report_build(f"{label}, tol {stretch:g}", "solve(parse_spec(text with solver.tolerance: 1e-6))", build_time6,
+                 result6, STRETCH_RIGID_ERROR, True)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -329,7 +329,7 @@ def test_batches_threads_and_chunks(solved, monkeypatch, name):
     """Threads never change a value; chunk lengths only through the BLAS kernel a product shape takes."""
     cb = solved(name).codebook
     rng = np.random.default_rng(8)
-    size = 3 * codebook_module._BLAS_LIMIT_MIN_POINTS + 65
+    size = codebook_module._PARALLEL_MIN_POINTS + 3 * 1024 + 65
     p = _with_nodes(cb, {c.name: rng.uniform(*c.domain, size) for c in cb.coordinates}, rng)
     ref = cb(**p)
     plain = _plain_evaluation(cb, p)
@@ -418,11 +418,29 @@ def test_one_point_types(solved):
     assert cb(t=np.ones((2, 0)), k=2.0)["u"].shape == (2, 0)
 
 
-def test_blas_limit_is_restored_after_a_large_batch(solved):
+def _blas_threads(threadpoolctl):
+    return [m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"]
+
+
+def test_blas_limit_is_restored_after_batches(solved):
     threadpoolctl = pytest.importorskip("threadpoolctl")
     cb = solved("spring").codebook
-    before = [m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"]
-    n = 2 * codebook_module._BLAS_LIMIT_MIN_POINTS
-    cb(t=np.linspace(0, 4, n), k=np.full(n, 2.0), c=np.full(n, 0.3))
-    after = [m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"]
-    assert before == after
+    before = _blas_threads(threadpoolctl)
+    for n in (codebook_module._BLAS_LIMIT_MIN_POINTS, codebook_module._PARALLEL_MIN_POINTS + 1):
+        cb(t=np.linspace(0, 4, n), k=np.full(n, 2.0), c=np.full(n, 0.3))
+        assert _blas_threads(threadpoolctl) == before
+    # batches running at the same time share one limit, lifted when the last one ends
+    import threading
+
+    n = codebook_module._PARALLEL_MIN_POINTS + 1
+    p = {"t": np.linspace(0, 4, n), "k": np.full(n, 2.0), "c": np.full(n, 0.3)}
+    ref = cb(**p)["x"]
+    results = []
+    threads = [threading.Thread(target=lambda: results.append(cb(**p)["x"])) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(results) == 4 and all(r.tobytes() == ref.tobytes() for r in results)
+    assert _blas_threads(threadpoolctl) == before
+    assert codebook_module._blas_users == 0

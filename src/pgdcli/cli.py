@@ -12,7 +12,6 @@ the commands that draw with it, so ``pgd query`` stays lean.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import sys
@@ -21,7 +20,7 @@ from pathlib import Path
 import click
 
 from . import __version__
-from .errors import PgdError, QueryError
+from .errors import PgdError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 

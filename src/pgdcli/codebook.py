@@ -17,7 +17,6 @@ on the query path: it imports numpy and h5py only (no scipy, no yaml).
 from __future__ import annotations
 
 import datetime as _dt
-import math
 import os
 import threading
 from bisect import bisect_right
@@ -141,28 +140,38 @@ def _validate(name: str, coordinates: Sequence[CoordinateInfo], fm) -> None:
 # evaluation machinery (measurements: benchmarks/README.md)
 # ----------------------------------------------------------------------------------------------
 # Batches are evaluated in chunks of points whose working set (two (chunk, total rank) blocks and
-# two (chunk, nodes) blocks per coordinate) stays in a per-core L2 cache. A batch of at most one
+# two (chunk, nodes) blocks per coordinate) stays within a few MiB of cache. A batch of at most one
 # chunk makes exactly the numpy/BLAS calls of the unchunked algorithm, so its values are bitwise
 # those of pgdcli <= 0.1.0. Larger batches: chunk lengths are multiples of _ROW_ALIGN, so every
 # row keeps its position in the row blocks of the BLAS kernels; the kernel a product takes still
 # depends on its shape (small-matrix kernels), so for some (nodes, rank) shapes a value can differ
 # in the last bit from the unchunked product over all points -- as that product's own values
 # depend on the number of points. One point takes a matrix-vector path (as before).
+# Measured (spring, 2 cores): one thread is as fast with 448-point chunks (1 MiB) as with 2000
+# (4 MiB), but two threads scale only with the larger ones (1.5e6 -> 2.2e6 points/s), which hold
+# the GIL for a smaller share of their time.
 _ROW_ALIGN = 64
-_CHUNK_BYTES = 1 << 20
+_CHUNK_BYTES = 1 << 22
 _MAX_CHUNK = 4096
-# BLAS thread policy per call site (measured: benchmarks/README.md). One point: BLAS as is (its
-# products are far below any threading threshold). Batches of at least _BLAS_LIMIT_MIN_POINTS:
-# BLAS limited to one thread (threadpoolctl) and chunks shared by up to _MAX_THREADS threads of
-# our own -- multi-threaded BLAS on these small products is slower, and much slower when another
-# process holds a core (its threads spin waiting for each other). Smaller batches keep the BLAS
-# as is, which spares pgd query the threadpoolctl import.
-_BLAS_LIMIT_MIN_POINTS = 4096
+# BLAS thread policy per call site (measured: benchmarks/README.md).
+# - One point, and batches under _BLAS_LIMIT_MIN_POINTS: BLAS as is. A one-row product is far
+#   below OpenBLAS's threading threshold, small batches cost little either way, and `pgd query`
+#   on a few points is spared the threadpoolctl import (~10 ms).
+# - Larger batches: BLAS limited to one thread (threadpoolctl) while they run. Threaded BLAS is at
+#   best ~1.2x faster on these skinny products on idle cores, and many times slower when another
+#   process holds a core (its threads spin waiting for each other): 1000 points took 16 ms
+#   instead of 1 ms, 1e5 points ran at 0.06e6 points/s.
+# - From _PARALLEL_MIN_POINTS: chunks shared by up to _MAX_THREADS threads of our own (numpy and
+#   BLAS release the GIL): ~1.7x on 2 idle cores; a few % slower when the cores are busy.
+_BLAS_LIMIT_MIN_POINTS = 512
+_PARALLEL_MIN_POINTS = 16384
 _MAX_THREADS = 8
 _SCALAR_TYPES = frozenset({float, int, np.float64})
 _add_reduce, _dot, _multiply = np.add.reduce, np.dot, np.multiply
-_parallel_lock = threading.Lock()
-_blas_controller = None  # threadpoolctl.ThreadpoolController, built on first parallel batch; False: unavailable
+_blas_lock = threading.Lock()
+_blas_controller = None  # threadpoolctl.ThreadpoolController, built on first use; False: unavailable
+_blas_limiter = None  # the active one-thread limit, shared by the batches running (_blas_users)
+_blas_users = 0
 _basis_cache: dict = {}
 
 
@@ -221,41 +230,67 @@ def _threads() -> int:
 
 
 def _run_chunks(run, bounds: list[tuple[int, int]]) -> None:
-    """``run(iterator of bounds)``, shared by threads for large batches (see the BLAS policy above)."""
-    global _blas_controller
-    if bounds[-1][1] < _BLAS_LIMIT_MIN_POINTS:
+    """``run(iterator of bounds)``, with the BLAS and thread policy above."""
+    size = bounds[-1][1]
+    if size < _BLAS_LIMIT_MIN_POINTS or not _limit_blas():
         run(iter(bounds))
         return
-    if _blas_controller is None:
-        try:
-            from threadpoolctl import ThreadpoolController
+    try:
+        threads = min(_threads(), len(bounds)) if size >= _PARALLEL_MIN_POINTS else 1
+        if threads <= 1:
+            run(iter(bounds))
+            return
+        todo = iter(bounds)  # shared: a thread takes the next chunk when it is done with one
+        errors = []
 
-            _blas_controller = ThreadpoolController()
-        except Exception:  # pragma: no cover - threadpoolctl is a dependency
-            _blas_controller = False
-    if not _blas_controller:  # pragma: no cover
-        run(iter(bounds))
-        return
-    threads = min(_threads(), len(bounds))
-    todo = iter(bounds)  # shared: a thread takes the next chunk when it is done with one
-    errors = []
+        def guarded():
+            try:
+                run(todo)
+            except BaseException as exc:  # re-raised in the calling thread
+                errors.append(exc)
 
-    def guarded():
-        try:
-            run(todo)
-        except BaseException as exc:  # re-raised in the calling thread
-            errors.append(exc)
-
-    # BLAS thread limits are process-wide: one limited batch at a time
-    with _parallel_lock, _blas_controller.limit(limits=1, user_api="blas"):
         workers = [threading.Thread(target=guarded, daemon=True) for _ in range(threads - 1)]
         for w in workers:
             w.start()
         guarded()
         for w in workers:
             w.join()
-    if errors:
-        raise errors[0]
+        if errors:
+            raise errors[0]
+    finally:
+        _unlimit_blas()
+
+
+def _limit_blas() -> bool:
+    """Limit BLAS to one thread (process-wide) until the matching :func:`_unlimit_blas`.
+
+    Batches running at the same time share one limit, lifted when the last one
+    ends. False (and no limit) if threadpoolctl is unavailable.
+    """
+    global _blas_controller, _blas_limiter, _blas_users
+    with _blas_lock:
+        if _blas_controller is None:
+            try:
+                from threadpoolctl import ThreadpoolController
+
+                _blas_controller = ThreadpoolController()
+            except Exception:  # pragma: no cover - threadpoolctl is a dependency
+                _blas_controller = False
+        if not _blas_controller:  # pragma: no cover
+            return False
+        if _blas_users == 0:
+            _blas_limiter = _blas_controller.limit(limits=1, user_api="blas")
+        _blas_users += 1
+        return True
+
+
+def _unlimit_blas() -> None:
+    global _blas_limiter, _blas_users
+    with _blas_lock:
+        _blas_users -= 1
+        if _blas_users == 0:
+            _blas_limiter.restore_original_limits()
+            _blas_limiter = None
 
 
 class Codebook:
