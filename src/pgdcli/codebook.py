@@ -207,6 +207,49 @@ class _PointData:
         self.modes = modes
 
 
+class _TTStack:
+    """The tensor-train unknowns that share a core order, zero-padded to common ranks.
+
+    One point then costs two small products per core for all those unknowns at
+    once (padding with zeros leaves every product unchanged).
+    """
+
+    def __init__(self, names: list[str], cores: list[np.ndarray], order: tuple[int, ...]):
+        self.index = {u: i for i, u in enumerate(names)}
+        self.order = order
+        self.first = cores[0][:, 0]  # (q, n, R1)
+        self.rest = [c.reshape(c.shape[0], c.shape[1], -1) for c in cores[1:]]  # (q, R0, n R1)
+        self.shapes = [c.shape for c in cores[1:]]
+
+    @classmethod
+    def build(cls, fields: Mapping) -> "_TTStack | None":
+        tts = {u: f for u, f in fields.items() if isinstance(f, FieldTT)}
+        if not tts:
+            return None
+        order = next(iter(tts.values())).mode_order
+        names = [u for u, f in tts.items() if f.mode_order == order]
+        d = len(order)
+        ranks = [1] + [max(tts[u].cores[k].shape[2] for u in names) for k in range(d - 1)] + [1]
+        cores = []
+        for k in range(d):
+            n = tts[names[0]].cores[k].shape[1]
+            stack = np.zeros((len(names), ranks[k], n, ranks[k + 1]))
+            for i, u in enumerate(names):
+                c = tts[u].cores[k]
+                stack[i, : c.shape[0], :, : c.shape[2]] = c
+            cores.append(stack)
+        return cls(names, cores, order)
+
+    def at_point(self, rows: list[np.ndarray]) -> np.ndarray:
+        """Values of the stacked unknowns at one point, shape (q,)."""
+        v = rows[self.order[0]] @ self.first  # (q, R1)
+        for j, core, shape in zip(self.order[1:], self.rest, self.shapes):
+            q, r0, n, r1 = shape
+            w = np.matmul(v[:, None, :], core).reshape(q, n, r1)  # (q, n, R1)
+            v = np.matmul(rows[j], w)  # (q, R1)
+        return v[:, 0]
+
+
 def _chunk_length(rank: int, nodes: int) -> int:
     rows = _CHUNK_BYTES // (16 * (rank + nodes))
     return min(_MAX_CHUNK, max(_ROW_ALIGN, rows // _ROW_ALIGN * _ROW_ALIGN))
@@ -342,6 +385,7 @@ class Codebook:
         self._names = tuple(c.name for c in self.coordinates)
         self._name_set = frozenset(self._names)
         self._point = [_PointData(c, b, m) for c, b, m in zip(self.coordinates, self._bases, self._stacked)]
+        self._tt_stack = _TTStack.build(self.fields)
 
     # ------------------------------------------------------------------ introspection
     @property
@@ -398,10 +442,11 @@ class Codebook:
                 if c.name not in coordinates:
                     raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
         selected = self._select(fields)
-        if any(isinstance(self.fields[u], FieldTT) for u in selected):
-            return self._evaluate_mixed(coordinates, selected)
         raw = [coordinates[n] for n in names]
-        if all(type(v) in _SCALAR_TYPES for v in raw):
+        scalars = all(type(v) in _SCALAR_TYPES for v in raw)
+        if not scalars and any(isinstance(self.fields[u], FieldTT) for u in selected):
+            return self._evaluate_mixed(coordinates, selected)
+        if scalars:
             # one point given as Python numbers: a handful of small numpy calls, no broadcasting
             return self._evaluate_point([float(v) for v in raw], selected, ())
         arrays = np.broadcast_arrays(*[np.asarray(v, dtype=float) for v in raw])
@@ -450,12 +495,9 @@ class Codebook:
             raise QueryError(f"coordinate {c.name!r}: value {v!r} is outside the domain [{low:g}, {high:g}]")
         return np.clip(x, low, high)
 
-    def _evaluate_point(self, xs: list[float], selected: list[str], shape: tuple) -> dict[str, np.ndarray]:
-        """One point: per coordinate, its cardinal row (a unit row at a node) times its modes.
-
-        The same arithmetic, in the same order, as the batch path on one point.
-        """
-        product = None
+    def _point_rows(self, xs: list[float]) -> list[np.ndarray]:
+        """Cardinal rows (a unit row at a node) of one point, coordinate by coordinate."""
+        rows = []
         for x, p in zip(xs, self._point):
             if not (x >= p.lower and x <= p.upper):
                 low, high = p.domain
@@ -475,13 +517,38 @@ class Codebook:
                 row = np.zeros(len(nodes))
                 row[left] = 1.0 - theta
                 row[left + 1] = theta
-            # np.dot: the gemv of `row @ modes` with less call overhead (for vector . vector it is
-            # not the same routine as `@`, whose rounding of zeros the last step keeps)
-            vals = _dot(row, p.modes)  # (total rank,)
-            product = vals if product is None else _multiply(product, vals, out=product)
+            rows.append(row)
+        return rows
+
+    def _evaluate_point(self, xs: list[float], selected: list[str], shape: tuple) -> dict[str, np.ndarray]:
+        """One point: per coordinate, its cardinal row times its modes (CP) or cores (tensor trains).
+
+        For CP unknowns the same arithmetic, in the same order, as the batch path on one point.
+        """
+        rows = self._point_rows(xs)
+        out = {}
+        if any(u in self._slices for u in selected):
+            product = None
+            for row, p in zip(rows, self._point):
+                # np.dot: the gemv of `row @ modes` with less call overhead (for vector . vector it is
+                # not the same routine as `@`, whose rounding of zeros the last step keeps)
+                vals = _dot(row, p.modes)  # (total rank,)
+                product = vals if product is None else _multiply(product, vals, out=product)
+            for u in selected:
+                if u in self._slices:
+                    out[u] = np.array(product[self._slices[u]] @ self.fields[u].alphas)
+        if self._tt_stack is not None and any(u in self._tt_stack.index for u in selected):
+            values = self._tt_stack.at_point(rows)
+            for u in selected:
+                if u in self._tt_stack.index:
+                    out[u] = np.array(values[self._tt_stack.index[u]])
+        for u in selected:
+            if u not in out:  # a tensor train outside the common stack (other core order)
+                mats = [r[None, :] for r in rows]
+                out[u] = np.array(_contract_tt(self.fields[u], mats)[0])
         if shape == ():
-            return {u: np.array(product[self._slices[u]] @ self.fields[u].alphas) for u in selected}
-        return {u: np.array(product[self._slices[u]] @ self.fields[u].alphas).reshape(shape) for u in selected}
+            return {u: out[u] for u in selected}
+        return {u: out[u].reshape(shape) for u in selected}
 
     def _evaluate_flat(self, flat: list[np.ndarray], selected: list[str]) -> dict[str, np.ndarray]:
         """Evaluate at the points ``flat[j][i]`` (one array per coordinate, same length, not 1).
