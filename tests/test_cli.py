@@ -417,3 +417,18 @@ def test_help_content(runner):
     s = _invoke(runner, ["solve", "--help"]).stdout
     for opt in ("--output", "--tolerance", "--max-modes", "--format"):
         assert opt in s
+
+
+def test_points_file_with_a_repeated_column_is_an_error(tmp_path):
+    from pgdcli.cli import cli
+
+    cb_path = tmp_path / "p.h5"
+    import pgdcli
+
+    pgdcli.solve(pgdcli.load_spec("problems/parametric.yaml")).codebook.save(cb_path)
+    points = tmp_path / "pts.csv"
+    points.write_text("t,k,k\n1,2,3\n")
+    result = CliRunner().invoke(cli, ["query", str(cb_path), "--points", str(points)], prog_name="pgd")
+    assert result.exit_code == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error:") and "'k'" not in lines[0] and "k appear" in lines[0]

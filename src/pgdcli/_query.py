@@ -131,6 +131,9 @@ def read_points(handle, cb) -> dict:
     for h in header:
         if h not in names:
             raise QueryError(f"{source}: unknown column {h!r}; expected the coordinates {', '.join(names)}")
+    repeated = sorted({h for h in header if header.count(h) > 1})
+    if repeated:
+        raise QueryError(f"{source}: column(s) {', '.join(repeated)} appear more than once in the header")
     missing = [n for n in names if n not in header]
     if missing:
         raise QueryError(f"{source}: missing column(s) {', '.join(missing)}")
