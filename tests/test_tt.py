@@ -275,3 +275,40 @@ def test_constructor_names_the_boundary_cores():
         TT([np.ones((2, 3, 2)), np.ones((2, 4, 1))])
     with pytest.raises(ValueError, match="last core's right rank"):
         TT([np.ones((1, 3, 2)), np.ones((2, 4, 3))])
+
+
+# ---------------------------------------------------------------- sums of Hadamard products, centres
+def _random_train(rng, shape, rank):
+    ranks = [1] + [rank] * (len(shape) - 1) + [1]
+    return TT([rng.standard_normal((ranks[k], n, ranks[k + 1])) for k, n in enumerate(shape)])
+
+
+@pytest.mark.parametrize("hint", [2, 6, 40])
+def test_round_sum_of_products_matches_the_explicit_sum(hint):
+    from pgdcli.tt import tt_ones, tt_round_sum_of_products
+
+    rng = np.random.default_rng(11)
+    shape = (6, 7, 5, 4)
+    a, b, c, d = (_random_train(rng, shape, r) for r in (3, 4, 2, 5))
+    exact = 0.7 * a.full() * b.full() - 1.3 * c.full() * d.full() + 0.5 * a.full()
+    delta = 1e-9 * np.linalg.norm(exact)
+    x = tt_round_sum_of_products([(0.7, a, b), (-1.3, c, d), (0.5, a, tt_ones(shape))], absolute=delta,
+                                 rank_hint=hint, rng=rng)
+    # the sketch (hint 2, 6) and the explicit sum (hint 40) both land on the true ranks
+    assert np.linalg.norm(x.full() - exact) <= 10 * delta
+    true_ranks = tt_round(TT(tt_sum([tt_hadamard(a, b), tt_hadamard(c, d), a], [0.7, -1.3, 0.5]).cores),
+                          absolute=delta).ranks
+    assert x.ranks == true_ranks
+
+
+def test_centre_cores_carry_the_whole_tensor():
+    from pgdcli.tt import tt_centre_cores
+
+    rng = np.random.default_rng(5)
+    t = _random_train(rng, (5, 6, 4, 3), 3)
+    full = t.full()
+    for k, centre in enumerate(tt_centre_cores(t.cores)):
+        unfolding = np.moveaxis(full, k, 0).reshape(full.shape[k], -1)
+        c = np.transpose(centre, (1, 0, 2)).reshape(centre.shape[1], -1)
+        np.testing.assert_allclose(np.linalg.svd(c, compute_uv=False)[: min(c.shape)],
+                                   np.linalg.svd(unfolding, compute_uv=False)[: min(c.shape)], rtol=1e-10, atol=1e-12)

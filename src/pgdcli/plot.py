@@ -340,10 +340,9 @@ def tt_hosvd_modes(fm) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """HOSVD modes of a tensor train, without forming the tensor.
 
     For each core ``k`` (coordinate ``j = fm.mode_order[k]``) the train is
-    orthogonalized around it -- QR sweeps from the left end up to core ``k``,
-    and from the right end down to it -- so that the mode-``j`` unfolding of the
-    tensor equals ``C_k`` (core ``k`` reshaped to ``(nodes_j, r_{k-1} r_k)``)
-    times a matrix with orthonormal rows. The SVD of ``C_k`` then gives the
+    orthogonalized around it (:func:`pgdcli.tt.tt_centre_cores`), so that the
+    mode-``j`` unfolding of the tensor equals ``C_k`` (core ``k`` reshaped to
+    ``(nodes_j, r_{k-1} r_k)``) times a matrix with orthonormal rows. The SVD of ``C_k`` then gives the
     unfolding's left singular vectors and singular values.
 
     Returns
@@ -354,23 +353,12 @@ def tt_hosvd_modes(fm) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         (m,) the singular values in decreasing order, ``m = min(nodes_j,
         r_{k-1} r_k)``.
     """
-    cores = [np.asarray(c, dtype=float) for c in fm.cores]
-    d = len(cores)
+    from .tt import tt_centre_cores
+
     out = {}
-    for k in range(d):
-        g = list(cores)
-        for i in range(k):  # left-orthogonal cores 0..k-1
-            r0, n, r1 = g[i].shape
-            q, r = np.linalg.qr(g[i].reshape(r0 * n, r1))
-            g[i] = q.reshape(r0, n, q.shape[1])
-            g[i + 1] = np.tensordot(r, g[i + 1], axes=(1, 0))
-        for i in range(d - 1, k, -1):  # right-orthogonal cores d-1..k+1
-            r0, n, r1 = g[i].shape
-            q, r = np.linalg.qr(g[i].reshape(r0, n * r1).T)
-            g[i] = q.T.reshape(q.shape[1], n, r1)
-            g[i - 1] = np.tensordot(g[i - 1], r.T, axes=(2, 0))
-        r0, n, r1 = g[k].shape
-        u, s, _ = np.linalg.svd(np.transpose(g[k], (1, 0, 2)).reshape(n, r0 * r1), full_matrices=False)
+    for k, centre in enumerate(tt_centre_cores(fm.cores)):
+        r0, n, r1 = centre.shape
+        u, s, _ = np.linalg.svd(np.transpose(centre, (1, 0, 2)).reshape(n, r0 * r1), full_matrices=False)
         if u.size:
             big = np.argmax(np.abs(u), axis=0)
             u = u * np.where(u[big, np.arange(u.shape[1])] < 0, -1.0, 1.0)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .tt import tt_centre_cores
+
 __all__ = ["resolution_tails"]
 
 
@@ -41,23 +43,6 @@ def _tail_matrix(info) -> np.ndarray | None:
     return second / 8.0
 
 
-def _tt_centre_cores(cores: list[np.ndarray]) -> list[np.ndarray]:
-    """For each position k, core k of the train orthogonalized around k (others orthonormal)."""
-    d = len(cores)
-    right = [x.copy() for x in cores]
-    for k in range(d - 1, 0, -1):
-        r0, n, r1 = right[k].shape
-        q, r = np.linalg.qr(right[k].reshape(r0, n * r1).T)
-        right[k] = q.T.reshape(q.shape[1], n, r1)
-        right[k - 1] = np.tensordot(right[k - 1], r.T, axes=(2, 0))
-    centres = [right[0]]
-    for k in range(d - 1):
-        r0, n, r1 = centres[-1].shape
-        _, r = np.linalg.qr(centres[-1].reshape(r0 * n, r1))
-        centres.append(np.tensordot(r, right[k + 1], axes=(1, 0)))
-    return centres
-
-
 def resolution_tails(codebook) -> dict[str, dict[str, float]]:
     """Tail indicator per unknown and coordinate (NaN when the coordinate is too coarse to tell).
 
@@ -76,7 +61,7 @@ def resolution_tails(codebook) -> dict[str, dict[str, float]]:
     for name, fm in codebook.fields.items():
         res = {}
         if isinstance(fm, FieldTT):
-            centres = _tt_centre_cores(list(fm.cores))
+            centres = tt_centre_cores(fm.cores)
             for core, j in zip(centres, fm.mode_order):
                 t = tails[j]
                 if t is None:

@@ -22,7 +22,7 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["TT", "tt_round", "tt_round_many", "tt_round_sum_of_products", "tt_sum", "tt_hadamard", "tt_rank_one",
-           "tt_constant", "tt_ones"]
+           "tt_constant", "tt_ones", "tt_centre_cores"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -266,6 +266,30 @@ def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None
         sv = s[:, :rank, None] * vt[:, :rank]
         cores[k + 1] = (sv @ cores[k + 1].reshape(b, r1, nb * rb)).reshape(b, rank, nb, rb)
     return [TT([c[i] for c in cores]) for i in range(b)]
+
+
+def tt_centre_cores(cores: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """For each position k, core k of the train orthogonalized around k.
+
+    With the cores left of k left-orthogonal and those right of k
+    right-orthogonal, the unfolding of the tensor along mode k is core k
+    (reshaped to (n_k, r_{k-1} r_k)) times a matrix with orthonormal rows: its
+    norms, SVD and Chebyshev tails are those of the whole tensor. One QR sweep
+    each way, O(d) factorizations in all.
+    """
+    d = len(cores)
+    right = [np.asarray(x, dtype=float).copy() for x in cores]
+    for k in range(d - 1, 0, -1):
+        r0, n, r1 = right[k].shape
+        q, r = np.linalg.qr(right[k].reshape(r0, n * r1).T)
+        right[k] = q.T.reshape(q.shape[1], n, r1)
+        right[k - 1] = np.tensordot(right[k - 1], r.T, axes=(2, 0))
+    centres = [right[0]]
+    for k in range(d - 1):
+        r0, n, r1 = centres[-1].shape
+        _, r = np.linalg.qr(centres[-1].reshape(r0 * n, r1))
+        centres.append(np.tensordot(r, right[k + 1], axes=(1, 0)))
+    return centres
 
 
 def tt_ones(shape: Sequence[int]) -> TT:
