@@ -113,14 +113,19 @@ def test_coupled_matches_solve_ivp(coupled, record_property):
     rng = np.random.default_rng(2024)
     ics = _box_points(rng)
     assert ics.shape[0] >= 256
-    nodes = cb.coordinate("t").basis().nodes
-    assert nodes.size == 16
+    nodes = cb.coordinate("t").basis().nodes  # automatic slabs: the Chebyshev nodes of every step
+    assert nodes.size >= 16 and nodes[0] == 0.0 and nodes[-1] == 0.5
     times = np.unique(np.concatenate([nodes, rng.uniform(0.0, 0.5, 8)]))
     assert times.size >= 24
-    sol = solve_ivp(_coupled_rhs, (0.0, 0.5), ics.T.reshape(-1), method="DOP853", t_eval=times,
-                    rtol=1e-12, atol=1e-12)
-    assert sol.success, sol.message
-    ref = sol.y.reshape(3, ics.shape[0], times.size)  # (unknown, point, time)
+    # integrate from output time to output time: DOP853's dense output (t_eval) is ~6e-10 off
+    state, columns, t0 = ics.T.reshape(-1), [], 0.0
+    for t in times:
+        if t > t0:
+            sol = solve_ivp(_coupled_rhs, (t0, t), state, method="DOP853", rtol=1e-12, atol=1e-12)
+            assert sol.success, sol.message
+            state, t0 = sol.y[:, -1], t
+        columns.append(state)
+    ref = np.stack(columns, axis=1).reshape(3, ics.shape[0], times.size)  # (unknown, point, time)
     values = cb(t=times[None, :], a=ics[:, :1], b=ics[:, 1:2], c=ics[:, 2:3])  # (point, time)
     errors = {u: float(np.max(np.abs(values[u] - ref[i]))) for i, u in enumerate(("u1", "u2", "u3"))}
     record_property("coupled_max_abs_error", errors)
@@ -184,7 +189,14 @@ def test_coupled_report(coupled):
     assert float(np.sum(sizes)) == pytest.approx(0.5, rel=0, abs=1e-12)
     assert 0.0 < rep["error_estimate"] <= rep["tolerance"]
     ranks = np.asarray(rep["node_ranks"])
-    assert ranks.shape == (16, 3, 2)  # (time nodes, unknowns, bonds of the (a, b, c) train)
+    nodes = coupled.codebook.coordinate("t").nodes
+    assert ranks.shape == (nodes, 3, 2)  # (time nodes, unknowns, bonds of the (a, b, c) train)
+    # automatic slabs: one per accepted step, each with the spec's nodes per slab
+    t_info = coupled.codebook.coordinate("t")
+    per_slab = load_spec(PROBLEMS / "coupled.yaml").coordinate("t").nodes
+    assert len(t_info.breakpoints) == rep["steps"] + 1
+    assert nodes == rep["steps"] * (per_slab - 1) + 1
+    np.testing.assert_allclose(np.diff(t_info.breakpoints), sizes, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(ranks[0], np.ones((3, 2)))  # u(0) = (a, b, c): rank one
     assert ranks.min() >= 1 and ranks.max() <= rep["max_rank"]
     assert f"{rep['steps']} steps" in coupled.message

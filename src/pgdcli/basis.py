@@ -31,6 +31,7 @@ import numpy as np
 __all__ = [
     "Basis1D",
     "ChebyshevBasis",
+    "PiecewiseChebyshevBasis",
     "LinearBasis",
     "make_basis",
     "KINDS",
@@ -284,9 +285,98 @@ class LinearBasis(Basis1D):
         return self.weights[1:].copy()
 
 
-def make_basis(kind: str, domain, size: int) -> Basis1D:
-    """Build the basis named ``kind`` (one of :data:`KINDS`) with ``size`` nodes on ``domain``."""
+@dataclass(frozen=True, eq=False)
+class PiecewiseChebyshevBasis(Basis1D):
+    """Chebyshev-Lobatto nodes on each slab ``[b_s, b_{s+1}]`` of ``breakpoints``; slabs share ends.
+
+    ``size`` is the total number of nodes, ``S (m - 1) + 1`` for ``S`` slabs of
+    ``m`` nodes. Functions are continuous, polynomial of degree ``m - 1`` on
+    each slab (barycentric interpolation within the slab of the point; a
+    breakpoint belongs to the slab on its right, where it is a node either
+    way). In time, each node's equation is collocated with the derivative of
+    the slab on its left (the first node: the first slab), so the composite
+    system marches slab by slab like the single-slab one.
+    """
+
+    breakpoints: tuple = ()
+    bary: np.ndarray = field(init=False, repr=False)
+    derivative: np.ndarray = field(init=False, repr=False)
+    slab_size: int = field(init=False, default=0)
+
+    def __post_init__(self):
+        bp = np.asarray(self.breakpoints, dtype=float)
+        slabs = bp.size - 1
+        n = int(self.size)
+        if slabs < 1 or np.any(np.diff(bp) <= 0):
+            raise ValueError(f"breakpoints must increase, got {self.breakpoints}")
+        if (n - 1) % slabs or (n - 1) // slabs < 1:
+            raise ValueError(f"{n} nodes do not make {slabs} slabs of equal node counts")
+        m = (n - 1) // slabs + 1
+        bp[0], bp[-1] = float(self.domain[0]), float(self.domain[1])
+        unit = _chebyshev_unit_nodes(m)
+        nodes, weights = np.empty(n), np.zeros(n)
+        local_w = _clenshaw_curtis_unit_weights(m)
+        local_d = ChebyshevBasis((-1.0, 1.0), m).derivative
+        derivative = np.zeros((n, n))
+        for s in range(slabs):
+            a, b = bp[s], bp[s + 1]
+            idx = slice(s * (m - 1), s * (m - 1) + m)
+            nodes[idx] = _map_to_domain(unit.copy(), (a, b))
+            weights[idx] += local_w * (b - a) / 2.0
+            rows = range(0 if s == 0 else 1, m)  # a shared node takes its left slab's derivative
+            for r in rows:
+                derivative[s * (m - 1) + r, idx] = local_d[r] * 2.0 / (b - a)
+        bary = np.where(np.arange(m) % 2 == 0, 1.0, -1.0)
+        bary[0] *= 0.5
+        bary[-1] *= 0.5
+        object.__setattr__(self, "kind", "chebyshev")
+        object.__setattr__(self, "breakpoints", tuple(float(v) for v in bp))
+        object.__setattr__(self, "slab_size", m)
+        object.__setattr__(self, "nodes", nodes)
+        object.__setattr__(self, "weights", weights)
+        object.__setattr__(self, "bary", bary)
+        object.__setattr__(self, "derivative", derivative)
+
+    def slab_of(self, x: np.ndarray) -> np.ndarray:
+        """Slab index of each point (a breakpoint goes to the slab on its right, the end to the last)."""
+        bp = np.asarray(self.breakpoints)
+        return np.clip(np.searchsorted(bp, x, side="right") - 1, 0, bp.size - 2)
+
+    def interpolation_matrix(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=float).reshape(-1)
+        return self._interpolation_rows(x, np.empty((x.size, self.nodes.size)), None)
+
+    def _interpolation_rows(self, x, out, work=None) -> np.ndarray:
+        m = self.slab_size
+        first = self.slab_of(x) * (m - 1)
+        idx = first[:, None] + np.arange(m)  # (p, m) global node indices of each point's slab
+        diff = x[:, None] - self.nodes[idx]
+        exact = diff == 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = self.bary / diff
+        hit = exact.any(axis=1)
+        if hit.any():
+            c[hit] = exact[hit]
+        c /= c.sum(axis=1, keepdims=True)
+        out.fill(0.0)
+        out[np.arange(x.size)[:, None], idx] = c
+        return out
+
+    time_stiffness = ChebyshevBasis.time_stiffness
+    time_mass = ChebyshevBasis.time_mass
+    time_load = ChebyshevBasis.time_load
+    time_weights = ChebyshevBasis.time_weights
+
+
+def make_basis(kind: str, domain, size: int, breakpoints=None) -> Basis1D:
+    """Build the basis named ``kind`` (one of :data:`KINDS`) with ``size`` nodes on ``domain``.
+
+    ``breakpoints`` (Chebyshev only): slab boundaries, ``domain`` ends included;
+    ``size`` is then the total node count, ``slabs * (nodes per slab - 1) + 1``.
+    """
     domain = (float(domain[0]), float(domain[1]))
+    if kind == "chebyshev" and breakpoints is not None and len(breakpoints) > 2:
+        return PiecewiseChebyshevBasis(domain, int(size), tuple(breakpoints))
     if kind == "chebyshev":
         return ChebyshevBasis(domain, int(size))
     if kind == "linear":

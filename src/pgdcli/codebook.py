@@ -46,9 +46,10 @@ class CoordinateInfo:
     nodes: int
     discretization: str = "chebyshev"
     role: str = "parameter"  # 'time' | 'parameter'
+    breakpoints: tuple = ()  # slab boundaries of a piecewise Chebyshev coordinate; () = one slab
 
     def basis(self):
-        return make_basis(self.discretization, self.domain, self.nodes)
+        return make_basis(self.discretization, self.domain, self.nodes, self.breakpoints or None)
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,7 +178,7 @@ _basis_cache: dict = {}
 
 def _basis(c: CoordinateInfo):
     """The (immutable, shared) basis of a coordinate: built once per process."""
-    key = (c.discretization, float(c.domain[0]), float(c.domain[1]), int(c.nodes))
+    key = (c.discretization, float(c.domain[0]), float(c.domain[1]), int(c.nodes), tuple(c.breakpoints))
     basis = _basis_cache.get(key)
     if basis is None:
         if len(_basis_cache) >= 256:
@@ -190,7 +191,7 @@ class _PointData:
     """Constants of one coordinate for the one-point path of :meth:`Codebook.evaluate`."""
 
     __slots__ = ("name", "domain", "low", "high", "lower", "upper", "chebyshev", "nodes", "node_list",
-                 "node_index", "bary", "unit", "modes")
+                 "node_index", "bary", "unit", "modes", "basis", "piecewise")
 
     def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
         low, high = c.domain
@@ -205,6 +206,8 @@ class _PointData:
         self.bary = getattr(basis, "bary", None)
         self.unit = np.eye(basis.size)
         self.modes = modes
+        self.basis = basis
+        self.piecewise = bool(getattr(basis, "slab_size", 0))
 
 
 class _TTStack:
@@ -507,6 +510,8 @@ class Codebook:
             k = p.node_index.get(x)
             if k is not None:
                 row = p.unit[k]
+            elif p.piecewise:
+                row = p.basis.interpolation_matrix(np.array([x]))[0]
             elif p.chebyshev:
                 c = p.bary / (x - p.nodes)
                 row = c / _add_reduce(c)
@@ -687,6 +692,8 @@ class Codebook:
             g.attrs["domain"] = np.array(c.domain, dtype=float)
             g.attrs["discretization"] = c.discretization
             g.attrs["role"] = c.role
+            if c.breakpoints:
+                g.attrs["breakpoints"] = np.array(c.breakpoints, dtype=float)
             g.create_dataset("nodes", data=c.basis().nodes)
         gu = f.create_group("unknowns")
         for u, fm in self.fields.items():
@@ -766,7 +773,9 @@ class Codebook:
             if kind_ not in KINDS:
                 raise CodebookError(f"{p}: coordinate {name!r} has unknown discretization {kind_!r}")
             nodes = g["nodes"][()]
-            info = CoordinateInfo(name, domain, int(nodes.size), kind_, _attr_str(g.attrs.get("role", "parameter")))
+            breakpoints = tuple(float(v) for v in g.attrs.get("breakpoints", ()))
+            info = CoordinateInfo(name, domain, int(nodes.size), kind_, _attr_str(g.attrs.get("role", "parameter")),
+                                  breakpoints)
             if not np.array_equal(_basis(info).nodes, nodes):  # built once: the codebook reuses it
                 raise CodebookError(f"{p}: stored nodes of coordinate {name!r} do not match its {kind_} basis")
             coords.append(info)
@@ -852,7 +861,9 @@ def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.n
     """Assemble the codebook of a solved problem: lift terms + PGD terms per unknown."""
     from . import __version__
 
-    coords = [CoordinateInfo(c.name, tuple(c.domain), c.nodes, c.discretization, c.role) for c in problem.coordinates]
+    from .solver import coordinate_infos
+
+    coords = coordinate_infos(problem, march=False)
     nodal = disc.nodal_factors(factors)
     fields = {}
     for u in disc.unknowns:

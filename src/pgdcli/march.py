@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .basis import Basis1D, make_basis
+from .basis import Basis1D, _chebyshev_unit_nodes
 from .expressions import Separable, SepTerm, merge_to_function
 from .errors import SolverError
 from .tt import (TT, _is_ones, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
@@ -154,7 +154,9 @@ def compile_system(problem) -> NonlinearSystem:
     params = [c.name for c in problem.coordinates if c.name != tname]
     if not params:
         raise SolverError("the march needs at least one non-time coordinate")
-    bases = {c.name: make_basis(c.discretization, c.domain, c.nodes) for c in problem.coordinates}
+    from .solver import coordinate_infos
+
+    bases = {info.name: info.basis() for info in coordinate_infos(problem, march=True)}
     rhs: list = [None] * len(unknowns)
     where = problem.source
     for eq in problem.equations:
@@ -276,6 +278,15 @@ class MarchResult:
     error_estimate: float
     ranks: list[list[tuple[int, ...]]]  # [time node][unknown]
     step_sizes: list[float] = field(default_factory=list)
+    times: np.ndarray | None = None  # the time nodes the states are at
+    breakpoints: np.ndarray | None = None  # slab boundaries (automatic slabs only)
+
+
+def _contract_leading(train: TT, weights: np.ndarray) -> TT:
+    """Contract the leading mode of ``train`` with ``weights``: a train of one order less."""
+    head = weights @ train.cores[0][0]  # (r_1,)
+    first = np.tensordot(head, train.cores[1], axes=(0, 0))[None]  # (1, n_2, r_2)
+    return TT([first] + list(train.cores[2:]))
 
 
 def _frobenius_of_sum(terms: list[TT], weights) -> float:
@@ -306,7 +317,7 @@ def _dense_weights(x: float, h: float, D: np.ndarray) -> np.ndarray:
 
 
 def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max_steps: int = 20000,
-          callback=None) -> MarchResult:
+          callback=None, slab_nodes: int | None = None) -> MarchResult:
     """Advance the separated state over the time domain with DOP853 and dense output.
 
     Steps are chosen by the embedded error estimate (not by the time nodes);
@@ -323,6 +334,11 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
         Caps; exceeding them raises :class:`MarchFailure`.
     callback : callable, optional
         Called after every accepted step with ``{"time", "end", "ranks", "steps"}``.
+    slab_nodes : int, optional
+        Automatic time slabs: every accepted step is a slab and the state is
+        stored at its ``slab_nodes`` Chebyshev-Lobatto nodes (from 8 on, the
+        dense output, a polynomial of degree 7, is reproduced exactly by the
+        codebook's interpolation). Without it, the nodes of the time basis.
 
     Raises
     ------
@@ -364,6 +380,8 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     scale0 = max(1.0, max(u.norm() for u in y))
     f = rhs(t, y)
     states: list[list[TT]] = [y]
+    times = [t]
+    breakpoints = [t]
     next_node = 1
     h = min(t_final - t, 0.1 * (t_final - t))
     steps = rejected = 0
@@ -404,22 +422,36 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             h *= max(0.2, SAFETY * ratio ** (-1.0 / 7.0))
             continue
         t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
-        inside = []
-        while next_node < nodes.size and nodes[next_node] <= t_new:
-            inside.append(next_node)
-            next_node += 1
-        if inside:
-            interior = [n for n in inside if nodes[n] < t_new]
-            if interior:
-                for s, (a, c) in enumerate(zip(A_extra, C_extra), start=n_stages + 1):
-                    stage = combine(y, K, h * a[:s], stage_delta)
-                    K.append(rhs(t + c * h, stage))
-            for n in inside:
-                if nodes[n] >= t_new:
-                    states.append(y_new)
-                    continue
-                w = _dense_weights((nodes[n] - t) / h, h, D)
+        if slab_nodes:  # the step is a slab: its Chebyshev-Lobatto nodes, the last one t_new
+            outs = list(t + h * (_chebyshev_unit_nodes(slab_nodes)[1:] + 1.0) / 2.0)
+            outs[-1] = t_new
+            breakpoints.append(t_new)
+        else:
+            outs = []
+            while next_node < nodes.size and nodes[next_node] <= t_new:
+                outs.append(float(nodes[next_node]))
+                next_node += 1
+        if any(tn < t_new for tn in outs):
+            for s, (a, c) in enumerate(zip(A_extra, C_extra), start=n_stages + 1):
+                stage = combine(y, K, h * a[:s], stage_delta)
+                K.append(rhs(t + c * h, stage))
+        interior = [tn for tn in outs if tn < t_new]
+        if len(interior) > 1:
+            # every dense value is a combination of the same 18 trains: join them along a
+            # combination mode and round once, then each value is a contraction of that mode
+            weights = [_dense_weights((tn - t) / h, h, D) for tn in interior]
+            scale = max(float(np.linalg.norm(w)) for w in weights)
+            joined = join_and_round([[y[i], y_new[i]] + [k[i] for k in K] for i in range(q)], state_delta / scale, rng)
+            dense = iter([[_contract_leading(j, w) for j in joined] for w in weights])
+        for tn in outs:
+            if tn >= t_new:
+                states.append(y_new)
+            elif len(interior) > 1:
+                states.append(next(dense))
+            else:
+                w = _dense_weights((tn - t) / h, h, D)
                 states.append(combine(y, [y_new] + K, w[1:], state_delta, base_weight=w[0]))
+        times.extend(outs)
         t, y, f = t_new, y_new, f_new
         steps += 1
         sizes.append(h)
@@ -433,43 +465,76 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     ranks = [[u.ranks for u in st] for st in states]
     error_estimate += state_delta  # the rounding of the values at the time nodes (once)
     rms = error_estimate / np.sqrt(float(np.prod(system.shape)))
-    return MarchResult(states, steps, rejected, rms, ranks, sizes)
+    return MarchResult(states, steps, rejected, rms, ranks, sizes, np.array(times),
+                       np.array(breakpoints) if slab_nodes else None)
+
+
+def join_trains(trains: list[TT]) -> TT:
+    """One train with a leading mode over the list: ``X[n, ...] = trains[n][...]`` (unrounded).
+
+    Block structure: identity leading core, block-diagonal inner cores; ranks add.
+    """
+    nt = len(trains)
+    d = trains[0].order
+    cores = [np.eye(nt)[None, :, :]]
+    if d == 1:
+        cores.append(np.stack([s.cores[0][0, :, 0] for s in trains])[:, :, None])
+        return TT(cores)
+    r1 = [s.cores[0].shape[2] for s in trains]
+    first = np.zeros((nt, trains[0].shape[0], sum(r1)))
+    off = 0
+    for n, s in enumerate(trains):
+        first[n, :, off:off + r1[n]] = s.cores[0][0]
+        off += r1[n]
+    cores.append(first)
+    for k in range(1, d - 1):
+        rl = [s.cores[k].shape[0] for s in trains]
+        rr = [s.cores[k].shape[2] for s in trains]
+        c = np.zeros((sum(rl), trains[0].shape[k], sum(rr)))
+        a = b = 0
+        for n, s in enumerate(trains):
+            c[a:a + rl[n], :, b:b + rr[n]] = s.cores[k]
+            a += rl[n]
+            b += rr[n]
+        cores.append(c)
+    cores.append(np.concatenate([s.cores[-1] for s in trains], axis=0))
+    return TT(cores)
+
+
+def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generator | None = None) -> list[TT]:
+    """:func:`join_trains` of each group, rounded to Frobenius error ``delta``.
+
+    Joined ranks are the sums of the members' ranks: small joins are rounded
+    exactly and together (batched across groups), large ones by the randomized
+    sum-of-products rounding of ``sum_n e_n (x) train_n``, which never forms them.
+    """
+    joined_rank = max(sum(max(t.ranks, default=1) for t in g) for g in groups)
+    if joined_rank <= EXACT_RANK_LIMIT:
+        return tt_round_many([join_trains(g) for g in groups], absolute=delta)
+    out = []
+    for g in groups:
+        nt = len(g)
+        shape = g[0].shape
+        terms = []
+        for n, train in enumerate(g):
+            unit = np.zeros(nt)
+            unit[n] = 1.0
+            selector = tt_rank_one([unit] + [np.ones(m) for m in shape])
+            lifted = TT([np.ones((1, nt, 1))] + list(train.cores))
+            terms.append((1.0, selector, lifted))
+        hint = max(max(t.ranks, default=1) for t in g)
+        out.append(tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint, rng=rng))
+    return out
 
 
 def space_time_tt(states: list[TT], delta: float) -> TT:
     """Join per-time-node tensor trains into one train with the time mode first, then round.
 
-    ``states[n]`` holds the function at time node n over the parameter grid.
-    The joined train has a block structure (time core = identity, block
-    diagonal parameter cores); rounding it with absolute Frobenius error
-    ``delta`` finds the space-time ranks.
+    ``states[n]`` holds the function at time node n over the parameter grid;
+    rounding the joined train with absolute Frobenius error ``delta`` finds the
+    space-time ranks.
     """
-    nt = len(states)
-    d = states[0].order
-    cores = [np.eye(nt)[None, :, :]]
-    if d == 1:
-        cores.append(np.stack([s.cores[0][0, :, 0] for s in states])[:, :, None])
-        return tt_round(TT(cores), absolute=delta)
-    r1 = [s.cores[0].shape[2] for s in states]
-    first = np.zeros((nt, states[0].shape[0], sum(r1)))
-    off = 0
-    for n, s in enumerate(states):
-        first[n, :, off:off + r1[n]] = s.cores[0][0]
-        off += r1[n]
-    cores.append(first)
-    for k in range(1, d - 1):
-        rl = [s.cores[k].shape[0] for s in states]
-        rr = [s.cores[k].shape[2] for s in states]
-        c = np.zeros((sum(rl), states[0].shape[k], sum(rr)))
-        a = b = 0
-        for n, s in enumerate(states):
-            c[a:a + rl[n], :, b:b + rr[n]] = s.cores[k]
-            a += rl[n]
-            b += rr[n]
-        cores.append(c)
-    cores.append(np.concatenate([s.cores[-1] for s in states], axis=0))
-    joined = TT(cores)
-    return tt_round(joined, absolute=delta)
+    return join_and_round([states], delta)[0]
 
 
 def _blowup_region(system: NonlinearSystem, state: list[TT], max_points: int = 2_000_000) -> str:
@@ -516,11 +581,18 @@ def solve_march(problem, tolerance: float, callback=None):
 
     failure = None
     try:
-        result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress)
+        auto = getattr(opts, "time_slabs", "auto") == "auto"
+        tcoord = problem.time_coordinate
+        if auto and tcoord.discretization != "chebyshev":
+            auto = False  # linear time elements: the nodes are the slabs already
+        result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress,
+                       slab_nodes=tcoord.nodes if auto else None)
     except MarchFailure as exc:
         failure = exc
     wall = _time.perf_counter() - started
-    coords = [CoordinateInfo(c.name, tuple(c.domain), c.nodes, c.discretization, c.role) for c in problem.coordinates]
+    from .solver import coordinate_infos
+
+    coords = coordinate_infos(problem, march=True)
     names = [c.name for c in problem.coordinates]
     order = tuple(names.index(n) for n in [problem.time] + system.params)
     if failure is not None:
@@ -534,10 +606,20 @@ def solve_march(problem, tolerance: float, callback=None):
         cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
                       description=problem.description)
         return SolveResult(cb, False, 3, message, np.array([np.inf]), np.zeros(0, dtype=int), wall)
+    if result.breakpoints is not None:  # automatic slabs: the accepted steps
+        t = problem.time_coordinate
+        bp = result.breakpoints.copy()
+        bp[0], bp[-1] = t.domain
+        k = names.index(t.name)
+        coords[k] = CoordinateInfo(t.name, tuple(t.domain), len(result.states), t.discretization, t.role,
+                                   tuple(float(v) for v in bp))
+        # the codebook's basis puts the nodes where the march stored the states
+        assert np.allclose(coords[k].basis().nodes, result.times, rtol=0, atol=1e-12 * max(1.0, abs(bp[-1])))
     fields = {}
     st_delta = STATE_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
-    for i, u in enumerate(system.unknowns):
-        train = space_time_tt([states[i] for states in result.states], st_delta)
+    trains = join_and_round([[states[i] for states in result.states] for i in range(len(system.unknowns))], st_delta,
+                            np.random.default_rng(7))
+    for u, train in zip(system.unknowns, trains):
         fields[u] = FieldTT(train.cores, order)
     estimate = result.error_estimate + STATE_FRACTION * tolerance  # + the space-time rounding
     message = (f"converged: reached t = {system.time_basis.nodes[-1]:.6g} in {result.steps} steps "

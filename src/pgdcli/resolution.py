@@ -31,6 +31,8 @@ def _coefficient_matrix(n: int) -> np.ndarray:
 def _tail_matrix(info) -> np.ndarray | None:
     """Rows that map nodal values along a coordinate to its tail indicators."""
     n = info.nodes
+    if getattr(info, "breakpoints", ()):
+        return None  # piecewise: each slab is the march's own step polynomial, no global tail
     if info.discretization == "chebyshev":
         if n < 4:
             return None

@@ -99,6 +99,31 @@ class Discretization:
         return out
 
 
+def coordinate_infos(problem, *, march: bool):
+    """The codebook coordinates of a problem, the time coordinate's slabs resolved.
+
+    ``solver.time_slabs``: an integer N splits a Chebyshev time coordinate into N equal
+    slabs of ``nodes`` nodes each; ``auto`` is one slab for the enrichment solver, and for
+    the march one slab per accepted step (the provisional single slab returned here is
+    replaced once the steps are known).
+    """
+    from .codebook import CoordinateInfo
+
+    slabs = getattr(problem.solver, "time_slabs", 1)
+    out = []
+    for c in problem.coordinates:
+        info = CoordinateInfo(c.name, tuple(c.domain), c.nodes, c.discretization, c.role)
+        if c.name == problem.time and isinstance(slabs, int) and slabs > 1:
+            if c.discretization != "chebyshev":
+                raise SolverError(f"{problem.source}: solver.time_slabs: slabs need a chebyshev time coordinate, "
+                                  f"{c.name!r} is {c.discretization}")
+            breakpoints = tuple(np.linspace(c.domain[0], c.domain[1], slabs + 1))
+            info = CoordinateInfo(c.name, tuple(c.domain), slabs * (c.nodes - 1) + 1, c.discretization, c.role,
+                                  breakpoints)
+        out.append(info)
+    return out
+
+
 def _factor_values(term, basis_of: dict[str, Basis1D]) -> dict[str, np.ndarray]:
     """Values at the nodes of every coordinate factor of a SepTerm (absent coordinates: ones)."""
     values = {name: np.ones(b.nodes.size) for name, b in basis_of.items()}
@@ -144,7 +169,7 @@ def discretize(problem) -> Discretization:
     unknowns = [u.name for u in problem.unknowns]
     q = len(unknowns)
     index = {name: s for s, name in enumerate(unknowns)}
-    bases = {c.name: make_basis(c.discretization, c.domain, c.nodes) for c in coords}
+    bases = {info.name: info.basis() for info in coordinate_infos(problem, march=False)}
     tb = bases[tname]
     nt = tb.nodes.size
     params = [c.name for c in coords if c.name != tname]

@@ -128,6 +128,7 @@ class SolverOptions:
     method: str = "auto"  # 'auto' | 'pgd' (linear enrichment) | 'march' (separated time march)
     max_rank: int = 400  # march: cap on every tensor-train rank
     max_steps: int = 20000  # march: cap on accepted + rejected time steps
+    time_slabs: int | str = "auto"  # time basis: 'auto' (march: one slab per accepted step; pgd: 1) or a count
 
 
 @dataclass(frozen=True)
@@ -563,6 +564,15 @@ def _parse_solver(check: _Checker, value: Any) -> SolverOptions:
         options["formulation"] = check.choice(section["formulation"], "solver.formulation", FORMULATIONS)
     if "method" in section:
         options["method"] = check.choice(section["method"], "solver.method", METHODS)
+    if "time_slabs" in section:
+        value = section["time_slabs"]
+        if value == "auto":
+            options["time_slabs"] = "auto"
+        else:
+            try:
+                options["time_slabs"] = check.integer(value, "solver.time_slabs", 1)
+            except SpecError:
+                raise check.error("solver.time_slabs", f"expected 'auto' or an integer >= 1, got {_show(value)}") from None
     if "update" in section:
         if not isinstance(section["update"], bool):
             raise check.error("solver.update", f"expected true or false, got {_show(section['update'])}")
