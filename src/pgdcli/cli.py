@@ -193,14 +193,19 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, tolerance, 
 
 
 def _solve_summary(problem, result, target: Path) -> dict:
+    cb = result.codebook
+    march = cb.report.get("method") == "march"
     return {
         "problem": problem.name,
+        "method": "march" if march else "pgd",
         "converged": bool(result.converged),
         "message": result.message,
-        "residual": float(result.residual),
-        "tolerance": float(result.codebook.report["tolerance"]),
-        "modes": {u: fm.rank for u, fm in result.codebook.fields.items()},
-        "coordinates": {c.name: c.nodes for c in problem.coordinates},
+        "residual": float(result.residual),  # march: the RMS error estimate
+        "tolerance": float(cb.report["tolerance"]),
+        "modes": {u: fm.rank for u, fm in cb.fields.items()},  # march: the largest tensor-train rank
+        "ranks": {u: list(fm.ranks) for u, fm in cb.fields.items() if hasattr(fm, "ranks")},
+        "coordinates": {c.name: c.nodes for c in cb.coordinates},
+        "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
         "wall_time": float(result.wall_time),
         "output": str(target) if result.converged else None,
     }
@@ -214,9 +219,15 @@ def _summary_table(summary: dict):
     table.add_column()
     status = "[green]converged[/]" if summary["converged"] else "[red]not converged[/]"
     table.add_row("status", status)
-    table.add_row("residual", f"{summary['residual']:.3e} (tolerance {summary['tolerance']:.1e})")
-    table.add_row("modes", ", ".join(f"{u}: {n}" for u, n in summary["modes"].items()))
-    table.add_row("nodes", ", ".join(f"{c}: {n}" for c, n in summary["coordinates"].items()))
+    if summary.get("method") == "march":
+        table.add_row("error estimate", f"{summary['residual']:.3e} RMS (tolerance {summary['tolerance']:.1e})")
+        table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
+    else:
+        table.add_row("residual", f"{summary['residual']:.3e} (tolerance {summary['tolerance']:.1e})")
+        table.add_row("modes", ", ".join(f"{u}: {n}" for u, n in summary["modes"].items()))
+    slabs = summary.get("slabs", {})
+    table.add_row("nodes", ", ".join(f"{c}: {n}" + (f" ({slabs[c]} slabs)" if c in slabs else "")
+                                     for c, n in summary["coordinates"].items()))
     table.add_row("time", f"{summary['wall_time']:.2f} s")
     if summary.get("output"):
         size = summary.get("size_bytes")
@@ -311,9 +322,12 @@ def info(codebook, fmt):
         coords.add_row(c["name"], c["role"], f"[{c['domain'][0]:g}, {c['domain'][1]:g}]", str(c["nodes"]),
                        c["discretization"])
     console.print(coords)
-    console.print("modes: " + ", ".join(f"{u} {v['modes']}" for u, v in summary["unknowns"].items()))
+    console.print("modes: " + ", ".join(
+        f"{u} {v['modes']}" if v.get("representation") != "tensor-train" else f"{u} tensor train, ranks {tuple(v['ranks'])}"
+        for u, v in summary["unknowns"].items()))
     state = "converged" if summary["converged"] else "NOT converged"
-    console.print(f"residual: {summary['residual']:.3e} (tolerance {summary['tolerance']:.1e}, {state})")
+    label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
+    console.print(f"{label}: {summary['residual']:.3e} (tolerance {summary['tolerance']:.1e}, {state})")
     console.print(f"solve time: {summary['solve_time']:.3f} s")
     console.print(f"size: {_human_size(summary['size_bytes'])} ({summary['size_bytes']} bytes)")
     console.print(f"format: {summary['format']}, written by pgdcli {summary['pgdcli_version']}, {summary['created']}")

@@ -620,6 +620,7 @@ class Codebook:
                 for c in self.coordinates
             ],
             "unknowns": {u: _field_summary(fm) for u, fm in self.fields.items()},
+            "method": str(rep.get("method", "pgd")),
             "converged": bool(rep.get("converged", False)),
             "residual": float(rep.get("residual", np.nan)),
             "tolerance": float(rep.get("tolerance", np.nan)),
