@@ -247,6 +247,9 @@ def ranks_text(cb) -> str:
 # ----------------------------------------------------------------------------------------------
 # coupled
 # ----------------------------------------------------------------------------------------------
+GRID_TIME_NODES = 16  # time nodes of the brute-force alternatives and of the grid size they are compared by
+
+
 def bench_coupled(rows: list, work: Path) -> None:
     import pgdcli
     import pgdcli.march  # noqa: F401  (imports outside the timed builds)
@@ -256,7 +259,9 @@ def bench_coupled(rows: list, work: Path) -> None:
     coords = {c.name: c for c in problem.coordinates}
     from pgdcli.basis import make_basis
 
-    tnodes = make_basis(coords["t"].discretization, coords["t"].domain, coords["t"].nodes).nodes
+    # the time nodes of the comparison (loop outputs, grid size): 16 Chebyshev nodes, what a
+    # global time basis needs here; the codebook's own time nodes follow its slabs (steps)
+    tnodes = make_basis("chebyshev", coords["t"].domain, GRID_TIME_NODES).nodes
     params = ["a", "b", "c"]
     axes = [make_basis(coords[p].discretization, coords[p].domain, coords[p].nodes).nodes for p in params]
     grid = grid_ics(axes)  # (3, 8000)
@@ -361,7 +366,7 @@ def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
         raise SystemExit(f"{RIGID} constants changed: {constants}; update RB in {__file__}")
     coords = {c.name: c for c in problem.coordinates}
     params = [c.name for c in problem.coordinates if c.name != "t"]
-    tnodes = make_basis(coords["t"].discretization, coords["t"].domain, coords["t"].nodes).nodes
+    tnodes = make_basis("chebyshev", coords["t"].domain, GRID_TIME_NODES).nodes  # as for coupled
     t_span = (float(tnodes[0]), float(tnodes[-1]))
     lows = [coords[p].domain[0] for p in params]
     highs = [coords[p].domain[1] for p in params]

@@ -436,7 +436,10 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
                 stage = combine(y, K, h * a[:s], stage_delta)
                 K.append(rhs(t + c * h, stage))
         interior = [tn for tn in outs if tn < t_new]
-        if len(interior) > 1:
+        members = [y, y_new] + K
+        joint = len(interior) > 1 and max(sum(max(m[i].ranks, default=1) for m in members)
+                                          for i in range(q)) <= EXACT_RANK_LIMIT
+        if joint:
             # every dense value is a combination of the same 18 trains: join them along a
             # combination mode and round once, then each value is a contraction of that mode
             weights = [_dense_weights((tn - t) / h, h, D) for tn in interior]
@@ -446,7 +449,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
         for tn in outs:
             if tn >= t_new:
                 states.append(y_new)
-            elif len(interior) > 1:
+            elif joint:
                 states.append(next(dense))
             else:
                 w = _dense_weights((tn - t) / h, h, D)
@@ -522,7 +525,8 @@ def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generato
             selector = tt_rank_one([unit] + [np.ones(m) for m in shape])
             lifted = TT([np.ones((1, nt, 1))] + list(train.cores))
             terms.append((1.0, selector, lifted))
-        hint = max(max(t.ranks, default=1) for t in g)
+        # a join spans the members' union: start the sketch at twice the largest member rank
+        hint = 2 * max(max(t.ranks, default=1) for t in g)
         out.append(tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint, rng=rng))
     return out
 
