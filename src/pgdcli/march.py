@@ -35,7 +35,7 @@ import numpy as np
 from .basis import Basis1D, _chebyshev_unit_nodes
 from .expressions import Separable, SepTerm, merge_to_function
 from .errors import SolverError
-from .tt import (TT, _is_ones, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
+from .tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "march", "space_time_tt"]
@@ -50,6 +50,9 @@ SAFETY = 0.8
 # Shares of the tolerance: local Runge-Kutta error, state rounding per step,
 # stage rounding (enters the step multiplied by h).
 LOCAL_FRACTION, STATE_FRACTION, STAGE_FRACTION = 0.3, 0.02, 0.05
+# Share of the tolerance for rounding the joined space-time train of the codebook: it sets
+# the codebook's ranks (size, query cost) and is added to the error estimate once.
+SPACE_TIME_FRACTION = 0.1
 # Blow-up detection: a step below MIN_STEP * (time span), or a state whose norm grew
 # by MAX_GROWTH_OF_NORM, ends the march (near a finite-time singularity the steps
 # shrink geometrically, so waiting for a floating-point underflow costs hundreds of steps).
@@ -473,60 +476,68 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
 
 
 def join_trains(trains: list[TT]) -> TT:
-    """One train with a leading mode over the list: ``X[n, ...] = trains[n][...]`` (unrounded).
-
-    Block structure: identity leading core, block-diagonal inner cores; ranks add.
-    """
-    nt = len(trains)
-    d = trains[0].order
-    cores = [np.eye(nt)[None, :, :]]
-    if d == 1:
-        cores.append(np.stack([s.cores[0][0, :, 0] for s in trains])[:, :, None])
-        return TT(cores)
-    r1 = [s.cores[0].shape[2] for s in trains]
-    first = np.zeros((nt, trains[0].shape[0], sum(r1)))
-    off = 0
-    for n, s in enumerate(trains):
-        first[n, :, off:off + r1[n]] = s.cores[0][0]
-        off += r1[n]
-    cores.append(first)
-    for k in range(1, d - 1):
-        rl = [s.cores[k].shape[0] for s in trains]
-        rr = [s.cores[k].shape[2] for s in trains]
-        c = np.zeros((sum(rl), trains[0].shape[k], sum(rr)))
-        a = b = 0
-        for n, s in enumerate(trains):
-            c[a:a + rl[n], :, b:b + rr[n]] = s.cores[k]
-            a += rl[n]
-            b += rr[n]
-        cores.append(c)
-    cores.append(np.concatenate([s.cores[-1] for s in trains], axis=0))
-    return TT(cores)
+    """One train with a leading mode over the list: ``X[n, ...] = trains[n][...]`` (unrounded, ranks add)."""
+    return tt_concatenate([TT([np.ones((1, 1, 1))] + list(t.cores)) for t in trains])
 
 
-def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generator | None = None) -> list[TT]:
+def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generator | None = None,
+                   fan_in: int = 8) -> list[TT]:
     """:func:`join_trains` of each group, rounded to Frobenius error ``delta``.
 
-    Joined ranks are the sums of the members' ranks: small joins are rounded
-    exactly and together (batched across groups), large ones by the randomized
-    sum-of-products rounding of ``sum_n e_n (x) train_n``, which never forms them.
+    Joined ranks are the sums of the members' ranks, so the join is built as a
+    tree: up to ``fan_in`` members at a time are concatenated along the leading
+    mode and rounded (exactly and batched across groups while the sums stay
+    small, else by the randomized sum-of-products rounding, which never forms
+    them), then the rounded pieces are joined the same way. Each of the
+    ``levels`` roundings gets ``delta / levels``; within a level the pieces are
+    orthogonal blocks of the leading mode, so their errors add in quadrature.
     """
-    joined_rank = max(sum(max(t.ranks, default=1) for t in g) for g in groups)
-    if joined_rank <= EXACT_RANK_LIMIT:
-        return tt_round_many([join_trains(g) for g in groups], absolute=delta)
+    levels = max(1, int(np.ceil(np.log(max(len(g) for g in groups)) / np.log(fan_in))))
+    # the last level sets the final ranks: it gets most of the budget, the others share the rest
+    budgets = [0.7 * delta] if levels == 1 else [0.3 * delta / (levels - 1)] * (levels - 1) + [0.7 * delta]
+    budgets[-1] = delta - sum(budgets[:-1])
+    pieces = [[TT([np.ones((1, 1, 1))] + list(t.cores)) for t in g] for g in groups]
+    for level in range(levels + 1):
+        chunks = [[g[i:i + fan_in] for i in range(0, len(g), fan_in)] for g in pieces]
+        flat = [chunk for g in chunks for chunk in g]
+        # the error budget of a level is shared by its chunks (orthogonal blocks)
+        chunk_delta = budgets[min(level, levels - 1)] / np.sqrt(max(len(g) for g in chunks))
+        rounded = _round_concatenations(flat, chunk_delta, rng)
+        it = iter(rounded)
+        pieces = [[next(it) for _ in g] for g in chunks]
+        if all(len(g) == 1 for g in pieces):
+            return [g[0] for g in pieces]
+    raise AssertionError("the join tree did not close")  # pragma: no cover
+
+
+def _round_concatenations(chunks: list[list[TT]], delta: float, rng) -> list[TT]:
+    """Round ``tt_concatenate(chunk)`` for every chunk: batched exactly when small, else sketched."""
+    sums = [sum(max(t.ranks, default=1) for t in chunk) for chunk in chunks]
+    if max(sums) <= EXACT_RANK_LIMIT:
+        joined = [tt_concatenate(chunk) for chunk in chunks]
+        by_shape: dict = {}
+        for i, j in enumerate(joined):
+            by_shape.setdefault(j.shape, []).append(i)
+        out: list = [None] * len(joined)
+        for idx in by_shape.values():  # tt_round_many needs one shape per batch
+            for i, r in zip(idx, tt_round_many([joined[i] for i in idx], absolute=delta)):
+                out[i] = r
+        return out
     out = []
-    for g in groups:
-        nt = len(g)
-        shape = g[0].shape
-        terms = []
-        for n, train in enumerate(g):
-            unit = np.zeros(nt)
-            unit[n] = 1.0
-            selector = tt_rank_one([unit] + [np.ones(m) for m in shape])
-            lifted = TT([np.ones((1, nt, 1))] + list(train.cores))
-            terms.append((1.0, selector, lifted))
+    for chunk in chunks:
+        lead = [t.shape[0] for t in chunk]
+        total = sum(lead)
+        terms, offset = [], 0
+        for t, n in zip(chunk, lead):
+            selector = np.zeros(total)
+            selector[offset:offset + n] = 1.0
+            padded = np.zeros((1, total, t.cores[0].shape[2]))
+            padded[0, offset:offset + n] = t.cores[0][0]
+            terms.append((1.0, tt_rank_one([selector] + [np.ones(m) for m in t.shape[1:]]),
+                          TT([padded] + list(t.cores[1:]))))
+            offset += n
         # a join spans the members' union: start the sketch at twice the largest member rank
-        hint = 2 * max(max(t.ranks, default=1) for t in g)
+        hint = 2 * max(max(t.ranks, default=1) for t in chunk)
         out.append(tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint, rng=rng))
     return out
 
@@ -620,12 +631,12 @@ def solve_march(problem, tolerance: float, callback=None):
         # the codebook's basis puts the nodes where the march stored the states
         assert np.allclose(coords[k].basis().nodes, result.times, rtol=0, atol=1e-12 * max(1.0, abs(bp[-1])))
     fields = {}
-    st_delta = STATE_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     trains = join_and_round([[states[i] for states in result.states] for i in range(len(system.unknowns))], st_delta,
                             np.random.default_rng(7))
     for u, train in zip(system.unknowns, trains):
         fields[u] = FieldTT(train.cores, order)
-    estimate = result.error_estimate + STATE_FRACTION * tolerance  # + the space-time rounding
+    estimate = result.error_estimate + SPACE_TIME_FRACTION * tolerance  # + the space-time rounding
     message = (f"converged: reached t = {system.time_basis.nodes[-1]:.6g} in {result.steps} steps "
                f"({result.rejected} rejected), error estimate {estimate:.3g} (tolerance {tolerance:.3g})")
     ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)

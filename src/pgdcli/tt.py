@@ -22,7 +22,7 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["TT", "tt_round", "tt_round_many", "tt_round_sum_of_products", "tt_sum", "tt_hadamard", "tt_rank_one",
-           "tt_constant", "tt_ones", "tt_centre_cores"]
+           "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -268,6 +268,39 @@ def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None
     return [TT([c[i] for c in cores]) for i in range(b)]
 
 
+def tt_concatenate(trains: Sequence[TT]) -> TT:
+    """Concatenate trains along their first mode (ranks add; round afterwards).
+
+    ``X[(m, i_1), i_2, ...] = trains[m][i_1, i_2, ...]``: block-row first core,
+    block-diagonal inner cores, stacked last core.
+    """
+    trains = list(trains)
+    d = trains[0].order
+    if d == 1:
+        return TT([np.concatenate([t.cores[0] for t in trains], axis=1)])
+    r1 = [t.cores[0].shape[2] for t in trains]
+    first = np.zeros((1, sum(t.shape[0] for t in trains), sum(r1)))
+    row = col = 0
+    for t, r in zip(trains, r1):
+        n = t.shape[0]
+        first[0, row:row + n, col:col + r] = t.cores[0][0]
+        row += n
+        col += r
+    cores = [first]
+    for k in range(1, d - 1):
+        rl = [t.cores[k].shape[0] for t in trains]
+        rr = [t.cores[k].shape[2] for t in trains]
+        c = np.zeros((sum(rl), trains[0].shape[k], sum(rr)))
+        a = b = 0
+        for t, x, y in zip(trains, rl, rr):
+            c[a:a + x, :, b:b + y] = t.cores[k]
+            a += x
+            b += y
+        cores.append(c)
+    cores.append(np.concatenate([t.cores[-1] for t in trains], axis=0))
+    return TT(cores)
+
+
 def tt_centre_cores(cores: Sequence[np.ndarray]) -> list[np.ndarray]:
     """For each position k, core k of the train orthogonalized around k.
 
@@ -311,36 +344,62 @@ def _sketch_sum_of_products(terms, rank: int, rng: np.random.Generator) -> TT:
     shape = first.shape
     ranks = [1] + [rank] * (d - 1) + [1]
     omega = [rng.standard_normal((ranks[k], shape[k], ranks[k + 1])) for k in range(d)]
+    # every contraction below is a reshape and a (batched) matrix product: einsum's
+    # path search costs more than the arithmetic at these sizes
     sketches = []
     for _, a, b in terms:
         w = [None] * (d + 1)
         w[d] = np.ones((1, 1, 1))
         for k in range(d - 1, 0, -1):
-            y = np.einsum("xyz,liz->xyil", w[k + 1], omega[k], optimize=True)
-            z = np.einsum("biy,xyil->xbil", b.cores[k], y, optimize=True)
-            w[k] = np.einsum("aix,xbil->abl", a.cores[k], z, optimize=True)
+            w[k] = _sketch_step(a.cores[k], b.cores[k], w[k + 1], omega[k])
         sketches.append(w)
     left = [np.full((1, 1, 1), float(weight)) for weight, _, _ in terms]
     cores = []
     for k in range(d - 1):
-        products = []
+        products = [_left_product(left[m], a.cores[k], b.cores[k]) for m, (_, a, b) in enumerate(terms)]
+        lp, n = products[0].shape[:2]
         s = 0.0
-        for m, (_, a, b) in enumerate(terms):
-            t1 = np.einsum("jab,aix->jbix", left[m], a.cores[k], optimize=True)
-            prod = np.einsum("jbix,biy->jixy", t1, b.cores[k], optimize=True)
-            products.append(prod)
-            s = s + np.einsum("jixy,xyl->jil", prod, sketches[m][k + 1], optimize=True)
-        lp, n, lk = s.shape
-        q, _ = np.linalg.qr(s.reshape(lp * n, lk))
+        for prod, sk in zip(products, sketches):
+            x, y = prod.shape[2:]
+            s = s + prod.reshape(lp * n, x * y) @ sk[k + 1].reshape(x * y, -1)
+        q, _ = np.linalg.qr(s)
         core = q.reshape(lp, n, q.shape[1])
         cores.append(core)
-        left = [np.einsum("jil,jixy->lxy", core, prod, optimize=True) for prod in products]
+        flat_core = q  # (lp n, l)
+        left = [(flat_core.T @ prod.reshape(lp * n, -1)).reshape(q.shape[1], *prod.shape[2:]) for prod in products]
     last = 0.0
     for m, (_, a, b) in enumerate(terms):
-        t1 = np.einsum("jab,aix->jbix", left[m], a.cores[d - 1], optimize=True)
-        last = last + np.einsum("jbix,biy->jiy", t1, b.cores[d - 1], optimize=True)
+        last = last + _left_product(left[m], a.cores[d - 1], b.cores[d - 1])[..., 0, 0]
     cores.append(last.reshape(last.shape[0], shape[-1], 1))
     return TT(cores)
+
+
+def _sketch_step(a: np.ndarray, b: np.ndarray, w: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """``W_k[a, b, l] = sum_{i, x, y, z} A[a, i, x] B[b, i, y] Omega[l, i, z] W_{k+1}[x, y, z]``."""
+    ra, n, rx = a.shape
+    rb, _, ry = b.shape
+    lk = omega.shape[0]
+    # Y[x, y, l, i] = sum_z W[x, y, z] Omega[l, i, z]
+    y = (w.reshape(rx * ry, -1) @ omega.reshape(lk * n, -1).T).reshape(rx, ry, lk, n)
+    # Z[i, b, (x, l)] = sum_y B[b, i, y] Y[x, y, l, i]   (batched over i)
+    yi = y.transpose(3, 1, 0, 2).reshape(n, ry, rx * lk)
+    z = np.matmul(b.transpose(1, 0, 2), yi).reshape(n, rb, rx, lk)
+    # W[a, (b, l)] = sum_{i, x} A[a, i, x] Z[i, b, x, l]
+    zz = z.transpose(0, 2, 1, 3).reshape(n * rx, rb * lk)
+    return (a.reshape(ra, n * rx) @ zz).reshape(ra, rb, lk)
+
+
+def _left_product(left: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``P[j, i, x, y] = sum_{a, b} L[j, a, b] A[a, i, x] B[b, i, y]``."""
+    lj, ra, rb = left.shape
+    _, n, rx = a.shape
+    ry = b.shape[2]
+    # T[j, b, i, x] = sum_a L[j, a, b] A[a, i, x]
+    t = (left.transpose(0, 2, 1).reshape(lj * rb, ra) @ a.reshape(ra, n * rx)).reshape(lj, rb, n, rx)
+    # P[i, (j, x), y] = sum_b T[j, b, i, x] B[b, i, y]   (batched over i)
+    ti = t.transpose(2, 0, 3, 1).reshape(n, lj * rx, rb)
+    p = np.matmul(ti, b.transpose(1, 0, 2)).reshape(n, lj, rx, ry)
+    return p.transpose(1, 0, 2, 3)
 
 
 def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, oversample: int = 8,
