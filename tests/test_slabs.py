@@ -71,3 +71,16 @@ def test_time_slabs_validation(value, message):
     text = open("problems/logistic.yaml").read().replace("tolerance: 1e-10", f"tolerance: 1e-10\n  time_slabs: {value}")
     with pytest.raises(SpecError, match=message):
         pgdcli.parse_spec(text, source="x.yaml")
+
+
+def test_single_points_on_a_sliced_time_axis_agree_with_the_batch_path():
+    cb = pgdcli.solve(pgdcli.load_spec("problems/logistic.yaml")).codebook
+    t = cb.coordinate("t")
+    rng = np.random.default_rng(9)
+    times = np.concatenate([rng.uniform(*t.domain, 40), np.array(t.breakpoints), t.basis().nodes[:5]])
+    r, u0 = 1.1, 0.35
+    batch = cb(t=times, r=r, u0=u0)["u"]
+    single = np.array([float(cb(t=float(x), r=r, u0=u0)["u"]) for x in times])
+    np.testing.assert_allclose(single, batch, rtol=0, atol=1e-14)
+    e = np.exp(r * times)
+    np.testing.assert_allclose(single, u0 * e / (1 - u0 + u0 * e), rtol=0, atol=1e-10)

@@ -191,7 +191,7 @@ class _PointData:
     """Constants of one coordinate for the one-point path of :meth:`Codebook.evaluate`."""
 
     __slots__ = ("name", "domain", "low", "high", "lower", "upper", "chebyshev", "nodes", "node_list",
-                 "node_index", "bary", "unit", "modes", "basis", "piecewise")
+                 "node_index", "bary", "unit", "modes", "basis", "piecewise", "breaks", "slab")
 
     def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
         low, high = c.domain
@@ -208,6 +208,8 @@ class _PointData:
         self.modes = modes
         self.basis = basis
         self.piecewise = bool(getattr(basis, "slab_size", 0))
+        self.breaks = list(getattr(basis, "breakpoints", ()))[1:-1]  # interior breakpoints
+        self.slab = int(getattr(basis, "slab_size", 0))
 
 
 class _TTStack:
@@ -510,8 +512,12 @@ class Codebook:
             k = p.node_index.get(x)
             if k is not None:
                 row = p.unit[k]
-            elif p.piecewise:
-                row = p.basis.interpolation_matrix(np.array([x]))[0]
+            elif p.piecewise:  # barycentric on the slab of x (a breakpoint is a node: handled above)
+                first = bisect_right(p.breaks, x) * (p.slab - 1)
+                nodes = p.nodes[first:first + p.slab]
+                c = p.bary / (x - nodes)
+                row = np.zeros(p.nodes.size)
+                row[first:first + p.slab] = c / _add_reduce(c)
             elif p.chebyshev:
                 c = p.bary / (x - p.nodes)
                 row = c / _add_reduce(c)
