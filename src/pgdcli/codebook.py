@@ -20,7 +20,7 @@ import datetime as _dt
 import os
 import threading
 from bisect import bisect_right
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -643,7 +643,7 @@ class Codebook:
         return out
 
     # ------------------------------------------------------------------ I/O
-    def save(self, path: str | os.PathLike) -> Path:
+    def save(self, path: str | os.PathLike) -> "os.PathLike":
         """Write the codebook to ``path`` atomically (temporary file + rename).
 
         A crash or error while writing leaves any previous file at ``path``

@@ -37,7 +37,7 @@ from typing import Callable
 import numpy as np
 import scipy.linalg
 
-from .basis import Basis1D, make_basis
+from .basis import Basis1D
 from .errors import SolverError
 from .separated import CPTensor, SeparatedOperator, orthogonal_sweep
 
