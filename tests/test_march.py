@@ -381,3 +381,10 @@ def test_compile_rejects_a_derivative_coefficient_summed_over_coordinates():
     problem = parse_spec(_SMALL % "(a + b)*der(u1) = u1*u2", source="sum-coef.yaml")
     with pytest.raises(SolverError, match=r"sum-coef\.yaml: equations\[0\].*coefficient of der\(u1\).*a \+ b"):
         compile_system(problem)
+
+
+def test_rank_cap_is_a_failure_not_a_silent_truncation():
+    text = (PROBLEMS / "coupled.yaml").read_text().replace("tolerance: 1e-9", "tolerance: 1e-9\n  max_rank: 3")
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="capped.yaml"))
+    assert not result.converged
+    assert "solver.max_rank=3" in result.message and "t = 0" in result.message

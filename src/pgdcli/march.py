@@ -403,6 +403,10 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             K.append(rhs(t + C[s] * h, stage))
         # the state's rounding budget is per unit step too: it adds up to STATE_FRACTION * tolerance
         y_new = combine(y, K, h * B, state_delta * h / span)
+        if max(max(u.ranks, default=0) for u in y_new) >= max_rank:
+            # a capped rounding breaks the error bound: say so rather than report a wrong estimate
+            raise MarchFailure(f"a tensor-train rank reached solver.max_rank={max_rank} (raise it, or loosen "
+                               f"the tolerance)", t, y)
         norm_new = max(u.norm() for u in y_new)
         if not np.isfinite(norm_new) or norm_new > MAX_GROWTH_OF_NORM * scale0:
             raise MarchFailure("the solution blows up", t, y)
