@@ -156,7 +156,9 @@ def compile_system(problem) -> NonlinearSystem:
     index = {u: i for i, u in enumerate(unknowns)}
     params = [c.name for c in problem.coordinates if c.name != tname]
     if not params:
-        raise SolverError("the march needs at least one non-time coordinate")
+        raise SolverError(f"{problem.source}: coordinates: the nonlinear solver separates the non-time "
+                          f"coordinates and needs at least one (a parameter or an initial value); this "
+                          f"problem has only {problem.time!r}")
     from .solver import coordinate_infos
 
     bases = {info.name: info.basis() for info in coordinate_infos(problem, march=True)}
