@@ -388,3 +388,22 @@ def test_rank_cap_is_a_failure_not_a_silent_truncation():
     result = pgdcli.solve(pgdcli.parse_spec(text, source="capped.yaml"))
     assert not result.converged
     assert "solver.max_rank=3" in result.message and "t = 0" in result.message
+
+
+def test_nonlinear_problem_with_time_only_is_one_trajectory():
+    text = """
+name: single
+coordinates: {t: {domain: [0, 3], nodes: 8}}
+unknowns: {u: {initial: 0.2}}
+equations: ["der(u) = 1.5*u*(1 - u)"]
+solver: {tolerance: 1e-10}
+"""
+    result = pgdcli.solve(parse_spec(text, source="single.yaml"))
+    assert result.converged, result.message
+    cb = result.codebook
+    assert cb.coordinate_names == ["t"] and cb.fields["u"].mode_order == (0,)
+    t = np.linspace(0.0, 3.0, 301)
+    e = np.exp(1.5 * t)
+    exact = 0.2 * e / (0.8 + 0.2 * e)
+    assert np.max(np.abs(cb(t=t)["u"] - exact)) <= 1e-10
+    assert abs(float(cb(t=1.234)["u"]) - 0.2 * np.exp(1.851) / (0.8 + 0.2 * np.exp(1.851))) <= 1e-10

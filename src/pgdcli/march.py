@@ -63,6 +63,15 @@ EXACT_RANK_LIMIT = 160
 MAX_GROWTH_OF_NORM = 1e6
 
 
+SINGLE_POINT = "<single point>"
+
+
+class _SinglePoint:
+    """The 'grid' of a problem without non-time coordinates: one node."""
+
+    nodes = np.zeros(1)
+
+
 class MarchFailure(Exception):
     """The march could not continue (blow-up, step size underflow, caps).
 
@@ -155,13 +164,12 @@ def compile_system(problem) -> NonlinearSystem:
     unknowns = [u.name for u in problem.unknowns]
     index = {u: i for i, u in enumerate(unknowns)}
     params = [c.name for c in problem.coordinates if c.name != tname]
-    if not params:
-        raise SolverError(f"{problem.source}: coordinates: the nonlinear solver separates the non-time "
-                          f"coordinates and needs at least one (a parameter or an initial value); this "
-                          f"problem has only {problem.time!r}")
     from .solver import coordinate_infos
 
     bases = {info.name: info.basis() for info in coordinate_infos(problem, march=True)}
+    if not params:  # one trajectory: march a train over a single virtual point
+        params = [SINGLE_POINT]
+        bases[SINGLE_POINT] = _SinglePoint()
     rhs: list = [None] * len(unknowns)
     where = problem.source
     for eq in problem.equations:
@@ -560,6 +568,8 @@ def space_time_tt(states: list[TT], delta: float) -> TT:
 
 def _blowup_region(system: NonlinearSystem, state: list[TT], max_points: int = 2_000_000) -> str:
     """Where the last good state is largest, as 'a=0, b=1, c=1' (nodes of the parameter grid)."""
+    if system.params == [SINGLE_POINT]:
+        return ""
     shape = system.shape
     if int(np.prod(shape)) <= max_points:
         values = np.max([np.abs(u.full()) for u in state], axis=0)
@@ -615,10 +625,12 @@ def solve_march(problem, tolerance: float, callback=None):
 
     coords = coordinate_infos(problem, march=True)
     names = [c.name for c in problem.coordinates]
-    order = tuple(names.index(n) for n in [problem.time] + system.params)
+    single = system.params == [SINGLE_POINT]
+    order = tuple(names.index(n) for n in [problem.time] + ([] if single else system.params))
     if failure is not None:
         state = getattr(failure, "state", None)
-        where = f" near {_blowup_region(system, state)}" if state is not None else ""
+        region = _blowup_region(system, state) if state is not None else ""
+        where = f" near {region}" if region else ""
         message = f"not converged: {failure} at t = {failure.time:.6g}{where}"
         report = {"converged": False, "status": 3, "message": message, "method": "march", "tolerance": tolerance,
                   "wall_time": wall, "failed_time": failure.time, "pgdcli_version": __version__}
@@ -641,7 +653,10 @@ def solve_march(problem, tolerance: float, callback=None):
     trains = join_and_round([[states[i] for states in result.states] for i in range(len(system.unknowns))], st_delta,
                             np.random.default_rng(7))
     for u, train in zip(system.unknowns, trains):
-        fields[u] = FieldTT(train.cores, order)
+        cores = train.cores
+        if single:  # fold the virtual one-node mode into the time core
+            cores = (np.tensordot(cores[0], cores[1][:, 0, :], axes=(2, 0)),)
+        fields[u] = FieldTT(cores, order)
     estimate = result.error_estimate + SPACE_TIME_FRACTION * tolerance  # + the space-time rounding
     message = (f"converged: reached t = {system.time_basis.nodes[-1]:.6g} in {result.steps} steps "
                f"({result.rejected} rejected), error estimate {estimate:.3g} (tolerance {tolerance:.3g})")
