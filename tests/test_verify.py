@@ -284,3 +284,21 @@ def test_bad_input_is_one_error_line_exit_2(accurate, tmp_path, args, points, ma
     lines = stderr_of(result).strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Error:") and match in lines[0], lines
     assert "Traceback" not in result.output
+
+
+# the nonlinear shipped problems, with the accuracy targets of issue 3 as gates
+NONLINEAR_GATES = {"coupled": (1e-7, 64), "logistic": (1e-8, 64), "rigid_body": (1e-4, 16)}
+
+
+@pytest.mark.parametrize("name", list(NONLINEAR_GATES))
+def test_shipped_nonlinear_problems_pass_their_gates(codebook_path, name):
+    gate, samples = NONLINEAR_GATES[name]
+    result = run("verify", codebook_path(name), "--max-error", gate, "--samples", samples, "-j", 1,
+                 "--format", "json")
+    assert result.exit_code == 0, stderr_of(result)
+    report = json.loads(result.stdout)
+    assert report["passed"] is True and report["failures"]["count"] == 0
+    parameters = {"coupled": 3, "logistic": 2, "rigid_body": 6}[name]
+    assert report["settings"]["corners"] == 2 ** parameters  # every corner of the box is checked
+    for stats in report["unknowns"].values():
+        assert stats["max_abs_error"] <= gate
