@@ -293,6 +293,12 @@ class MarchResult:
     step_sizes: list[float] = field(default_factory=list)
     times: np.ndarray | None = None  # the time nodes the states are at
     breakpoints: np.ndarray | None = None  # slab boundaries (automatic slabs only)
+    pieces: list | None = None  # per unknown: trains with a leading mode over consecutive time nodes
+
+
+def _lift(train: TT) -> TT:
+    """The train with a leading mode of size 1 (a run of one time node)."""
+    return TT([np.ones((1, 1, 1))] + list(train.cores))
 
 
 def _contract_leading(train: TT, weights: np.ndarray) -> TT:
@@ -393,6 +399,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     scale0 = max(1.0, max(u.norm() for u in y))
     f = rhs(t, y)
     states: list[list[TT]] = [y]
+    pieces: list[list[TT]] = [[_lift(u)] for u in y]  # per unknown: trains over runs of time nodes
     times = [t]
     breakpoints = [t]
     next_node = 1
@@ -471,6 +478,17 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             else:
                 w = _dense_weights((tn - t) / h, h, D)
                 states.append(combine(y, [y_new] + K, w[1:], state_delta, base_weight=w[0]))
+        if joint:
+            # the whole step as one train over its time nodes: the joined members' leading mode
+            # contracted with every node's weights (the end node: y_new itself)
+            rows = np.array([_dense_weights((tn - t) / h, h, D) if tn < t_new else np.eye(len(members))[1]
+                             for tn in outs])
+            for i in range(q):
+                head = rows @ joined[i].cores[0][0]  # (nodes of the step, r_1)
+                pieces[i].append(TT([head[None]] + list(joined[i].cores[1:])))
+        else:
+            for i in range(q):
+                pieces[i].extend(_lift(st[i]) for st in states[len(states) - len(outs):])
         times.extend(outs)
         t, y, f = t_new, y_new, f_new
         steps += 1
@@ -486,7 +504,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     error_estimate += state_delta  # the rounding of the values at the time nodes (once)
     rms = error_estimate / np.sqrt(float(np.prod(system.shape)))
     return MarchResult(states, steps, rejected, rms, ranks, sizes, np.array(times),
-                       np.array(breakpoints) if slab_nodes else None)
+                       np.array(breakpoints) if slab_nodes else None, pieces)
 
 
 def join_trains(trains: list[TT]) -> TT:
@@ -495,7 +513,7 @@ def join_trains(trains: list[TT]) -> TT:
 
 
 def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generator | None = None,
-                   fan_in: int = 8) -> list[TT]:
+                   fan_in: int = 8, lifted: bool = False, batched: bool = True) -> list[TT]:
     """:func:`join_trains` of each group, rounded to Frobenius error ``delta``.
 
     Joined ranks are the sums of the members' ranks, so the join is built as a
@@ -510,13 +528,13 @@ def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generato
     # the last level sets the final ranks: it gets most of the budget, the others share the rest
     budgets = [0.7 * delta] if levels == 1 else [0.3 * delta / (levels - 1)] * (levels - 1) + [0.7 * delta]
     budgets[-1] = delta - sum(budgets[:-1])
-    pieces = [[TT([np.ones((1, 1, 1))] + list(t.cores)) for t in g] for g in groups]
+    pieces = [list(g) if lifted else [_lift(t) for t in g] for g in groups]
     for level in range(levels + 1):
         chunks = [[g[i:i + fan_in] for i in range(0, len(g), fan_in)] for g in pieces]
         flat = [chunk for g in chunks for chunk in g]
         # the error budget of a level is shared by its chunks (orthogonal blocks)
         chunk_delta = budgets[min(level, levels - 1)] / np.sqrt(max(len(g) for g in chunks))
-        rounded = _round_concatenations(flat, chunk_delta, rng)
+        rounded = _round_concatenations(flat, chunk_delta, rng, batched)
         it = iter(rounded)
         pieces = [[next(it) for _ in g] for g in chunks]
         if all(len(g) == 1 for g in pieces):
@@ -524,8 +542,12 @@ def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generato
     raise AssertionError("the join tree did not close")  # pragma: no cover
 
 
-def _round_concatenations(chunks: list[list[TT]], delta: float, rng) -> list[TT]:
-    """Round ``tt_concatenate(chunk)`` for every chunk: batched exactly when small, else sketched."""
+def _round_concatenations(chunks: list[list[TT]], delta: float, rng, batched: bool = True) -> list[TT]:
+    """Round ``tt_concatenate(chunk)`` for every chunk: exactly when small, else sketched.
+
+    ``batched`` rounds equal-shape chunks together (fast; each keeps the largest rank of its
+    batch), otherwise one by one (each gets its own smallest ranks: the codebook's final join).
+    """
     sums = [sum(max(t.ranks, default=1) for t in chunk) for chunk in chunks]
     if max(sums) <= EXACT_RANK_LIMIT:
         joined = [tt_concatenate(chunk) for chunk in chunks]
@@ -534,8 +556,10 @@ def _round_concatenations(chunks: list[list[TT]], delta: float, rng) -> list[TT]
             by_shape.setdefault(j.shape, []).append(i)
         out: list = [None] * len(joined)
         for idx in by_shape.values():  # tt_round_many needs one shape per batch
-            for i, r in zip(idx, tt_round_many([joined[i] for i in idx], absolute=delta)):
-                out[i] = r
+            batches = [idx] if batched else [[i] for i in idx]
+            for batch in batches:
+                for i, r in zip(batch, tt_round_many([joined[i] for i in batch], absolute=delta)):
+                    out[i] = r
         return out
     out = []
     for chunk in chunks:
@@ -650,8 +674,8 @@ def solve_march(problem, tolerance: float, callback=None):
         assert np.allclose(coords[k].basis().nodes, result.times, rtol=0, atol=1e-12 * max(1.0, abs(bp[-1])))
     fields = {}
     st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
-    trains = join_and_round([[states[i] for states in result.states] for i in range(len(system.unknowns))], st_delta,
-                            np.random.default_rng(7))
+    # one unknown at a time: batching would give every unknown the largest ranks of all
+    trains = join_and_round(result.pieces, st_delta, np.random.default_rng(7), lifted=True, batched=False)
     for u, train in zip(system.unknowns, trains):
         cores = train.cores
         if single:  # fold the virtual one-node mode into the time core
