@@ -53,7 +53,8 @@ __all__ = [
 
 TOP_LEVEL_KEYS = ("name", "description", "coordinates", "time", "constants", "unknowns", "equations", "solver", "output")
 COORDINATE_KEYS = ("domain", "nodes", "discretization")
-UNKNOWN_KEYS = ("initial",)
+UNKNOWN_KEYS = ("initial", "boundary")
+BOUNDARY_SIDES = ("low", "high")
 DISCRETIZATIONS = ("chebyshev", "linear")
 FORMULATIONS = ("minres", "galerkin")
 METHODS = ("auto", "pgd", "march")
@@ -98,12 +99,34 @@ class Coordinate:
 
 
 @dataclass(frozen=True)
+class Boundary:
+    """A boundary condition at one end of a space coordinate.
+
+    Attributes
+    ----------
+    kind : str
+        ``'value'`` (Dirichlet: u = value) or ``'gradient'`` (Neumann: du/dx = value).
+    value : Separable
+        A function of the coordinates other than this one and time.
+    text : str
+    """
+
+    kind: str
+    value: Separable
+    text: str
+
+
+@dataclass(frozen=True)
 class Unknown:
-    """An unknown with its initial value (a function of the non-time coordinates)."""
+    """An unknown with its initial value (a function of the non-time coordinates).
+
+    ``boundary`` maps a space coordinate to its ``(low, high)`` :class:`Boundary` pair.
+    """
 
     name: str
     initial: Separable
     initial_text: str
+    boundary: dict = field(default_factory=dict, hash=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -427,7 +450,7 @@ def _parse_coordinate(check: _Checker, name: str, body: dict, time: str, constan
         raise check.error(f"{path}.domain", f"expected [low, high] with low < high, got {_show(domain)}")
     nodes = check.integer(check.require(body, "nodes", path), f"{path}.nodes", 2, MAX_NODES)
     discretization = check.choice(body.get("discretization", "chebyshev"), f"{path}.discretization", DISCRETIZATIONS)
-    role = "time" if name == time else "parameter"
+    role = "time" if name == time else "parameter"  # 'space' is decided from the equations
     return Coordinate(name, (low, high), nodes, discretization, role)
 
 
@@ -484,7 +507,74 @@ def _parse_unknown(
         raise check.error(
             path, f"the initial value of '{name}' must not depend on the time coordinate '{time}', got '{text}'"
         )
-    return Unknown(name, initial, text if isinstance(raw, str) else str(raw))
+    boundary = _parse_boundary(check, name, body.get("boundary"), coordinates=coordinates, constants=constants,
+                               unknowns=unknowns, time=time)
+    return Unknown(name, initial, text if isinstance(raw, str) else str(raw), boundary)
+
+
+def _parse_boundary(check: _Checker, name: str, value: Any, *, coordinates: list[str], constants: dict[str, float],
+                    unknowns: list[str], time: str) -> dict:
+    """``{x: {low: v, high: {gradient: g}}}`` -> {x: (Boundary, Boundary)}."""
+    if value is None:
+        return {}
+    path = f"unknowns.{name}.boundary"
+    section = check.mapping(value, path)
+    out = {}
+    for coord, sides in section.items():
+        cpath = f"{path}.{coord}"
+        if coord not in coordinates:
+            raise check.error(cpath, f"{coord!r} is not a coordinate ({', '.join(coordinates)})")
+        if coord == time:
+            raise check.error(cpath, f"'{time}' is the time coordinate: its condition is the initial value")
+        sides = check.mapping(sides, cpath, BOUNDARY_SIDES)
+        pair = []
+        for side in BOUNDARY_SIDES:
+            spath = f"{cpath}.{side}"
+            raw = check.require(sides, side, cpath)
+            kind = "value"
+            if isinstance(raw, dict):
+                raw = check.mapping(raw, spath, ("gradient",))
+                raw = check.require(raw, "gradient", spath)
+                kind = "gradient"
+            if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
+                raise check.error(spath, f"expected a number, an expression or {{gradient: ...}}, got {_show(raw)}")
+            text = raw if isinstance(raw, str) else repr(raw)
+            poly = parse_expression(text, coordinates=coordinates, constants=constants, unknowns=unknowns, time=time,
+                                    where=f"{check.source}: {spath}", allow_der=False)
+            if poly.unknowns:
+                raise check.error(spath, f"a boundary value must not depend on unknowns, got '{text}'")
+            sep = poly.coefficient(())
+            if coord in sep.coordinates or time in sep.coordinates:
+                raise check.error(spath, f"a boundary value at the {side} end of {coord!r} may depend on the other "
+                                         f"non-time coordinates only, got '{text}'")
+            pair.append(Boundary(kind, sep, text))
+        out[coord] = tuple(pair)
+    return out
+
+
+def _assign_space_roles(check: _Checker, coordinates: tuple, unknowns: tuple, equations: tuple, time: str) -> tuple:
+    """Coordinates with space derivatives are 'space'; each needs boundary conditions where it is
+    differentiated twice, and boundary conditions need derivatives."""
+    second: dict[tuple[str, str], int] = {}
+    space = set()
+    for eq in equations:
+        for atom in eq.polynomial.atoms:
+            if atom.order > 0 and atom.coordinate != time:
+                space.add(atom.coordinate)
+                if atom.order == 2:
+                    second.setdefault((atom.unknown, atom.coordinate), eq.index)
+    for u in unknowns:
+        for coord in u.boundary:
+            if coord not in space:
+                raise check.error(f"unknowns.{u.name}.boundary.{coord}",
+                                  f"{coord!r} has no derivative in the equations: it is a parameter, not space")
+    for (unknown, coord), index in second.items():
+        u = next(x for x in unknowns if x.name == unknown)
+        if coord not in u.boundary:
+            raise check.error(f"unknowns.{unknown}.boundary",
+                              f"missing the conditions at both ends of {coord!r} (der({unknown}, {coord}, 2) "
+                              f"appears in equations[{index}]), e.g. {{{coord}: {{low: 0, high: 0}}}}")
+    return tuple(dataclasses.replace(c, role="space") if c.name in space else c for c in coordinates)
 
 
 def _parse_equations(
@@ -513,6 +603,7 @@ def _parse_equations(
             unknowns=unknowns,
             time=time,
             where=f"{check.source}: {path}",
+            allow_space_derivatives=True,
         )
         equations.append(Equation(index, text, poly))
     _check_time_derivatives(check, equations, unknowns, time)
@@ -523,7 +614,7 @@ def _check_time_derivatives(check: _Checker, equations: list[Equation], unknowns
     """First-order time derivatives only; one in every equation, of every unknown somewhere."""
     differentiated = set()
     for equation in equations:
-        derivatives = [atom for atom in equation.polynomial.atoms if atom.order > 0]
+        derivatives = [atom for atom in equation.polynomial.atoms if atom.order > 0 and atom.coordinate == time]
         for atom in derivatives:
             if atom.order > 1:
                 raise check.error(
@@ -677,6 +768,7 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
     context = dict(coordinates=coordinate_names, constants=constants, unknowns=unknown_names, time=time)
     unknowns = tuple(_parse_unknown(check, n, body, **context) for n, body in unknown_bodies.items())
     equations = _parse_equations(check, data["equations"], **context)
+    coordinates = _assign_space_roles(check, coordinates, unknowns, equations, time)
 
     problem = Problem(
         name=problem_name,
