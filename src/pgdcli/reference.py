@@ -521,3 +521,861 @@ def solve_reference(
         atol=float(atol),
         times=times,
     )
+
+
+# ----------------------------------------------------------------------------------------------
+# method of lines: problems with space coordinates
+# ----------------------------------------------------------------------------------------------
+# Strong-form Chebyshev-Gauss-Lobatto collocation, written here from scratch (nodes,
+# differentiation matrices, barycentric interpolation) so that it shares nothing with the PGD
+# solver's weak-form discretization in pgdcli.basis / pgdcli.solver.
+
+#: Collocation nodes per space coordinate of the method-of-lines reference.
+DEFAULT_SPACE_NODES = 40
+#: ``solve_ivp`` methods the method-of-lines reference may use (its system is stiff).
+PDE_METHODS = ("BDF", "Radau")
+#: Default tolerances of the method-of-lines reference.
+PDE_RTOL = 1e-10
+PDE_ATOL = 1e-12
+# unknowns per vectorized solve_ivp call (samples integrated together as one block-diagonal system);
+# the error norm of solve_ivp is an RMS over the state, so few samples share one call
+_PDE_CHUNK_STATES = 1024
+_PDE_MAX_CHUNK = 8
+
+
+def chebyshev_points(n: int, domain: tuple[float, float] = (-1.0, 1.0)) -> np.ndarray:
+    """The ``n`` Chebyshev-Gauss-Lobatto points of ``domain``, ascending, ends exact.
+
+    ``x_j = low + (1 + s_j) (high - low) / 2`` with ``s_j = -cos(pi j / (n - 1))``
+    (computed as a sine, so that the points are symmetric to rounding).
+    """
+    if n < 2:
+        raise ValueError(f"need at least 2 Chebyshev points, got {n}")
+    low, high = map(float, domain)
+    j = np.arange(n)
+    s = np.sin(np.pi * (2 * j - (n - 1)) / (2 * (n - 1)))
+    x = low + (1.0 + s) * (0.5 * (high - low))
+    x[0], x[-1] = low, high
+    return x
+
+
+def chebyshev_weights(n: int) -> np.ndarray:
+    """Barycentric weights of the Chebyshev-Gauss-Lobatto points (ascending order)."""
+    w = (-1.0) ** np.arange(n)
+    w[0] *= 0.5
+    w[-1] *= 0.5
+    return w
+
+
+def chebyshev_differentiation(n: int, domain: tuple[float, float] = (-1.0, 1.0)) -> np.ndarray:
+    """First-derivative collocation matrix ``D`` on :func:`chebyshev_points` (``(D u)_i = u'(x_i)``
+    for polynomials of degree < n).
+
+    Off-diagonal ``D_ij = (w_j / w_i) / (x_i - x_j)`` with the barycentric weights, the node
+    differences from trigonometric identities (no cancellation near the ends), and the diagonal
+    from the negative sum of its row (exact derivative of constants).
+    """
+    low, high = map(float, domain)
+    theta = np.pi * np.arange(n) / (n - 1)  # x = low + (1 - cos theta) (high - low) / 2
+    ti, tj = theta[:, None], theta[None, :]
+    diff = (high - low) * np.sin(0.5 * (ti + tj)) * np.sin(0.5 * (ti - tj))  # x_i - x_j
+    w = chebyshev_weights(n)
+    with np.errstate(divide="ignore"):
+        D = (w[None, :] / w[:, None]) / diff
+    np.fill_diagonal(D, 0.0)
+    np.fill_diagonal(D, -D.sum(axis=1))
+    return D
+
+
+def barycentric_matrix(nodes: np.ndarray, weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Interpolation matrix ``W`` (P, n): ``W @ f(nodes)`` interpolates at ``points``
+    (barycentric formula of the second kind; a point on a node takes that node's value)."""
+    nodes = np.asarray(nodes, dtype=float)
+    points = np.atleast_1d(np.asarray(points, dtype=float))
+    diff = points[:, None] - nodes[None, :]
+    scale = max(1.0, float(np.max(np.abs(nodes))))
+    hit = np.abs(diff) <= 1e-15 * scale
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = weights[None, :] / diff
+        W = r / r.sum(axis=1, keepdims=True)
+    rows = hit.any(axis=1)
+    if rows.any():
+        W[rows] = 0.0
+        W[rows, np.argmax(hit[rows], axis=1)] = 1.0
+    return W
+
+
+def space_coordinates(problem) -> tuple:
+    """The coordinates of the problem with role ``'space'`` (spec order)."""
+    return tuple(c for c in problem.coordinates if getattr(c, "role", "parameter") == "space")
+
+
+def sampled_coordinates(problem) -> tuple:
+    """The coordinates sampled by a reference: neither time nor space."""
+    return tuple(c for c in problem.coordinates if c.name != problem.time and getattr(c, "role", "") != "space")
+
+
+class _SpaceGrid:
+    """Tensor-product Chebyshev-Gauss-Lobatto grid over the space coordinates (C order, spec order)."""
+
+    def __init__(self, coordinates, nodes: Mapping[str, int]) -> None:
+        import scipy.sparse as sp
+
+        self.names = [c.name for c in coordinates]
+        self.domains = {c.name: tuple(map(float, c.domain)) for c in coordinates}
+        self.points = {c.name: chebyshev_points(nodes[c.name], c.domain) for c in coordinates}
+        self.weights = {n: chebyshev_weights(x.size) for n, x in self.points.items()}
+        self.shape = tuple(self.points[n].size for n in self.names)
+        self.n = int(np.prod(self.shape))
+        self.index = {n: ix.reshape(-1) for n, ix in zip(self.names, np.indices(self.shape))}
+        self.values = {n: self.points[n][self.index[n]] for n in self.names}
+        self._ops: dict = {}
+        self._sp = sp
+
+    def derivative(self, name: str, order: int):
+        """Sparse (n, n) matrix of ``d^order/dx^order`` along one coordinate on the full grid."""
+        key = (name, order)
+        if key not in self._ops:
+            sp = self._sp
+            D = chebyshev_differentiation(self.points[name].size, self.domains[name])
+            if order == 2:
+                D = D @ D
+            k = self.names.index(name)
+            before = int(np.prod(self.shape[:k]))
+            after = int(np.prod(self.shape[k + 1:]))
+            self._ops[key] = sp.kron(sp.kron(sp.identity(before), sp.csr_matrix(D)), sp.identity(after),
+                                     format="csr")
+        return self._ops[key]
+
+
+def _term_parts(term, time: str, space: list[str]):
+    """A SepTerm split into (coef, time function or None, parameter factors, space factors)."""
+    time_func, param_factors, space_factors = None, [], []
+    for name, func in term.factors:
+        if name == time:
+            time_func = func
+        elif name in space:
+            space_factors.append((name, func))
+        else:
+            param_factors.append((name, func))
+    return term.coef, time_func, param_factors, space_factors
+
+
+class _PdeModel:
+    """Sample-independent pieces of the method-of-lines system.
+
+    Per unknown ``s``, the grid points on an end of a coordinate where ``s`` has boundary
+    conditions are boundary points; each carries one condition (a value condition if one of its
+    coordinates gives one, else the gradient condition of its first coordinate) in place of the
+    collocated equation there. The conditions ``C_BB u_B + C_BI u_I = g`` give
+    ``u_B = E u_I + C_BB^-1 g`` with ``E = -C_BB^-1 C_BI``; the full state is ``u = Z y + h``
+    over the interior values ``y``. The equation rows kept (``R``) are, for every equation, the
+    interior points of the unknown whose ``der()`` it holds. Each term of each coefficient gives a
+    matrix ``R (c * L) Z`` (``L`` the identity or a derivative) weighted per sample by its
+    parameter factors and per time by its time function.
+    """
+
+    def __init__(self, problem, nodes: Mapping[str, int]) -> None:
+        import scipy.sparse as sp
+
+        self.problem = problem
+        time = problem.time
+        self.time = time
+        coords = space_coordinates(problem)
+        self.space = [c.name for c in coords]
+        self.params = [c.name for c in sampled_coordinates(problem)]
+        grid = _SpaceGrid(coords, nodes)
+        self.grid = grid
+        n = grid.n
+        names = list(problem.unknown_names)
+        index = {u: i for i, u in enumerate(names)}
+        q = self.q = len(names)
+
+        # -- the unknown each equation belongs to (its rows at boundary points are replaced) -------
+        owners = []
+        for equation in problem.equations:
+            ders = {a.unknown for m in equation.polynomial for a in m if a.order == 1 and a.coordinate == time}
+            owners.append(index[next(iter(ders))] if len(ders) == 1 else None)
+        if None in owners or len(set(owners)) != q:
+            owners = list(range(q))  # equations in unknown order
+        self.owners = owners
+
+        # -- boundary points, conditions and the elimination u = Z y + h ----------------------------
+        interior_cols, z_blocks, self.boundary = [], [], []
+        offsets = np.zeros(q + 1, dtype=int)
+        for s, unknown in enumerate(problem.unknowns):
+            conds = {c: ends for c, ends in unknown.boundary.items() if c in self.space}
+            on_end = np.zeros(n, dtype=bool)
+            for c in conds:
+                ix = grid.index[c]
+                on_end |= (ix == 0) | (ix == grid.shape[grid.names.index(c)] - 1)
+            B = np.flatnonzero(on_end)
+            Iidx = np.flatnonzero(~on_end)
+            choice = []  # (point, coordinate, side, Boundary)
+            for p in B:
+                candidates = []
+                for c in grid.names:
+                    if c not in conds:
+                        continue
+                    ix = grid.index[c][p]
+                    last = grid.shape[grid.names.index(c)] - 1
+                    if ix == 0 or ix == last:
+                        side = 0 if ix == 0 else 1
+                        candidates.append((c, side, conds[c][side]))
+                values = [cand for cand in candidates if cand[2].kind == "value"]
+                choice.append((int(p),) + (values[0] if values else candidates[0]))
+            E = np.zeros((B.size, Iidx.size))
+            lu = None
+            if B.size:
+                import scipy.linalg as sla
+
+                C = np.zeros((B.size, n))
+                for row, (p, c, side, bc) in enumerate(choice):
+                    if bc.kind == "value":
+                        C[row, p] = 1.0
+                    else:
+                        C[row] = grid.derivative(c, 1)[p].toarray().ravel()
+                CBB, CBI = C[:, B], C[:, Iidx]
+                cond = np.linalg.cond(CBB)
+                if not cond < 1e12:
+                    raise SolverError(f"{problem.source}: unknowns.{unknown.name}.boundary: the boundary conditions "
+                                      "do not determine the boundary values of the method-of-lines reference "
+                                      f"(condition number {cond:.3g})")
+                lu = sla.lu_factor(CBB)
+                E = -sla.lu_solve(lu, CBI)
+                E[np.abs(E) <= 1e-15 * max(1.0, float(np.max(np.abs(E))))] = 0.0
+            self.boundary.append((B, Iidx, choice, lu))
+            # Z_s: (n, |I|) with identity rows at I and E rows at B
+            Zs = sp.lil_matrix((n, Iidx.size))
+            Zs[Iidx, np.arange(Iidx.size)] = 1.0
+            if B.size:
+                Zs[B, :] = E
+            z_blocks.append(Zs.tocsr())
+            interior_cols.append(Iidx)
+            offsets[s + 1] = offsets[s] + Iidx.size
+        self.interior = interior_cols
+        self.offsets = offsets
+        self.m = int(offsets[-1])
+        self.Z = sp.block_diag(z_blocks, format="csr")
+        rows = np.concatenate([r * n + interior_cols[owners[r]] for r in range(q)])
+        self.rows = rows  # kept rows of the full (q n) system, in the order of the interior unknowns
+
+        # -- operator and source terms ---------------------------------------------------------
+        def place(r: int, s: int, block):
+            blocks = [[None] * q for _ in range(q)]
+            blocks[r][s] = block
+            for i in range(q):  # bmat needs every block row and column sized
+                if blocks[i][i] is None:
+                    blocks[i][i] = sp.csr_matrix((n, n))
+            return sp.bmat(blocks, format="csr")
+
+        self.ops = []  # (kind 'mass'|'op', time key, time func, param factors, coef, R A Z, R A (for h))
+        self.sources = []  # (time key, time func, param factors, coef, R-rows vector)
+        for r, equation in enumerate(problem.equations):
+            for monomial, sep in equation.polynomial.items():
+                if len(monomial) > 1:
+                    from .expressions import format_monomial
+
+                    raise SolverError(
+                        f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
+                        "method-of-lines reference supports equations linear in the unknowns"
+                    )
+                for term in sep.terms:
+                    coef, tfunc, pf, sf = _term_parts(term, time, self.space)
+                    values = np.ones(n)
+                    for name, func in sf:
+                        values = values * np.broadcast_to(func(grid.values[name]), (n,))
+                    key = None if tfunc is None else tfunc.tree
+                    if not monomial:
+                        full = np.zeros(q * n)
+                        full[r * n:(r + 1) * n] = values
+                        self.sources.append((key, tfunc, pf, coef, full[rows]))
+                        continue
+                    atom = monomial[0]
+                    s = index[atom.unknown]
+                    if atom.order == 1 and atom.coordinate == time:
+                        kind, L = "mass", None
+                    elif atom.order == 0:
+                        kind, L = "op", None
+                    else:
+                        kind, L = "op", grid.derivative(atom.coordinate, atom.order)
+                    block = sp.diags(values) if L is None else sp.diags(values) @ L
+                    A = place(r, s, sp.csr_matrix(block))[rows]
+                    self.ops.append((kind, key, tfunc, pf, coef, (A @ self.Z).tocsr(), A))
+        self.time_funcs = {}
+        for entry in self.ops:
+            if entry[1] is not None:
+                self.time_funcs[entry[1]] = entry[2]
+        for entry in self.sources:
+            if entry[0] is not None:
+                self.time_funcs[entry[0]] = entry[1]
+        self.static_mass = all(key is None for kind, key, *_ in self.ops if kind == "mass")
+
+    # -- per-sample data ---------------------------------------------------------------------------
+    @staticmethod
+    def _weights(pf, coef: float, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
+        w = np.full(S, float(coef))
+        for name, func in pf:
+            w = w * np.broadcast_to(func(params[name]), (S,))
+        return w
+
+    def boundary_lift(self, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
+        """``h`` (S, q n): boundary values from the conditions at every sample."""
+        import scipy.linalg as sla
+
+        n = self.grid.n
+        h = np.zeros((S, self.q * n))
+        for s, (B, _, choice, lu) in enumerate(self.boundary):
+            if not B.size:
+                continue
+            g = np.zeros((S, B.size))
+            for row, (p, c, side, bc) in enumerate(choice):
+                if bc.value.is_zero:
+                    continue
+                at = {name: params[name] for name in self.params}
+                at.update({name: np.full(S, self.grid.values[name][p]) for name in self.space})
+                g[:, row] = np.broadcast_to(bc.value.evaluate(**at), (S,))
+            h[:, s * n + B] = sla.lu_solve(lu, g.T).T
+        return h
+
+    def initial_grid(self, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
+        """Initial values (S, q, n) at the grid nodes."""
+        n = self.grid.n
+        at = {name: params[name][:, None] for name in self.params}
+        at.update({name: self.grid.values[name][None, :] for name in self.space})
+        out = np.empty((S, self.q, n))
+        for s, unknown in enumerate(self.problem.unknowns):
+            out[:, s, :] = np.broadcast_to(unknown.initial.evaluate(**at), (S, n)) if unknown.initial.terms else 0.0
+        return out
+
+    def interior_values(self, full: np.ndarray) -> np.ndarray:
+        """Interior values (S, m) of full grid values (S, q, n)."""
+        return np.concatenate([full[:, s, self.interior[s]] for s in range(self.q)], axis=1)
+
+
+class _PdeSystem:
+    """``y' = -(M(t)^-1) (A(t) y + b(t))`` for a chunk of samples, block-diagonal over samples."""
+
+    def __init__(self, model: _PdeModel, params: Mapping[str, np.ndarray], S: int, max_evaluations: int) -> None:
+        import scipy.sparse as sp
+
+        self.model = model
+        self.S = S
+        self.max_evaluations = max_evaluations
+        self.evaluations = 0
+        self.last_y = None
+        m = model.m
+        h = model.boundary_lift(params, S)  # (S, q n)
+        self.h = h
+        mass: dict = {}
+        ops: dict = {}
+        src: dict = {}
+        for kind, key, _, pf, coef, AZ, A in model.ops:
+            w = model._weights(pf, coef, params, S)
+            blocks = [w[i] * AZ for i in range(S)]
+            vector = np.concatenate([w[i] * (A @ h[i]) for i in range(S)])
+            target = mass if kind == "mass" else ops
+            target[key] = [b if j is None else j + b for j, b in
+                           zip(target.get(key, [None] * S), blocks)]
+            if kind == "op":
+                src[key] = src.get(key, 0.0) + vector
+        for key, _, pf, coef, vec in model.sources:
+            w = model._weights(pf, coef, params, S)
+            src[key] = src.get(key, 0.0) + np.concatenate([w[i] * vec for i in range(S)])
+        self.bad = np.zeros(S, dtype=bool)
+        self.bad_reason = ""
+        self.keys = sorted(set(ops) | set(src) | set(mass), key=lambda k: (k is not None, repr(k)))
+        self.funcs = model.time_funcs
+        zero = sp.csr_matrix((S * m, S * m))
+        self.A = {k: sp.block_diag(ops[k], format="csr") if k in ops else zero for k in self.keys}
+        self.b = {k: np.asarray(src[k]) if k in src else np.zeros(S * m) for k in self.keys}
+        self.M = {k: sp.block_diag(mass[k], format="csr") for k in mass}
+        self.static = model.static_mass
+        self.diagonal = all((M - sp.diags(M.diagonal())).count_nonzero() == 0 for M in self.M.values())
+        if self.static:
+            M = self.M.get(None, zero)
+            self._mass_check(M)
+            if self.bad.any():
+                return
+            if self.diagonal:
+                inv = sp.diags(1.0 / M.diagonal())
+                self.A = {k: (inv @ A).tocsr() for k, A in self.A.items()}
+                self.b = {k: inv @ b for k, b in self.b.items()}
+            else:
+                from scipy.sparse.linalg import splu
+
+                lu = splu(M.tocsc())
+                self.A = {k: sp.csr_matrix(lu.solve(A.toarray())) for k, A in self.A.items()}
+                self.b = {k: lu.solve(b) for k, b in self.b.items()}
+        self.constant = self.static and self.keys in ([], [None])
+
+    def _mass_check(self, M) -> None:
+        m, S = self.model.m, self.S
+        if self.diagonal:
+            d = M.diagonal().reshape(S, m)
+            bad = ~np.isfinite(d).all(axis=1) | (d == 0).any(axis=1)
+            reason = "a coefficient of der() vanishes or is not finite at this point"
+        else:
+            bad = np.zeros(S, dtype=bool)
+            dense = M.toarray()
+            for i in range(S):
+                block = dense[i * m:(i + 1) * m, i * m:(i + 1) * m]
+                bad[i] = not (np.isfinite(block).all() and np.linalg.cond(block) < 1e14)
+            reason = "the matrix of der() coefficients is singular at this point (not an ODE system there)"
+        self.bad, self.bad_reason = bad, reason
+
+    def _weight(self, key, t: float) -> float:
+        return 1.0 if key is None else float(self.funcs[key](t))
+
+    def matrix(self, t: float):
+        A = None
+        for k in self.keys:
+            term = self.A[k] if k is None else self._weight(k, t) * self.A[k]
+            A = term if A is None else A + term
+        return A
+
+    def _mass_at(self, t: float):
+        M = None
+        for k, Mk in self.M.items():
+            term = Mk if k is None else self._weight(k, t) * Mk
+            M = term if M is None else M + term
+        return M
+
+    def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
+        self.evaluations += 1
+        self.last_y = y
+        if self.evaluations > self.max_evaluations:
+            raise ReferenceBudgetExceeded
+        out = np.zeros_like(y, dtype=float)
+        for k in self.keys:
+            w = self._weight(k, t)
+            if w != 0.0:
+                b = self.b[k] if y.ndim == 1 else self.b[k][:, None]
+                out -= w * (self.A[k] @ y + b)
+        if self.static:
+            return out
+        M = self._mass_at(t)
+        if self.diagonal:
+            d = M.diagonal()
+            return out / (d if y.ndim == 1 else d[:, None])
+        from scipy.sparse.linalg import spsolve
+
+        return spsolve(M.tocsc(), out)
+
+    def jacobian(self, t: float, y: np.ndarray):
+        import scipy.sparse as sp
+
+        J = -self.matrix(t)
+        if self.static:
+            return J
+        M = self._mass_at(t)
+        if self.diagonal:
+            return sp.diags(1.0 / M.diagonal()) @ J
+        from scipy.sparse.linalg import splu
+
+        return sp.csr_matrix(splu(M.tocsc()).solve(J.toarray()))
+
+
+def _integrate_pde(model: _PdeModel, params, S, t0, times, method, rtol, atol, max_evaluations):
+    """One solve_ivp call over S samples. Returns (full grid values (S, q, T, n) or None, failed, message)."""
+    from scipy.integrate import solve_ivp
+
+    q, n, T = model.q, model.grid.n, times.size
+    with np.errstate(all="ignore"):
+        system = _PdeSystem(model, params, S, max_evaluations)
+        u0 = model.initial_grid(params, S)
+    if system.bad.any():
+        return None, system.bad, system.bad_reason
+    if not np.isfinite(u0).all():
+        return None, ~np.isfinite(u0).reshape(S, -1).all(axis=1), "the initial value is not finite at this point"
+    out = np.empty((S, q, T, n))
+    late = times > t0
+    out[:, :, ~late, :] = u0[:, :, None, :]
+    if not late.any():
+        return out, np.zeros(S, dtype=bool), ""
+    y0 = model.interior_values(u0).reshape(-1)
+    jac = system.jacobian(t0, y0) if system.constant else system.jacobian
+    if system.constant:
+        jac = jac.tocsc()
+    try:
+        with np.errstate(all="ignore"):
+            sol = solve_ivp(system, (t0, float(times[-1])), y0, method=method, rtol=rtol, atol=atol, jac=jac,
+                            t_eval=times[late])
+    except ReferenceBudgetExceeded:
+        return None, _scores(system, S), (
+            f"gave up after {max_evaluations} right-hand side evaluations")
+    except (np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError, RuntimeError) as exc:
+        return None, _scores(system, S), f"integration failed: {' '.join(str(exc).split()) or type(exc).__name__}"
+    if sol.status != 0 or sol.y.shape[1] != int(np.count_nonzero(late)):
+        where = f" at {model.time} = {sol.t[-1]:.6g}" if sol.t.size else ""
+        return None, _scores(system, S), f"integration failed{where}: {sol.message}"
+    y = sol.y.reshape(S, model.m, -1)  # (S, m, T_late)
+    if not np.isfinite(y).all():
+        finite = np.isfinite(y).reshape(S, -1).all(axis=1)
+        return None, ~finite, "the solution is not finite (blow-up)"
+    full = np.einsum("ij,sjt->sit", model.Z.toarray(), y) if model.m * n * model.q < 4_000_000 else \
+        np.stack([(model.Z @ y[i]) for i in range(S)])
+    full = full + system.h[:, :, None]  # (S, q n, T_late)
+    out[:, :, late, :] = full.reshape(S, q, n, -1).transpose(0, 1, 3, 2)
+    return out, np.zeros(S, dtype=bool), ""
+
+
+def _solve_group_pde(model, params, S, t0, times, method, rtol, atol, max_evaluations):
+    """Integrate S samples together; when the call fails, each sample on its own."""
+    q, n = model.q, model.grid.n
+    out, bad, message = _integrate_pde(model, params, S, t0, times, method, rtol, atol, max_evaluations)
+    if out is not None:
+        return out, np.ones(S, dtype=bool), [""] * S
+    if S == 1:
+        return np.full((1, q, times.size, n), np.nan), np.zeros(1, dtype=bool), [message]
+    values = np.full((S, q, times.size, n), np.nan)
+    success = np.zeros(S, dtype=bool)
+    messages = [""] * S
+    if bad.dtype == bool:
+        for i in np.flatnonzero(bad):
+            messages[i] = message
+        singles = np.flatnonzero(~bad)
+    else:
+        singles = np.arange(S)
+    for i in singles:
+        rows = np.array([i])
+        v, ok, msgs = _solve_group_pde(model, _subset(params, rows), 1, t0, times, method, rtol, atol,
+                                       max_evaluations)
+        values[i], success[i], messages[i] = v[0], ok[0], msgs[0]
+    return values, success, messages
+
+
+@functools.lru_cache(maxsize=4)
+def _pde_model(text: str, source: str, nodes: tuple) -> _PdeModel:
+    return _PdeModel(_parse(text, source), dict(nodes))
+
+
+def _pde_chunk_worker(spec_text, source, nodes, params, S, t0, times, method, rtol, atol, max_evaluations):
+    """Worker-process entry point: parse the spec again, build the grid, integrate one chunk."""
+    model = _pde_model(spec_text, source, nodes)
+    return _solve_group_pde(model, params, S, t0, times, method, rtol, atol, max_evaluations)
+
+
+@dataclass
+class PdeReferenceResult:
+    """Method-of-lines reference values of every unknown.
+
+    Attributes
+    ----------
+    values : dict of str to ndarray
+        Unknown name -> values, shape ``(S, T, X_1, ..., X_d)`` on the tensor grid of the
+        requested space points (``grid=True``, or the collocation nodes when no points were
+        given), or ``(S, T, P)`` at ``P`` scattered space points (``grid=False``). NaN where the
+        sample failed.
+    success : ndarray of bool, shape (S,)
+    messages : list of str
+    space : list of str
+        The space coordinates, in the order of the space axes.
+    space_points : dict of str to ndarray
+        The space points of each coordinate (as requested, or the collocation nodes).
+    nodes : dict of str to int
+        Collocation nodes per space coordinate.
+    grid : bool
+    method, rtol, atol, times
+        The settings used and the times as given.
+    """
+
+    values: dict[str, np.ndarray]
+    success: np.ndarray
+    messages: list[str]
+    space: list[str]
+    space_points: dict[str, np.ndarray]
+    nodes: dict[str, int]
+    grid: bool = True
+    method: str = "BDF"
+    rtol: float = PDE_RTOL
+    atol: float = PDE_ATOL
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def n_failed(self) -> int:
+        return int(np.count_nonzero(~self.success))
+
+
+def _check_tolerances(rtol, atol) -> None:
+    for label, value in (("rtol", rtol), ("atol", atol)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float, np.floating)) and math.isfinite(value)
+                                           and 0 < value < 1):
+            raise SolverError(f"{label} must be a number in (0, 1), got {value!r}")
+
+
+def _check_times(times, t0: float, time: str) -> np.ndarray:
+    times = np.atleast_1d(np.asarray(times, dtype=float))
+    if times.ndim != 1 or times.size == 0:
+        raise SolverError(f"times: expected a non-empty 1-D array, got shape {times.shape}")
+    if not np.isfinite(times).all():
+        raise SolverError("times: values must be finite")
+    if (times < t0).any():
+        raise SolverError(f"times: {float(times.min())!r} is before the start {time} = {t0:g} of the time domain")
+    return times
+
+
+def _check_params(params: Mapping[str, np.ndarray], names: list[str], time: str, others: list[str],
+                  label: str = "params") -> tuple[dict[str, np.ndarray], int]:
+    for key in params:
+        if key not in names:
+            if key == time:
+                what = "the time coordinate (give it as times)"
+            elif key in others:
+                what = "a space coordinate (give it as space_points)"
+            else:
+                what = "not a parameter coordinate"
+            raise SolverError(f"{label}: {key!r} is {what}; the parameters are {', '.join(names) or 'none'}")
+    missing = [n for n in names if n not in params]
+    if missing:
+        raise SolverError(f"{label}: missing coordinate(s) {', '.join(missing)}")
+    arrays = {n: np.atleast_1d(np.asarray(params[n], dtype=float)) for n in names}
+    sizes = {a.shape for a in arrays.values()}
+    if any(a.ndim != 1 for a in arrays.values()) or len(sizes) > 1:
+        raise SolverError(f"{label}: expected 1-D arrays of one length, got shapes {sorted(sizes)}")
+    if any(not np.isfinite(a).all() for a in arrays.values()):
+        raise SolverError(f"{label}: values must be finite")
+    S = next(iter(arrays.values())).size if arrays else 1
+    return arrays, S
+
+
+def _space_nodes(problem, space_nodes) -> dict[str, int]:
+    names = [c.name for c in space_coordinates(problem)]
+    if isinstance(space_nodes, Mapping):
+        extra = [k for k in space_nodes if k not in names]
+        if extra:
+            raise SolverError(f"space_nodes: {extra[0]!r} is not a space coordinate ({', '.join(names)})")
+        counts = {n: space_nodes.get(n, DEFAULT_SPACE_NODES) for n in names}
+    else:
+        counts = {n: space_nodes for n in names}
+    for n, k in counts.items():
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 3 <= k <= 1000:
+            raise SolverError(f"space_nodes: expected an integer from 3 to 1000 for {n!r}, got {k!r}")
+    return {n: int(k) for n, k in counts.items()}
+
+
+def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, chunk_size, progress,
+                 max_evaluations):
+    """Full-grid values (S, q, T_unique, n) at the unique sorted times, success, messages, the model."""
+    t0 = float(problem.time_coordinate.domain[0])
+    unique, inverse = np.unique(times, return_inverse=True)
+    model = _pde_model(problem.source_text, problem.source, tuple(sorted(nodes.items()))) \
+        if problem.source_text else _PdeModel(problem, nodes)
+    q, n = model.q, model.grid.n
+    values = np.full((S, q, unique.size, n), np.nan)
+    success = np.zeros(S, dtype=bool)
+    messages = [""] * S
+    jobs = max(1, int(jobs))
+    if chunk_size is None:
+        chunk_size = max(1, min(_PDE_MAX_CHUNK, _PDE_CHUNK_STATES // max(model.m, 1), math.ceil(S / jobs)))
+    bounds = list(range(0, S, max(1, int(chunk_size)))) + [S]
+    chunks = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+    settings = (t0, unique, method, float(rtol), float(atol), int(max_evaluations))
+    done = 0
+
+    def store(rows, result):
+        nonlocal done
+        v, ok, msgs = result
+        values[rows] = v
+        success[rows] = ok
+        for i, msg in zip(rows, msgs):
+            messages[i] = msg
+        done += rows.size
+        if progress is not None:
+            progress(done)
+
+    workers = min(jobs, len(chunks))
+    if workers <= 1 or not problem.source_text:
+        for rows in chunks:
+            store(rows, _solve_group_pde(model, _subset(arrays, rows), rows.size, *settings))
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        key = tuple(sorted(nodes.items()))
+        with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as pool:
+            futures = {pool.submit(_pde_chunk_worker, problem.source_text, problem.source, key,
+                                   _subset(arrays, rows), rows.size, *settings): rows for rows in chunks}
+            try:
+                for future in as_completed(futures):
+                    store(futures[future], future.result())
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+    return values, success, messages, model, unique, inverse
+
+
+def _interpolation_matrices(model: _PdeModel, points: Mapping[str, np.ndarray]) -> list[np.ndarray]:
+    grid = model.grid
+    return [barycentric_matrix(grid.points[c], grid.weights[c], points[c]) for c in grid.names]
+
+
+def _on_grid(full: np.ndarray, shape: tuple, mats: list[np.ndarray]) -> np.ndarray:
+    """(..., n) nodal values -> (..., X_1, ..., X_d) on the tensor grid of the points."""
+    lead = full.shape[:-1]
+    V = full.reshape(lead + shape)
+    for k, W in enumerate(mats):
+        axis = len(lead) + k
+        V = np.moveaxis(np.tensordot(V, W, axes=([axis], [1])), -1, axis)
+    return V
+
+
+def _at_points(full: np.ndarray, shape: tuple, mats: list[np.ndarray]) -> np.ndarray:
+    """(A, n) nodal values -> (A, P) at scattered points (row p of every matrix)."""
+    A = full.shape[0]
+    V = full.reshape((A,) + shape)
+    V = np.tensordot(V, mats[0], axes=([1], [1]))  # (A, N_2, ..., N_d, P)
+    V = np.moveaxis(V, -1, 1)  # (A, P, N_2, ..., N_d)
+    for W in mats[1:]:
+        V = np.einsum("ap...j,pj->ap...", V, W) if V.ndim > 3 else np.einsum("apj,pj->ap", V, W)
+    return V
+
+
+def solve_reference_pde(
+    problem,
+    params: Mapping[str, np.ndarray],
+    space_points: Mapping[str, np.ndarray] | None,
+    times: np.ndarray,
+    *,
+    grid: bool = True,
+    space_nodes: int | Mapping[str, int] = DEFAULT_SPACE_NODES,
+    method: str = "BDF",
+    rtol: float = PDE_RTOL,
+    atol: float = PDE_ATOL,
+    jobs: int = 1,
+    chunk_size: int | None = None,
+    progress: Callable[[int], None] | None = None,
+    max_evaluations: int = DEFAULT_MAX_EVALUATIONS,
+) -> PdeReferenceResult:
+    """Method-of-lines reference of a problem with space coordinates.
+
+    Every space coordinate is discretized by strong-form Chebyshev-Gauss-Lobatto collocation
+    (``space_nodes`` points; tensor-product grid over several space coordinates, sparse
+    Kronecker-product operators). At the ends of a coordinate where an unknown has boundary
+    conditions, the collocated equation is replaced by the condition (value: ``u = g``; gradient:
+    ``du/dx = g``, the derivative along the coordinate, at either end); the boundary values are
+    eliminated (each is a linear combination of interior values plus a known part), which leaves
+    an ODE system in the interior values. It is integrated by ``solve_ivp`` (BDF or Radau, with
+    its exact sparse Jacobian) at each parameter sample (a few samples share one call as a
+    block-diagonal system), and the nodal values are interpolated to the requested space points
+    with the barycentric formula. At the start time the initial value is evaluated exactly at the
+    requested points.
+
+    Parameters
+    ----------
+    problem : pgdcli.spec.Problem
+        A linear problem with at least one space coordinate.
+    params : dict of str to array_like, shape (S,)
+        A value per sample for every coordinate that is neither time nor space (``{}`` when there
+        are none: one sample).
+    space_points : dict of str to array_like or None
+        Points per space coordinate. ``grid=True``: the tensor grid of these 1-D arrays;
+        ``grid=False``: ``P`` scattered points, one array of length ``P`` per coordinate.
+        None: the collocation nodes themselves (tensor grid).
+    times : array_like, shape (T,)
+        Times at or after the start of the time domain; any order, repeats allowed.
+    grid : bool
+        See ``space_points``.
+    space_nodes : int or dict of str to int
+        Collocation points per space coordinate (default :data:`DEFAULT_SPACE_NODES`).
+    method : {'BDF', 'Radau'}
+    rtol, atol : float
+        Tolerances of ``solve_ivp``.
+    jobs : int
+        Worker processes (1: in this process).
+    chunk_size : int, optional
+        Samples per ``solve_ivp`` call (default: as many as fit in about
+        1024 unknowns, at most 8).
+    progress : callable, optional
+        Called with the number of samples finished so far.
+    max_evaluations : int
+        Right-hand-side evaluations one integration may spend.
+
+    Returns
+    -------
+    PdeReferenceResult
+        ``values[u]`` has shape ``(S, T, X_1, ..., X_d)`` (grid) or ``(S, T, P)`` (scattered).
+
+    Raises
+    ------
+    PgdError
+        No space coordinate, a nonlinear equation, boundary conditions that do not determine the
+        boundary values, invalid samples, points outside the domain, times before the start, an
+        unknown method or invalid tolerances.
+    """
+    if method not in PDE_METHODS:
+        raise SolverError(f"method {method!r}: the method-of-lines reference is stiff; use one of "
+                          f"{', '.join(PDE_METHODS)}")
+    _check_tolerances(rtol, atol)
+    if isinstance(jobs, bool) or int(jobs) < 1:
+        raise SolverError(f"jobs must be at least 1, got {jobs}")
+    space = [c.name for c in space_coordinates(problem)]
+    if not space:
+        raise SolverError(f"{problem.source}: the problem has no space coordinate; use solve_reference")
+    names = [c.name for c in sampled_coordinates(problem)]
+    arrays, S = _check_params(params, names, problem.time, space)
+    nodes = _space_nodes(problem, space_nodes)
+    t0 = float(problem.time_coordinate.domain[0])
+    times = _check_times(times, t0, problem.time)
+
+    if space_points is None:
+        points = None
+    else:
+        extra = [k for k in space_points if k not in space]
+        if extra:
+            raise SolverError(f"space_points: {extra[0]!r} is not a space coordinate ({', '.join(space)})")
+        missing = [k for k in space if k not in space_points]
+        if missing:
+            raise SolverError(f"space_points: missing coordinate(s) {', '.join(missing)}")
+        points = {k: np.atleast_1d(np.asarray(space_points[k], dtype=float)) for k in space}
+        if any(p.ndim != 1 or p.size == 0 for p in points.values()):
+            raise SolverError("space_points: expected non-empty 1-D arrays")
+        if not grid and len({p.size for p in points.values()}) > 1:
+            raise SolverError("space_points: scattered points (grid=False) need arrays of one length")
+        for c in space_coordinates(problem):
+            low, high = map(float, c.domain)
+            slack = 1e-12 * max(1.0, abs(low), abs(high))
+            x = points[c.name]
+            if not (np.isfinite(x).all() and (x >= low - slack).all() and (x <= high + slack).all()):
+                bad = x[~(np.isfinite(x) & (x >= low - slack) & (x <= high + slack))][0]
+                raise SolverError(f"space_points: {c.name} = {float(bad)!r} is outside the domain "
+                                  f"[{low:g}, {high:g}]")
+            points[c.name] = np.clip(x, low, high)
+
+    states, success, messages, model, unique, inverse = _grid_states(
+        problem, arrays, S, times, nodes=nodes, method=method, rtol=rtol, atol=atol, jobs=jobs,
+        chunk_size=chunk_size, progress=progress, max_evaluations=max_evaluations)
+    shape = model.grid.shape
+    out: dict[str, np.ndarray] = {}
+    if points is None:
+        result_points = {c: model.grid.points[c].copy() for c in space}
+        for s, u in enumerate(problem.unknown_names):
+            out[u] = states[:, s][:, inverse].reshape((S, times.size) + shape)
+    else:
+        result_points = points
+        mats = _interpolation_matrices(model, points)
+        at_start = unique == t0
+        for s, u in enumerate(problem.unknown_names):
+            full = states[:, s]  # (S, Tu, n)
+            if grid:
+                vals = _on_grid(full, shape, mats)
+            else:
+                vals = _at_points(full.reshape(-1, model.grid.n), shape, mats).reshape(S, unique.size, -1)
+            if at_start.any():  # the initial value exactly at the points
+                initial = problem.unknowns[s].initial
+                if grid:
+                    mesh = np.meshgrid(*[points[c] for c in space], indexing="ij")
+                    at = {c: m[None] for c, m in zip(space, mesh)}
+                    at.update({p: arrays[p].reshape((S,) + (1,) * len(space)) for p in names})
+                    exact = np.broadcast_to(initial.evaluate(**at), (S,) + mesh[0].shape) if initial.terms else 0.0
+                else:
+                    at = {c: points[c][None, :] for c in space}
+                    at.update({p: arrays[p][:, None] for p in names})
+                    P = points[space[0]].size
+                    exact = np.broadcast_to(initial.evaluate(**at), (S, P)) if initial.terms else 0.0
+                j = int(np.flatnonzero(at_start)[0])
+                ok = success
+                vals[ok, j] = exact[ok] if np.ndim(exact) else 0.0
+            out[u] = vals[:, inverse]
+    return PdeReferenceResult(values=out, success=success, messages=messages, space=space,
+                              space_points=result_points, nodes=nodes, grid=bool(grid or points is None),
+                              method=method, rtol=float(rtol), atol=float(atol), times=times)

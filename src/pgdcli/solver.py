@@ -86,12 +86,19 @@ class Discretization:
     unknowns: list[str]
     coordinates: list[str]
     time: str
+    trial: dict = field(default_factory=dict)  # coordinate -> trial node indices (Dirichlet ends removed)
 
     def nodal_factors(self, factors: list[np.ndarray]) -> dict[str, list[np.ndarray]]:
         """Solver factors -> per unknown, nodal mode matrices over the coordinates (spec order)."""
         nt = self.bases[self.time].nodes.size
         state = factors[0].reshape(len(self.unknowns), nt - 1, -1)
-        params = dict(zip(self.names[1:], factors[1:]))
+        params = {}
+        for name, f in zip(self.names[1:], factors[1:]):
+            if name in self.trial:  # Dirichlet ends: the lift carries the value, v vanishes there
+                full = np.zeros((self.bases[name].nodes.size, f.shape[1]))
+                full[self.trial[name]] = f
+                f = full
+            params[name] = f
         out = {}
         for s, u in enumerate(self.unknowns):
             tf = np.vstack([np.zeros((1, state.shape[2])), state[s]])  # v(t0) = 0
@@ -153,6 +160,124 @@ def _merge_terms(terms: list[tuple[np.ndarray, ...]]) -> list[tuple[np.ndarray, 
     return [tuple(t) for t in merged]
 
 
+class _CoordinateOps:
+    """The 1D pieces of one non-time coordinate: test/trial nodes, matrices, left preconditioner.
+
+    Parameters are collocated (diagonal matrices). Space coordinates are in weak form with
+    the basis's quadrature: mass ``W``, stiffness ``K`` (Chebyshev ``D^T W D``; linear
+    elements the exact tridiagonal one), advection ``W D`` (Chebyshev only); a Dirichlet
+    end drops its node from the trial and test functions (the lift carries the value), a
+    gradient (Neumann) end enters as a boundary flux. Every matrix is returned already
+    multiplied by the left preconditioner: ``1/sqrt(w)`` for parameters, and
+    ``sqrt(W) (M + tau K)^-1`` for space, which keeps the stiff operator bounded in the
+    minimal-residual normal equations (their conditioning is squared).
+    """
+
+    def __init__(self, name: str, basis: Basis1D, role: str, ends: tuple[str, str] | None, tau: float):
+        self.name, self.basis = name, basis
+        n = basis.nodes.size
+        w = basis.weights
+        self.space = role == "space"
+        keep = np.ones(n, dtype=bool)
+        if self.space and ends is not None:
+            keep[0] = ends[0] != "value"
+            keep[-1] = ends[1] != "value"
+        self.test = self.trial = np.flatnonzero(keep)
+        self.w = w
+        self.interp = None
+        if not self.space:
+            self.left = np.diag(1.0 / np.sqrt(w))
+            return
+        if basis.kind == "chebyshev":
+            # exact Galerkin integrals: Gauss-Legendre with n + 1 points integrates the products
+            # of two degree n - 1 polynomials exactly (Clenshaw-Curtis at the nodes would alias
+            # and converge only algebraically, measured)
+            xg, wg = np.polynomial.legendre.leggauss(n + 1)
+            low, high = basis.domain
+            self.quad_w = wg * (high - low) / 2.0
+            self.interp = basis.interpolation_matrix(low + (xg + 1.0) * (high - low) / 2.0)  # (n + 1, n)
+            self.interp_d = self.interp @ basis.derivative
+            self.derivative = basis.derivative
+            self.stiffness = self.interp_d.T @ (self.quad_w[:, None] * self.interp_d)
+            mass = self.interp.T @ (self.quad_w[:, None] * self.interp)
+        else:
+            h = np.diff(basis.nodes)
+            k = np.zeros((n, n))
+            for e, he in enumerate(h):
+                k[e:e + 2, e:e + 2] += np.array([[1.0, -1.0], [-1.0, 1.0]]) / he
+            self.derivative = None
+            self.interp = None
+            self.stiffness = k
+            mass = np.diag(w)  # lumped: second order, like the elements themselves
+        t = self.test
+        self.left = np.sqrt(w[t])[:, None] * np.linalg.inv(mass[np.ix_(t, t)] + tau * self.stiffness[np.ix_(t, t)])
+
+    def _rows(self, full: np.ndarray) -> np.ndarray:
+        return self.left @ full[self.test]
+
+    def _weighted(self, f: np.ndarray) -> np.ndarray:
+        """Quadrature weights times ``f`` at the quadrature points (f interpolated from the nodes)."""
+        return self.quad_w * (self.interp @ f)
+
+    def mass(self, f: np.ndarray) -> np.ndarray:
+        """``f u`` tested: (test, all nodes)."""
+        if not self.space or self.interp is None:
+            return self._rows(np.diag(self.w * f))
+        return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp))
+
+    def first(self, f: np.ndarray) -> np.ndarray:
+        """``f du/dx`` tested: (test, all nodes)."""
+        if self.derivative is None:
+            raise SolverError(f"first derivatives in {self.name!r} need discretization: chebyshev")
+        return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp_d))
+
+    def second(self) -> np.ndarray:
+        """``d2u/dx2`` tested (weak form, boundary fluxes apart): (test, all nodes)."""
+        return self._rows(-self.stiffness)
+
+    def load(self, f: np.ndarray) -> np.ndarray:
+        """A source ``f`` tested: (test,)."""
+        if not self.space or self.interp is None:
+            return self.left @ (self.w * f)[self.test]
+        return self.left @ (self.interp.T @ self._weighted(f))[self.test]
+
+    def flux(self, side: int) -> np.ndarray:
+        """``[du/dx phi]`` at one end: +phi(high), -phi(low), tested: (test,)."""
+        e = np.zeros(self.basis.nodes.size)
+        e[0 if side == 0 else -1] = -1.0 if side == 0 else 1.0
+        return self.left @ e[self.test]
+
+
+def _boundary_kinds(problem, coord: str) -> tuple[str, str] | None:
+    kinds = {tuple(b.kind for b in u.boundary[coord]) for u in problem.unknowns if coord in u.boundary}
+    if len(kinds) > 1:
+        raise SolverError(f"{problem.source}: unknowns: every unknown needs the same kinds of boundary conditions "
+                          f"on {coord!r} (value or gradient at each end), found {sorted(kinds)}")
+    return kinds.pop() if kinds else None
+
+
+def _check_compatible_initial_values(problem, bases) -> None:
+    """A Dirichlet value must equal the initial value there: the lift u0 carries it for all times."""
+    rng = np.random.default_rng(0)
+    for u in problem.unknowns:
+        for coord, ends in u.boundary.items():
+            for side, bc in enumerate(ends):
+                if bc.kind != "value":
+                    continue
+                others = {c.name: rng.uniform(*c.domain, 16) for c in problem.coordinates
+                          if c.name not in (coord, problem.time)}
+                at = {**others, coord: np.full(16, problem.coordinate(coord).domain[side])}
+                initial = np.broadcast_to(u.initial.evaluate(**at), (16,)) if u.initial.terms else np.zeros(16)
+                value = np.broadcast_to(bc.value.evaluate(**others), (16,)) if bc.value.terms else np.zeros(16)
+                scale = max(1.0, float(np.max(np.abs(value))))
+                if np.max(np.abs(initial - value)) > 1e-9 * scale:
+                    end = ("low", "high")[side]
+                    raise SolverError(
+                        f"{problem.source}: unknowns.{u.name}: the initial value '{u.initial_text}' does not satisfy "
+                        f"the boundary condition {coord} {end} = '{bc.text}' (they must agree at t = "
+                        f"{problem.time_coordinate.domain[0]:g})")
+
+
 def discretize(problem) -> Discretization:
     """Assemble the separated operator, source and lift of a linear problem.
 
@@ -174,11 +299,14 @@ def discretize(problem) -> Discretization:
     nt = tb.nodes.size
     params = [c.name for c in coords if c.name != tname]
     names = [STATE] + params
+    span = float(tb.nodes[-1] - tb.nodes[0])
+    ops = {c.name: _CoordinateOps(c.name, bases[c.name], c.role, _boundary_kinds(problem, c.name), span)
+           for c in coords if c.name != tname}
+    _check_compatible_initial_values(problem, bases)
 
-    # left preconditioners: sqrt(weights) * (integration matrix in time), per unknown
+    # left preconditioner in time: sqrt(weights) * (integration matrix), per unknown
     integrate = np.linalg.inv(tb.time_stiffness(np.ones(nt))[:, 1:])
     p_time = np.sqrt(tb.time_weights())[:, None] * integrate
-    p_param = {c: np.sqrt(bases[c].weights) for c in params}
 
     def unit(r: int) -> np.ndarray:
         e = np.zeros(q)
@@ -189,9 +317,12 @@ def discretize(problem) -> Discretization:
     src_w: list[float] = []
     src_f: list[list[np.ndarray]] = []
 
-    def add_source(r: int, coef: float, time_vec: np.ndarray, vals: dict[str, np.ndarray]):
+    def add_source(r: int, coef: float, time_vec: np.ndarray, vectors: dict[str, np.ndarray]):
         src_w.append(coef)
-        src_f.append([np.kron(unit(r), p_time @ time_vec)] + [p_param[c] * vals[c] for c in params])
+        src_f.append([np.kron(unit(r), p_time @ time_vec)] + [vectors[c] for c in params])
+
+    def tested_values(vals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {c: ops[c].load(vals[c]) for c in params}
 
     for eq in problem.equations:
         r = eq.index
@@ -199,30 +330,50 @@ def discretize(problem) -> Discretization:
             if len(monomial) == 0:
                 for term in sep.terms:
                     vals = _factor_values(term, bases)
-                    add_source(r, -term.coef, tb.time_load(vals[tname]), vals)
+                    add_source(r, -term.coef, tb.time_load(vals[tname]), tested_values(vals))
                 continue
             if len(monomial) != 1:
                 raise SolverError(f"equations[{r}]: nonlinear term; the linear solver needs equations linear in the unknowns")
             atom = monomial[0]
             s = index[atom.unknown]
             is_der = atom.order == 1 and atom.coordinate == tname
-            if atom.order != 0 and not is_der:
-                raise SolverError(f"equations[{r}]: derivative der({atom.unknown}, {atom.coordinate}) is not supported")
+            space_der = atom.order > 0 and atom.coordinate != tname
             for term in sep.terms:
                 vals = _factor_values(term, bases)
                 tmat = tb.time_stiffness(vals[tname]) if is_der else tb.time_mass(vals[tname])
                 coupling = np.zeros((q, q))
                 coupling[r, s] = term.coef
-                op_terms.append(
-                    (np.kron(coupling, p_time @ tmat[:, 1:]),)
-                    + tuple(np.diag(p_param[c] * vals[c]) for c in params)
-                )
+                full = {}
+                for c in params:
+                    if space_der and c == atom.coordinate:
+                        if atom.order == 2:
+                            if c in dict(term.factors):
+                                raise SolverError(f"{problem.source}: equations[{r}]: the coefficient of "
+                                                  f"der({atom.unknown}, {c}, 2) must not depend on {c!r}")
+                            full[c] = ops[c].second()
+                        else:
+                            full[c] = ops[c].first(vals[c])
+                    else:
+                        full[c] = ops[c].mass(vals[c])
+                op_terms.append((np.kron(coupling, p_time @ tmat[:, 1:]),)
+                                + tuple(full[c][:, ops[c].trial] for c in params))
                 if not is_der:
                     # the lift u0 (constant in time) moves to the right-hand side
                     for init in problem.unknowns[s].initial.terms:
                         ivals = _factor_values(init, bases)
-                        pv = {n: vals[n] * ivals[n] for n in vals}
-                        add_source(r, -term.coef * init.coef, tmat @ np.ones(nt), pv)
+                        add_source(r, -term.coef * init.coef, tmat @ np.ones(nt),
+                                   {c: full[c] @ ivals[c] for c in params})
+                if space_der and atom.order == 2:
+                    # weak form: the boundary flux [du/dx phi] of gradient ends is known data
+                    c = atom.coordinate
+                    for side, bc in enumerate(problem.unknowns[s].boundary.get(c, ())):
+                        if bc.kind != "gradient":
+                            continue
+                        for g in bc.value.terms:
+                            gvals = _factor_values(g, bases)
+                            vectors = {p: ops[p].load(vals[p] * gvals[p]) for p in params if p != c}
+                            vectors[c] = ops[c].flux(side)
+                            add_source(r, -term.coef * g.coef, tmat @ np.ones(nt), vectors)
 
     if not op_terms:
         raise SolverError("the equations have no term in the unknowns")
@@ -240,8 +391,9 @@ def discretize(problem) -> Discretization:
         lift[u.name] = CPTensor(
             np.array(ws), [np.column_stack([f[j] for f in fs]) if fs else np.zeros((bases[c.name].nodes.size, 0))
                            for j, c in enumerate(coords)])
+    trial = {c: ops[c].trial for c in params if ops[c].trial.size != bases[c].nodes.size}
     return Discretization(names, bases, SeparatedOperator(tuple(op_terms)), source, lift, unknowns,
-                          [c.name for c in coords], tname)
+                          [c.name for c in coords], tname, trial)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -716,7 +868,13 @@ def _use_march(problem) -> bool:
     if method == "pgd" and nonlinear:
         raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "
                           f"use 'march' or 'auto' for this problem")
-    return method == "march" or (method == "auto" and nonlinear)
+    march = method == "march" or (method == "auto" and nonlinear)
+    space = [c.name for c in problem.coordinates if c.role == "space"]
+    if march and space:
+        raise SolverError(f"{problem.source}: equations: the separated time march handles ODEs only; "
+                          f"{', '.join(space)} {'is a space coordinate' if len(space) == 1 else 'are space coordinates'}"
+                          f" (nonlinear PDEs are not supported yet)")
+    return march
 
 
 def _run(disc: Discretization, opts, tol: float, nmax: int, callback):

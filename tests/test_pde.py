@@ -1,0 +1,162 @@
+"""Space coordinates (issue 6): weak-form PGD for parametric heat equations against exact solutions."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import pgdcli
+from pgdcli.cli import cli
+from pgdcli.errors import SolverError, SpecError
+
+HEAT1D = open("problems/heat1d.yaml").read()
+
+
+@pytest.fixture(scope="module")
+def heat1d():
+    return pgdcli.solve(pgdcli.load_spec("problems/heat1d.yaml"))
+
+
+@pytest.fixture(scope="module")
+def heat2d():
+    return pgdcli.solve(pgdcli.load_spec("problems/heat2d.yaml"))
+
+
+def _points(cb, n, seed):
+    rng = np.random.default_rng(seed)
+    pts = {c.name: rng.uniform(*c.domain, n) for c in cb.coordinates}
+    corners = np.array(list(itertools.product(*[c.domain for c in cb.coordinates])))
+    return {c.name: np.concatenate([pts[c.name], corners[:, j]]) for j, c in enumerate(cb.coordinates)}
+
+
+def test_heat1d_matches_the_exact_solution(heat1d):
+    assert heat1d.converged, heat1d.message
+    cb = heat1d.codebook
+    assert cb.coordinate("x").role == "space"
+    p = _points(cb, 600, 1)
+    exact = np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.sin(np.pi * p["x"])
+    assert np.max(np.abs(cb(**p)["u"] - exact)) <= 1e-8
+
+
+def test_heat2d_matches_the_exact_solution(heat2d):
+    assert heat2d.converged, heat2d.message
+    cb = heat2d.codebook
+    assert [c.role for c in cb.coordinates] == ["space", "space", "time", "parameter", "parameter", "parameter"]
+    p = _points(cb, 600, 2)
+    x, y, t, k, g, q = (p[n] for n in ("x", "y", "t", "kappa", "g", "q"))
+    exact = (g * x + np.exp(-2 * k * np.pi**2 * t) * np.sin(np.pi * x) * np.cos(np.pi * y)
+             + q * (1 - np.exp(-k * np.pi**2 * t)) * np.sin(np.pi * x) / (k * np.pi**2))
+    assert np.max(np.abs(cb(**p)["u"] - exact)) <= 1e-8
+
+
+def test_dirichlet_values_hold_exactly_on_the_boundary(heat2d):
+    cb = heat2d.codebook
+    rng = np.random.default_rng(3)
+    y, t, k, g, q = (rng.uniform(*cb.coordinate(n).domain, 50) for n in ("y", "t", "kappa", "g", "q"))
+    low = cb(x=0.0, y=y, t=t, kappa=k, g=g, q=q)["u"]
+    high = cb(x=1.0, y=y, t=t, kappa=k, g=g, q=q)["u"]
+    assert np.max(np.abs(low)) <= 1e-13 and np.max(np.abs(high - g)) <= 1e-12
+
+
+def test_neumann_only_problem():
+    text = """
+coordinates:
+  x: {domain: [0, 1], nodes: 18}
+  t: {domain: [0, 0.3], nodes: 20}
+  kappa: {domain: [0.2, 1], nodes: 14}
+unknowns:
+  u:
+    initial: "1 + cos(pi*x)"
+    boundary:
+      x: {low: {gradient: 0}, high: {gradient: 0}}
+equations:
+  - "der(u) = kappa*der(u, x, 2)"
+solver: {tolerance: 1e-11}
+"""
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="neumann.yaml"))
+    assert result.converged, result.message
+    p = _points(result.codebook, 500, 4)
+    exact = 1 + np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.cos(np.pi * p["x"])
+    assert np.max(np.abs(result.codebook(**p)["u"] - exact)) <= 1e-8
+
+
+def test_nonzero_neumann_flux_enters_through_the_weak_form():
+    # u_t = u_xx, u_x(0) = a, u_x(1) = a, u(x, 0) = a x + cos(pi x): u = a x + exp(-pi^2 t) cos(pi x)
+    text = """
+coordinates:
+  x: {domain: [0, 1], nodes: 18}
+  t: {domain: [0, 0.2], nodes: 20}
+  a: {domain: [-1, 1], nodes: 2, discretization: linear}
+unknowns:
+  u:
+    initial: "a*x + cos(pi*x)"
+    boundary:
+      x: {low: {gradient: a}, high: {gradient: a}}
+equations:
+  - "der(u) = der(u, x, 2)"
+solver: {tolerance: 1e-11}
+"""
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="flux.yaml"))
+    assert result.converged, result.message
+    p = _points(result.codebook, 500, 5)
+    exact = p["a"] * p["x"] + np.exp(-np.pi**2 * p["t"]) * np.cos(np.pi * p["x"])
+    assert np.max(np.abs(result.codebook(**p)["u"] - exact)) <= 1e-8
+
+
+@pytest.mark.parametrize("kind, nodes, expected", [("chebyshev", (8, 11, 14), "spectral"),
+                                                    ("linear", (9, 17, 33), 2.0)])
+def test_error_falls_with_space_nodes(kind, nodes, expected):
+    errors = []
+    for n in nodes:
+        text = HEAT1D.replace("x: {domain: [0, 1], nodes: 20}",
+                              f"x: {{domain: [0, 1], nodes: {n}, discretization: {kind}}}")
+        result = pgdcli.solve(pgdcli.parse_spec(text, source="h.yaml"))
+        assert result.converged, result.message
+        cb = result.codebook
+        p = _points(cb, 400, 6)
+        exact = np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.sin(np.pi * p["x"])
+        errors.append(np.max(np.abs(cb(**p)["u"] - exact)))
+    assert errors[0] > errors[1] > errors[2]
+    if expected == "spectral":
+        assert errors[2] < 1e-3 * errors[0]
+    else:  # piecewise-linear interpolation between nodes: second order in h
+        orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+        assert np.all(orders > 1.7), orders
+
+
+def test_initial_value_must_satisfy_dirichlet_conditions():
+    text = HEAT1D.replace('initial: "sin(pi*x)"', 'initial: "sin(pi*x) + 0.5"')
+    with pytest.raises(SolverError, match="does not satisfy the boundary condition x low"):
+        pgdcli.solve(pgdcli.parse_spec(text, source="bad.yaml"))
+
+
+def test_space_dependent_diffusivity_is_refused():
+    text = HEAT1D.replace('"der(u) = kappa*der(u, x, 2)"', '"der(u) = kappa*(1 + x)*der(u, x, 2)"')
+    with pytest.raises(SolverError, match="must not depend on 'x'"):
+        pgdcli.solve(pgdcli.parse_spec(text, source="bad.yaml"))
+
+
+def test_nonlinear_pde_is_refused():
+    text = HEAT1D.replace('"der(u) = kappa*der(u, x, 2)"', '"der(u) = kappa*der(u, x, 2) - u*u"')
+    with pytest.raises(SolverError, match="ODEs only"):
+        pgdcli.solve(pgdcli.parse_spec(text, source="bad.yaml"))
+
+
+def test_second_derivative_needs_boundary_conditions():
+    text = HEAT1D.replace("    boundary:\n      x: {low: 0, high: 0}\n", "")
+    with pytest.raises(SpecError, match="unknowns.u.boundary: missing the conditions at both ends of 'x'"):
+        pgdcli.parse_spec(text, source="bad.yaml")
+
+
+def test_query_prints_a_space_profile(heat1d, tmp_path):
+    path = heat1d.codebook.save(tmp_path / "heat1d.h5")
+    result = CliRunner().invoke(cli, ["query", str(path), "--x", "0:1:101", "--t", "0.1", "--kappa", "0.5"],
+                                prog_name="pgd")
+    assert result.exit_code == 0, result.stderr
+    values = np.array([float(v) for v in result.stdout.split()])
+    x = np.linspace(0, 1, 101)
+    assert values.shape == (101,)
+    assert np.max(np.abs(values - np.exp(-0.5 * np.pi**2 * 0.1) * np.sin(np.pi * x))) <= 1e-8
