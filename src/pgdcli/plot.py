@@ -207,12 +207,13 @@ def _label(point: Mapping[str, float]) -> str:
 # ----------------------------------------------------------------------------------------------
 # the independent reference
 # ----------------------------------------------------------------------------------------------
-def reference_solver(codebook, *, source: str = "<codebook>", method: str = "DOP853",
-                     rtol: float = 1e-12, atol: float = 1e-12) -> Callable:
+def reference_solver(codebook, *, source: str = "<codebook>", method: str | None = None,
+                     rtol: float | None = None, atol: float | None = None) -> Callable:
     """The independent reference for ``codebook``: ``solve(params, times) -> ReferenceResult``.
 
     Re-parses the spec embedded in the codebook and integrates it with
-    :func:`pgdcli.reference.solve_reference` (scipy ``solve_ivp``).
+    :func:`pgdcli.reference.solve_reference` (scipy ``solve_ivp``; ``None`` settings: its
+    defaults, DOP853 at 1e-12 for ODEs, the method of lines with BDF for space coordinates).
     """
     from .spec import parse_spec
 
@@ -228,7 +229,8 @@ def reference_solver(codebook, *, source: str = "<codebook>", method: str = "DOP
         return solve_reference(problem, dict(params), np.asarray(times, dtype=float),
                                method=method, rtol=rtol, atol=atol)
 
-    solve.description = f"solve_ivp {method}, rtol={rtol:g}, atol={atol:g}"
+    solve.description = ("solve_ivp " + (method or "(default method)")
+                         + (f", rtol={rtol:g}, atol={atol:g}" if rtol is not None and atol is not None else ""))
     return solve
 
 

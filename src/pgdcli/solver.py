@@ -44,6 +44,10 @@ from .separated import CPTensor, SeparatedOperator, orthogonal_sweep
 __all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
 
 STATE = "<state>"
+# Space preconditioner (M + tau K)^-1 with tau = TAU_FRACTION * (time span): smaller tau keeps
+# the residual norm closer to the error (measured on heat2d_source: error 3.0e-6 at tau = T,
+# 6.8e-7 at T/10, 1.6e-7 at T/100 for the same residual), larger tau converges in fewer modes.
+TAU_FRACTION = 0.1
 
 
 # ----------------------------------------------------------------------------------------------
@@ -300,7 +304,7 @@ def discretize(problem) -> Discretization:
     params = [c.name for c in coords if c.name != tname]
     names = [STATE] + params
     span = float(tb.nodes[-1] - tb.nodes[0])
-    ops = {c.name: _CoordinateOps(c.name, bases[c.name], c.role, _boundary_kinds(problem, c.name), span)
+    ops = {c.name: _CoordinateOps(c.name, bases[c.name], c.role, _boundary_kinds(problem, c.name), span * TAU_FRACTION)
            for c in coords if c.name != tname}
     _check_compatible_initial_values(problem, bases)
 

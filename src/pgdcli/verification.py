@@ -6,10 +6,20 @@ the PGD solver) at sample points of the parameter box, and the codebook is
 compared with it at every time node of the codebook's time grid plus random
 times.
 
+Problems with space coordinates (``der(u, x)``, boundary conditions): the
+space coordinates are not sampled; the reference is the method of lines of
+:func:`pgdcli.reference.solve_reference_pde` (Chebyshev collocation, BDF), and
+at every parameter point and time both are compared on the tensor grid of, per
+space coordinate, every node of that coordinate in the codebook plus
+``space_points`` random points of its domain (seeded). ``where`` then names the
+space coordinates too; the settings gain ``space_points`` (points per space
+coordinate), ``random_space_points`` and ``space_nodes`` (collocation nodes of
+the reference per space coordinate).
+
 Sample points: ``samples`` scrambled Sobol (or Latin hypercube) points of the
-parameter box, plus all ``2**m`` corners of the box (at most
-:data:`MAX_CORNERS`; beyond that a seeded random subset of corners), or the
-points of a CSV file instead.
+parameter box (the coordinates other than time and space), plus all ``2**m``
+corners of the box (at most :data:`MAX_CORNERS`; beyond that a seeded random
+subset of corners), or the points of a CSV file instead.
 
 Figures, per unknown ``u``, over every successful sample point and time:
 
@@ -42,6 +52,8 @@ __all__ = ["verify", "VerifyReport", "UnknownErrors", "Failure", "VerifyError", 
 
 #: Most corners of the parameter box that are checked (a random subset beyond).
 MAX_CORNERS = 1024
+#: Random points per space coordinate checked besides the codebook's nodes of that coordinate.
+DEFAULT_RANDOM_SPACE_POINTS = 4
 SAMPLINGS = ("sobol", "lhs")
 # codebook evaluations per block (bounds memory of the interpolation matrices)
 _EVAL_BLOCK = 100_000
@@ -114,9 +126,13 @@ class VerifyReport:
     times : ndarray, shape (T,)
         The times (sorted).
     reference, codebook_values : dict of str to ndarray, shape (S, T)
-        Reference (NaN at failed points) and codebook values.
+        Reference (NaN at failed points) and codebook values; with space
+        coordinates shape (S, T, X_1, ..., X_d) on the tensor grid of
+        ``space_points``.
     wall_time : float
         Seconds.
+    space_points : dict of str to ndarray
+        With space coordinates: the points of each (sorted); else empty.
     """
 
     codebook: str | None
@@ -133,6 +149,7 @@ class VerifyReport:
     reference: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     codebook_values: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     wall_time: float = 0.0
+    space_points: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @property
     def n_points(self) -> int:
@@ -213,6 +230,16 @@ def _check_tolerance(name: str, value) -> float | None:
     return number
 
 
+def _space(problem) -> tuple:
+    """Space coordinates of the problem (discretized by the reference, not sampled)."""
+    return tuple(c for c in problem.coordinates if getattr(c, "role", "") == "space")
+
+
+def _sampled(problem) -> tuple:
+    """Coordinates whose points verify samples: neither time nor space."""
+    return tuple(c for c in problem.coordinates if c.name != problem.time and getattr(c, "role", "") != "space")
+
+
 def _parse_problem(cb, source: str):
     from .spec import parse_spec
 
@@ -243,7 +270,7 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
         outside the domain, no rows.
     """
     source = str(path)
-    names = [c.name for c in problem.parameter_coordinates]
+    names = [c.name for c in _sampled(problem)]
     try:
         with open(path, newline="", encoding="utf-8") as handle:
             rows = list(csv.reader(handle))
@@ -260,6 +287,9 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
         if h == problem.time:
             raise VerifyError(f"{source}: column {h!r} is the time coordinate; the points give the parameters "
                               f"({', '.join(names)}) and times are chosen by verify")
+        if h in [c.name for c in _space(problem)]:
+            raise VerifyError(f"{source}: column {h!r} is a space coordinate; the points give the parameters "
+                              f"({', '.join(names)}) and space points are chosen by verify")
         if h not in names:
             raise VerifyError(f"{source}: unknown column {h!r}; expected the parameter coordinates "
                               f"{', '.join(names) or '(none)'}")
@@ -290,7 +320,7 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
 
 
 def _check_points_domain(points: Mapping[str, np.ndarray], problem, source: str) -> None:
-    for c in problem.parameter_coordinates:
+    for c in _sampled(problem):
         low, high = c.domain
         values = points[c.name]
         bad = ~((values >= low) & (values <= high))
@@ -302,7 +332,7 @@ def _check_points_domain(points: Mapping[str, np.ndarray], problem, source: str)
 def _sample_box(problem, n: int, sampling: str, seed: int) -> dict[str, np.ndarray]:
     from scipy.stats import qmc
 
-    coords = problem.parameter_coordinates
+    coords = _sampled(problem)
     m = len(coords)
     if sampling == "sobol":
         engine = qmc.Sobol(d=m, scramble=True, seed=seed)
@@ -320,7 +350,7 @@ def _sample_box(problem, n: int, sampling: str, seed: int) -> dict[str, np.ndarr
 
 def _corners(problem, seed: int, max_corners: int) -> tuple[dict[str, np.ndarray], int]:
     """Corners of the parameter box (a seeded random subset beyond max_corners) and their total number."""
-    coords = problem.parameter_coordinates
+    coords = _sampled(problem)
     m = len(coords)
     total = 2**m
     if total <= max_corners:
@@ -352,31 +382,64 @@ def _evaluate_codebook(cb, samples: Mapping[str, np.ndarray], time: str, times: 
     return out
 
 
-def _statistics(coordinates, time, samples, times, ok, reference, approx) -> UnknownErrors:
+def _statistics(coordinates, time, samples, times, ok, reference, approx, space_points=None) -> UnknownErrors:
+    """Figures over the successful samples; values (S, T) or, with space coordinates, (S, T, X_1, ..., X_d)
+    with the space axes in the order of ``space_points``."""
     if not ok.any():
         nan = float("nan")
         return UnknownErrors(nan, nan, nan, nan, {c: nan for c in coordinates}, nan, nan)
+    space_points = space_points or {}
     ref = reference[ok]
     cbv = approx[ok]
     err = np.abs(cbv - ref)
-    i, j = np.unravel_index(int(np.argmax(err)), err.shape)
-    max_abs = float(err[i, j])
+    index = np.unravel_index(int(np.argmax(err)), err.shape)
+    i, j = index[0], index[1]
+    at_space = {c: float(points[k]) for (c, points), k in zip(space_points.items(), index[2:])}
+    max_abs = float(err[index])
     scale = float(np.max(np.abs(ref)))
     if scale > 0:
         rel = max_abs / scale
     else:
         rel = 0.0 if max_abs == 0 else float("inf")
     rows = np.flatnonzero(ok)
-    where = {c: float(times[j]) if c == time else float(samples[c][rows[i]]) for c in coordinates}
+    where = {c: float(times[j]) if c == time else at_space[c] if c in at_space else float(samples[c][rows[i]])
+             for c in coordinates}
     return UnknownErrors(
         max_abs_error=max_abs,
         max_rel_error=float(rel),
         rms_error=float(np.sqrt(np.mean(err**2))),
         reference_scale=scale,
         where=where,
-        codebook_value=float(cbv[i, j]),
-        reference_value=float(ref[i, j]),
+        codebook_value=float(cbv[index]),
+        reference_value=float(ref[index]),
     )
+
+
+def _evaluate_codebook_space(cb, samples: Mapping[str, np.ndarray], S: int, time: str, times: np.ndarray,
+                             space_points: Mapping[str, np.ndarray], unknowns) -> dict:
+    """Codebook values (S, T, X_1, ..., X_d) on the tensor grid of the space points."""
+    space = list(space_points)
+    d = len(space)
+    shape = tuple(space_points[c].size for c in space)
+    per_sample = times.size * int(np.prod(shape))
+    out = {u: np.empty((S, times.size) + shape) for u in unknowns}
+    block = max(1, _EVAL_BLOCK // max(per_sample, 1))
+    for start in range(0, S, block):
+        rows = slice(start, min(S, start + block))
+        n = rows.stop - rows.start
+        coords = {}
+        for c in cb.coordinates:
+            if c.name == time:
+                coords[c.name] = times.reshape((1, -1) + (1,) * d)
+            elif c.name in space_points:
+                k = space.index(c.name)
+                coords[c.name] = space_points[c.name].reshape((1, 1) + tuple(-1 if m == k else 1 for m in range(d)))
+            else:
+                coords[c.name] = samples[c.name][rows].reshape((-1, 1) + (1,) * d)
+        values = cb.evaluate(coords, fields=list(unknowns))
+        for u in unknowns:
+            out[u][rows] = np.broadcast_to(values[u], (n, times.size) + shape)
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -390,14 +453,16 @@ def verify(
     seed: int = 0,
     points: str | os.PathLike | Mapping[str, object] | None = None,
     times: int = 16,
-    method: str = "DOP853",
-    rtol: float = 1e-12,
-    atol: float = 1e-12,
+    method: str | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
     jobs: int | None = None,
     max_error: float | None = None,
     max_rel_error: float | None = None,
     max_corners: int = MAX_CORNERS,
     progress: Callable[[int, int], None] | None = None,
+    space_points: int = DEFAULT_RANDOM_SPACE_POINTS,
+    space_nodes: int | Mapping[str, int] | None = None,
 ) -> VerifyReport:
     """Compare a codebook with an independent ``solve_ivp`` reference of its own problem.
 
@@ -416,10 +481,14 @@ def verify(
         a mapping coordinate -> 1-D array.
     times : int
         Random times (>= 0) in addition to every node of the time coordinate.
-    method : str
-        ``solve_ivp`` method: DOP853, RK45, Radau, BDF or LSODA.
-    rtol, atol : float
-        ``solve_ivp`` tolerances.
+    method : str, optional
+        ``solve_ivp`` method: DOP853 (default), RK45, Radau, BDF or LSODA. With
+        space coordinates the method-of-lines system is stiff: BDF (default)
+        or Radau; any other method given is replaced by BDF (the settings
+        record the method used).
+    rtol, atol : float, optional
+        ``solve_ivp`` tolerances (default 1e-12 and 1e-12; with space
+        coordinates 1e-10 and 1e-12).
     jobs : int, optional
         Worker processes (default: ``os.cpu_count()``; 1: no pool).
     max_error, max_rel_error : float, optional
@@ -428,6 +497,15 @@ def verify(
         Most corners checked; beyond, a seeded random subset.
     progress : callable, optional
         ``progress(done, total)`` in parameter points, after each chunk.
+    space_points : int
+        With space coordinates: random points (>= 0) per space coordinate, in
+        addition to every node of that coordinate in the codebook; the
+        codebook and the reference are compared on the tensor grid of these
+        points, at every parameter point and time.
+    space_nodes : int or dict of str to int, optional
+        With space coordinates: collocation nodes per space coordinate of the
+        method-of-lines reference (default
+        :data:`pgdcli.reference.DEFAULT_SPACE_NODES`).
 
     Returns
     -------
@@ -440,7 +518,7 @@ def verify(
         points (:class:`VerifyError`).
     """
     from .codebook import Codebook
-    from .reference import METHODS, solve_reference
+    from .reference import DEFAULT_SPACE_NODES, METHODS, PDE_METHODS, solve_reference, solve_reference_pde
 
     started = _time.perf_counter()
     samples = _check_int("samples", samples, 1)
@@ -450,9 +528,12 @@ def verify(
     jobs = (os.cpu_count() or 1) if jobs is None else _check_int("jobs", jobs, 1)
     if sampling not in SAMPLINGS:
         raise VerifyError(f"sampling must be one of {', '.join(SAMPLINGS)}, got {sampling!r}")
-    if method not in METHODS:
+    if method is not None and method not in METHODS:
         raise VerifyError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    random_space = _check_int("space_points", space_points, 0)
     for label, value in (("rtol", rtol), ("atol", atol)):
+        if value is None:
+            continue
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) \
                 or not (math.isfinite(value) and 0 < value < 1):
             raise VerifyError(f"{label} must be a number in (0, 1), got {value!r}")
@@ -468,8 +549,16 @@ def verify(
         source = path
     problem = _parse_problem(cb, source)
     time = problem.time
-    params = problem.parameter_coordinates
+    params = _sampled(problem)
     names = [c.name for c in params]
+    space = [c.name for c in _space(problem)]
+    if space:
+        method = method if method in PDE_METHODS else "BDF"
+        rtol = 1e-10 if rtol is None else rtol
+    else:
+        method = "DOP853" if method is None else method
+        rtol = 1e-12 if rtol is None else rtol
+    atol = 1e-12 if atol is None else atol
 
     settings: dict = {"sampling": sampling, "samples": samples, "seed": seed, "corners": 0, "corners_total": 2 ** len(names),
                       "points_file": None}
@@ -524,12 +613,33 @@ def verify(
             progress(done, S)
 
     report_progress(0)
-    result = solve_reference(problem, sample_points, all_times, method=method, rtol=rtol, atol=atol, jobs=jobs,
-                             progress=report_progress)
     unknowns = list(problem.unknown_names)
-    approx = _evaluate_codebook(cb, sample_points, time, all_times, unknowns)
     coordinates = cb.coordinate_names
-    stats = {u: _statistics(coordinates, time, sample_points, all_times, result.success, result.values[u], approx[u])
+    if space:
+        # every node of each space coordinate in the codebook, plus random points
+        space_grid = {}
+        for k, name in enumerate(space):
+            c = cb.coordinate(name)
+            low, high = map(float, c.domain)
+            extra = np.random.default_rng([seed, 3, k]).uniform(low, high, random_space)
+            space_grid[name] = np.unique(np.clip(np.concatenate([np.asarray(c.basis().nodes, dtype=float), extra]),
+                                                 low, high))
+        nodes = DEFAULT_SPACE_NODES if space_nodes is None else space_nodes
+        result = solve_reference_pde(problem, sample_points, space_grid, all_times, grid=True, method=method,
+                                     rtol=rtol, atol=atol, jobs=jobs, progress=report_progress, space_nodes=nodes)
+        approx = _evaluate_codebook_space(cb, sample_points, S, time, all_times, space_grid, unknowns)
+        settings.update(
+            space_points={n: int(space_grid[n].size) for n in space},
+            random_space_points=random_space,
+            space_nodes=dict(result.nodes),
+        )
+    else:
+        space_grid = {}
+        result = solve_reference(problem, sample_points, all_times, method=method, rtol=rtol, atol=atol, jobs=jobs,
+                                 progress=report_progress)
+        approx = _evaluate_codebook(cb, sample_points, time, all_times, unknowns)
+    stats = {u: _statistics(coordinates, time, sample_points, all_times, result.success, result.values[u], approx[u],
+                            space_grid)
              for u in unknowns}
     failures = [
         Failure({n: float(sample_points[n][i]) for n in names}, result.messages[i] or "integration failed")
@@ -550,4 +660,5 @@ def verify(
         reference=result.values,
         codebook_values=approx,
         wall_time=_time.perf_counter() - started,
+        space_points=space_grid,
     )
