@@ -38,7 +38,8 @@ from .errors import SolverError
 from .tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
-__all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "march", "space_time_tt"]
+__all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "march", "join_and_round",
+           "solve_march"]
 
 
 # Step-size control. The error per unit step grows along these solutions, so the
@@ -507,22 +508,20 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
                        np.array(breakpoints) if slab_nodes else None, pieces)
 
 
-def join_trains(trains: list[TT]) -> TT:
-    """One train with a leading mode over the list: ``X[n, ...] = trains[n][...]`` (unrounded, ranks add)."""
-    return tt_concatenate([TT([np.ones((1, 1, 1))] + list(t.cores)) for t in trains])
-
-
 def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generator | None = None,
                    fan_in: int = 8, lifted: bool = False, batched: bool = True) -> list[TT]:
-    """:func:`join_trains` of each group, rounded to Frobenius error ``delta``.
+    """Each group's trains joined along a new leading mode (``X[n, ...] = group[n][...]``), rounded
+    to Frobenius error ``delta``; with ``lifted`` the trains already carry that leading mode
+    (runs of time nodes) and are concatenated along it.
 
     Joined ranks are the sums of the members' ranks, so the join is built as a
     tree: up to ``fan_in`` members at a time are concatenated along the leading
     mode and rounded (exactly and batched across groups while the sums stay
     small, else by the randomized sum-of-products rounding, which never forms
-    them), then the rounded pieces are joined the same way. Each of the
-    ``levels`` roundings gets ``delta / levels``; within a level the pieces are
-    orthogonal blocks of the leading mode, so their errors add in quadrature.
+    them), then the rounded pieces are joined the same way. The last level, which
+    sets the final ranks, gets 0.7 of ``delta`` and the earlier ones share the
+    rest; within a level the pieces are orthogonal blocks of the leading mode, so
+    their errors add in quadrature.
     """
     levels = max(1, int(np.ceil(np.log(max(len(g) for g in groups)) / np.log(fan_in))))
     # the last level sets the final ranks: it gets most of the budget, the others share the rest
@@ -578,16 +577,6 @@ def _round_concatenations(chunks: list[list[TT]], delta: float, rng, batched: bo
         hint = 2 * max(max(t.ranks, default=1) for t in chunk)
         out.append(tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint, rng=rng))
     return out
-
-
-def space_time_tt(states: list[TT], delta: float) -> TT:
-    """Join per-time-node tensor trains into one train with the time mode first, then round.
-
-    ``states[n]`` holds the function at time node n over the parameter grid;
-    rounding the joined train with absolute Frobenius error ``delta`` finds the
-    space-time ranks.
-    """
-    return join_and_round([states], delta)[0]
 
 
 def _blowup_region(system: NonlinearSystem, state: list[TT], max_points: int = 2_000_000) -> str:

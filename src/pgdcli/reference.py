@@ -417,6 +417,46 @@ def _pool_context():
 # ----------------------------------------------------------------------------------------------
 # public API
 # ----------------------------------------------------------------------------------------------
+
+def _run_in_chunks(n_samples: int, chunk_size: int, jobs: int, progress, values: np.ndarray, success: np.ndarray,
+                   messages: list, solve_here: Callable, submit: Callable | None) -> None:
+    """Solve the samples chunk by chunk, here or in worker processes, storing every result.
+
+    ``solve_here(rows)`` and the future of ``submit(pool, rows)`` return ``(values, success,
+    messages)`` for the sample indices ``rows``; they are written into the given arrays, and
+    ``progress`` (if any) is told the number of samples finished.
+    """
+    bounds = list(range(0, n_samples, max(1, int(chunk_size)))) + [n_samples]
+    chunks = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+    done = 0
+
+    def store(rows, result):
+        nonlocal done
+        v, ok, msgs = result
+        values[rows] = v
+        success[rows] = ok
+        for i, msg in zip(rows, msgs):
+            messages[i] = msg
+        done += rows.size
+        if progress is not None:
+            progress(done)
+
+    workers = min(max(1, int(jobs)), len(chunks))
+    if workers <= 1 or submit is None:
+        for rows in chunks:
+            store(rows, solve_here(rows))
+        return
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as pool:
+        futures = {submit(pool, rows): rows for rows in chunks}
+        try:
+            for future in as_completed(futures):
+                store(futures[future], future.result())
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
 def solve_reference(
     problem,
     params: Mapping[str, np.ndarray],
@@ -527,41 +567,13 @@ def solve_reference(
         jobs = max(1, int(jobs))
         if chunk_size is None:
             chunk_size = min(1024, max(64, math.ceil(S / (4 * jobs))))
-        bounds = list(range(0, S, max(1, int(chunk_size)))) + [S]
-        chunks = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
-        done = 0
         settings = (t0, unique, method, float(rtol), float(atol), int(max_evaluations))
-
-        def store(rows, result):
-            nonlocal done
-            v, ok, msgs = result
-            values[rows] = v
-            success[rows] = ok
-            for i, m in zip(rows, msgs):
-                messages[i] = m
-            done += rows.size
-            if progress is not None:
-                progress(done)
-
-        workers = min(jobs, len(chunks))
-        if workers <= 1:
-            for rows in chunks:
-                store(rows, _solve_group(problem, _subset(arrays, rows), rows.size, *settings))
-        else:
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-
-            with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as pool:
-                futures = {
-                    pool.submit(_chunk_worker, problem.source_text, problem.source, _subset(arrays, rows),
-                                rows.size, *settings): rows
-                    for rows in chunks
-                }
-                try:
-                    for future in as_completed(futures):
-                        store(futures[future], future.result())
-                except BaseException:
-                    pool.shutdown(wait=False, cancel_futures=True)
-                    raise
+        _run_in_chunks(
+            S, chunk_size, jobs, progress, values, success, messages,
+            lambda rows: _solve_group(problem, _subset(arrays, rows), rows.size, *settings),
+            lambda pool, rows: pool.submit(_chunk_worker, problem.source_text, problem.source,
+                                           _subset(arrays, rows), rows.size, *settings),
+        )
     return ReferenceResult(
         values={u.name: values[:, i, inverse] for i, u in enumerate(problem.unknowns)},
         success=success,
@@ -1234,41 +1246,20 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     jobs = max(1, int(jobs))
     if chunk_size is None:
         chunk_size = max(1, min(_PDE_MAX_CHUNK, _PDE_CHUNK_STATES // max(model.m, 1), math.ceil(S / jobs)))
-    bounds = list(range(0, S, max(1, int(chunk_size)))) + [S]
-    chunks = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
     settings = (t0, unique, method, float(rtol), float(atol), int(max_evaluations))
-    done = 0
+    key = tuple(sorted(nodes.items()))
 
-    def store(rows, result):
-        nonlocal done
-        v, ok, msgs = result
-        values[rows] = v
-        success[rows] = ok
-        for i, msg in zip(rows, msgs):
-            messages[i] = msg
-        done += rows.size
-        if progress is not None:
-            progress(done)
+    def solve_here(rows):
+        with _one_blas_thread():
+            return _solve_group_pde(model, _subset(arrays, rows), rows.size, *settings)
 
-    workers = min(jobs, len(chunks))
-    if workers <= 1 or not problem.source_text:
-        for rows in chunks:
-            with _one_blas_thread():
-                result = _solve_group_pde(model, _subset(arrays, rows), rows.size, *settings)
-            store(rows, result)
-    else:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+    def submit(pool, rows):
+        return pool.submit(_pde_chunk_worker, problem.source_text, problem.source, key,
+                           _subset(arrays, rows), rows.size, *settings)
 
-        key = tuple(sorted(nodes.items()))
-        with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as pool:
-            futures = {pool.submit(_pde_chunk_worker, problem.source_text, problem.source, key,
-                                   _subset(arrays, rows), rows.size, *settings): rows for rows in chunks}
-            try:
-                for future in as_completed(futures):
-                    store(futures[future], future.result())
-            except BaseException:
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise
+    # a problem without spec text cannot be rebuilt in a worker: solve it here
+    _run_in_chunks(S, chunk_size, jobs, progress, values, success, messages, solve_here,
+                   submit if problem.source_text else None)
     return values, success, messages, model, unique, inverse
 
 

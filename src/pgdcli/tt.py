@@ -178,6 +178,16 @@ def _orthogonalize_left(cores: list[np.ndarray]) -> list[np.ndarray]:
     return cores
 
 
+def _orthogonalize_right(cores: list[np.ndarray]) -> list[np.ndarray]:
+    """Right-orthogonalize cores 1..d-1 by QR; the norm moves into the first core."""
+    for k in range(len(cores) - 1, 0, -1):
+        r0, n, r1 = cores[k].shape
+        q, r = np.linalg.qr(cores[k].reshape(r0, n * r1).T)
+        cores[k] = q.T.reshape(q.shape[1], n, r1)
+        cores[k - 1] = np.tensordot(cores[k - 1], r.T, axes=(2, 0))
+    return cores
+
+
 def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
              max_rank: int | None = None) -> TT:
     """Recompress to the smallest ranks within a Frobenius error bound.
@@ -193,12 +203,7 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
     cores = list(x.cores)
     if d == 1:
         return TT(cores)
-    # right-to-left orthogonalization
-    for k in range(d - 1, 0, -1):
-        r0, n, r1 = cores[k].shape
-        q, r = np.linalg.qr(cores[k].reshape(r0, n * r1).T)
-        cores[k] = q.T.reshape(q.shape[1], n, r1)
-        cores[k - 1] = np.tensordot(cores[k - 1], r.T, axes=(2, 0))
+    cores = _orthogonalize_right(cores)
     norm = np.linalg.norm(cores[0])
     if norm == 0.0:
         return TT([np.zeros((1, c.shape[1], 1)) for c in cores])
@@ -311,12 +316,7 @@ def tt_centre_cores(cores: Sequence[np.ndarray]) -> list[np.ndarray]:
     each way, O(d) factorizations in all.
     """
     d = len(cores)
-    right = [np.asarray(x, dtype=float).copy() for x in cores]
-    for k in range(d - 1, 0, -1):
-        r0, n, r1 = right[k].shape
-        q, r = np.linalg.qr(right[k].reshape(r0, n * r1).T)
-        right[k] = q.T.reshape(q.shape[1], n, r1)
-        right[k - 1] = np.tensordot(right[k - 1], r.T, axes=(2, 0))
+    right = _orthogonalize_right([np.asarray(x, dtype=float) for x in cores])
     centres = [right[0]]
     for k in range(d - 1):
         r0, n, r1 = centres[-1].shape
@@ -425,8 +425,7 @@ def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, over
                 for _, a, b in terms]
     sketch = rank_hint + oversample
     if d == 1 or sum(implicit) <= 2 * sketch:
-        exact = tt_sum([tt_hadamard(a, b) if b.ranks != (1,) * (d - 1) or not _is_ones(b) else a
-                        for _, a, b in terms], [w for w, _, _ in terms])
+        exact = tt_sum([a if _is_ones(b) else tt_hadamard(a, b) for _, a, b in terms], [w for w, _, _ in terms])
         return tt_round(exact, absolute=absolute, max_rank=max_rank)
     rng = np.random.default_rng(0) if rng is None else rng
     limit = sum(implicit)
