@@ -48,7 +48,6 @@ import argparse
 import contextlib
 import gc
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -56,6 +55,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from _machine import machine_facts  # benchmarks/ is on sys.path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 COUPLED = ROOT / "problems" / "coupled.yaml"
@@ -482,23 +483,10 @@ def print_table(rows: list) -> None:
 
 
 def describe_machine() -> str:
-    import numpy
-    import scipy
-
-    try:
-        from threadpoolctl import threadpool_info
-
-        blas = ", ".join(f"{i['internal_api']} {i['version']} ({i['num_threads']} threads)"
-                         for i in threadpool_info() if i["user_api"] == "blas")
-    except Exception:  # pragma: no cover
-        blas = "?"
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    load = " ".join(f"{v:.2f}" for v in os.getloadavg()) if hasattr(os, "getloadavg") else "?"
-    return (f"{platform.processor() or platform.machine()}, {cpus} CPUs, shared (load average {load}); "
-            f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}, "
-            f"BLAS {blas}; solver and scipy runs limited to 1 BLAS thread (threadpoolctl)")
-
-
+    m = machine_facts()
+    return (f"{m['processor']}, {m['cpus']} CPUs, shared (load average {m['load']}); "
+            f"Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, "
+            f"BLAS {m['blas']}; solver and scipy runs limited to 1 BLAS thread (threadpoolctl)")
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true",

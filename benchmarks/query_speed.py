@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import platform
 import shutil
 import statistics
 import subprocess
@@ -37,6 +36,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from _machine import machine_facts  # benchmarks/ is on sys.path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {"spring": ROOT / "problems" / "spring.yaml", "relaxation": ROOT / "problems" / "relaxation.yaml"}
@@ -330,25 +331,12 @@ def parallel_capacity() -> float:
 
 
 def describe_machine() -> str:
-    import numpy
-    import scipy
-
-    try:
-        from threadpoolctl import threadpool_info
-
-        blas = ", ".join(f"{i['internal_api']} {i['version']} ({i['num_threads']} threads)"
-                         for i in threadpool_info() if i["user_api"] == "blas")
-    except Exception:  # pragma: no cover
-        blas = "?"
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    load = " ".join(f"{v:.2f}" for v in os.getloadavg()) if hasattr(os, "getloadavg") else "?"
-    return (f"{platform.processor() or platform.machine()}, {cpus} CPUs (load average {load}, "
+    m = machine_facts()
+    return (f"{m['processor']}, {m['cpus']} CPUs (load average {m['load']}, "
             f"2 threads run {parallel_capacity():.1f}x one thread's work now); "
-            f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}, BLAS {blas}; "
+            f"Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, BLAS {m['blas']}; "
             f"PYTHONDONTWRITEBYTECODE={os.environ.get('PYTHONDONTWRITEBYTECODE', '(unset)')}, "
             f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', '(unset)')}")
-
-
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer repetitions")
