@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import itertools
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 import pgdcli
+from conftest import codebook_points
 from pgdcli.cli import cli
 from pgdcli.errors import SolverError, SpecError
 
@@ -25,18 +25,11 @@ def heat2d():
     return pgdcli.solve(pgdcli.load_spec("problems/heat2d.yaml"))
 
 
-def _points(cb, n, seed):
-    rng = np.random.default_rng(seed)
-    pts = {c.name: rng.uniform(*c.domain, n) for c in cb.coordinates}
-    corners = np.array(list(itertools.product(*[c.domain for c in cb.coordinates])))
-    return {c.name: np.concatenate([pts[c.name], corners[:, j]]) for j, c in enumerate(cb.coordinates)}
-
-
 def test_heat1d_matches_the_exact_solution(heat1d):
     assert heat1d.converged, heat1d.message
     cb = heat1d.codebook
     assert cb.coordinate("x").role == "space"
-    p = _points(cb, 600, 1)
+    p = codebook_points(cb, 600, 1)
     exact = np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.sin(np.pi * p["x"])
     assert np.max(np.abs(cb(**p)["u"] - exact)) <= 1e-8
 
@@ -45,7 +38,7 @@ def test_heat2d_matches_the_exact_solution(heat2d):
     assert heat2d.converged, heat2d.message
     cb = heat2d.codebook
     assert [c.role for c in cb.coordinates] == ["space", "space", "time", "parameter", "parameter", "parameter"]
-    p = _points(cb, 600, 2)
+    p = codebook_points(cb, 600, 2)
     x, y, t, k, g, q = (p[n] for n in ("x", "y", "t", "kappa", "g", "q"))
     exact = (g * x + np.exp(-2 * k * np.pi**2 * t) * np.sin(np.pi * x) * np.cos(np.pi * y)
              + q * (1 - np.exp(-k * np.pi**2 * t)) * np.sin(np.pi * x) / (k * np.pi**2))
@@ -78,7 +71,7 @@ solver: {tolerance: 1e-11}
 """
     result = pgdcli.solve(pgdcli.parse_spec(text, source="neumann.yaml"))
     assert result.converged, result.message
-    p = _points(result.codebook, 500, 4)
+    p = codebook_points(result.codebook, 500, 4)
     exact = 1 + np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.cos(np.pi * p["x"])
     assert np.max(np.abs(result.codebook(**p)["u"] - exact)) <= 1e-8
 
@@ -101,7 +94,7 @@ solver: {tolerance: 1e-11}
 """
     result = pgdcli.solve(pgdcli.parse_spec(text, source="flux.yaml"))
     assert result.converged, result.message
-    p = _points(result.codebook, 500, 5)
+    p = codebook_points(result.codebook, 500, 5)
     exact = p["a"] * p["x"] + np.exp(-np.pi**2 * p["t"]) * np.cos(np.pi * p["x"])
     assert np.max(np.abs(result.codebook(**p)["u"] - exact)) <= 1e-8
 
@@ -116,7 +109,7 @@ def test_error_falls_with_space_nodes(kind, nodes, expected):
         result = pgdcli.solve(pgdcli.parse_spec(text, source="h.yaml"))
         assert result.converged, result.message
         cb = result.codebook
-        p = _points(cb, 400, 6)
+        p = codebook_points(cb, 400, 6)
         exact = np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.sin(np.pi * p["x"])
         errors.append(np.max(np.abs(cb(**p)["u"] - exact)))
     assert errors[0] > errors[1] > errors[2]

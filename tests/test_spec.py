@@ -293,7 +293,7 @@ C2 = "\n  t: {domain: [0, 1], nodes: 4}\n  k: "
         (dict(constants=" {g: 1/0}"), "constants.g: division by zero"),
         # time
         (dict(coordinates="\n  x: {domain: [0, 1], nodes: 4}"), "time: no coordinate is named 't'"),
-        (dict(time=" s"), "time: expected the name of a coordinate (t), got 's'"),
+        (dict(time=" s"), "time: expected the name of a coordinate (t) or null (steady), got 's'"),
         # unknowns
         (dict(unknowns=" {}"), "unknowns: expected a non-empty mapping"),
         (dict(unknowns="\n  u: 0"), "unknowns.u: expected a mapping with key 'initial'"),
@@ -356,3 +356,13 @@ def test_problem_is_hashable_and_comparable():
     assert parse_spec(MINIMAL) == parse_spec(MINIMAL)
     assert isinstance(hash(parse_spec(MINIMAL)), int)
     assert isinstance(parse_spec(MINIMAL), Problem)
+
+
+def test_every_shipped_problem_parses_and_is_checked_by_a_test():
+    tests = "".join(p.read_text() for p in pathlib.Path("tests").glob("test_*.py"))
+    shipped = sorted(pathlib.Path("problems").glob("*.yaml"))
+    assert shipped
+    for path in shipped:
+        problem = load_spec(path)
+        assert problem.name == path.stem
+        assert f"problems/{path.name}" in tests or f'"{path.stem}"' in tests, f"no test solves {path}"

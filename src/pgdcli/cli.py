@@ -489,9 +489,12 @@ def _verify_tables(report, max_error, max_rel_error) -> list:
         capped = f" (capped at {s['corners']})" if s["corners"] < s["corners_total"] else ""
         where = (f"{s['parameter_points']} parameter points ({s['samples']} {s['sampling']} + "
                  f"{s['corners_total']} corners{capped})")
-    caption = (f"{where} x {s['times']} times ({s['time_nodes']} nodes + {s['random_times']} random); "
-               f"reference {s['method']} rtol {s['rtol']:.0e} atol {s['atol']:.0e}, {s['jobs']} job(s), "
-               f"{report.wall_time:.2f} s. rel error = max abs error / max |reference| of the unknown.")
+    if report.time is None:
+        caption = f"{where}, steady; reference: Chebyshev collocation, sparse direct solve, {s['jobs']} job(s), "
+    else:
+        caption = (f"{where} x {s['times']} times ({s['time_nodes']} nodes + {s['random_times']} random); "
+                   f"reference {s['method']} rtol {s['rtol']:.0e} atol {s['atol']:.0e}, {s['jobs']} job(s), ")
+    caption += f"{report.wall_time:.2f} s. rel error = max abs error / max |reference| of the unknown."
     table = Table(title=f"pgd verify: {report.problem}", title_justify="left", caption=caption,
                   caption_justify="left")
     for column in ("unknown", "max abs error", "max rel error", "RMS error", "max |reference|", "worst at"):

@@ -876,8 +876,10 @@ def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.n
     for u in disc.unknowns:
         lift = disc.lift[u]
         modes = nodal[u]
-        # a term whose time function vanishes for this unknown carries nothing for it
-        keep = np.any(modes[[c.name for c in coords].index(disc.time)] != 0.0, axis=0) & (alphas != 0.0)
+        # a term whose time function (steady: its weight, in the first modes) vanishes for this
+        # unknown carries nothing for it
+        j = 0 if disc.time is None else [c.name for c in coords].index(disc.time)
+        keep = np.any(modes[j] != 0.0, axis=0) & (alphas != 0.0)
         fields[u] = FieldModes(
             np.concatenate([lift.weights, alphas[keep]]),
             tuple(np.hstack([lf, nf[:, keep]]) for lf, nf in zip(lift.factors, modes)),

@@ -1200,7 +1200,8 @@ class _Parser:
         coordinate = self.der_coordinate(args[1], node) if len(args) >= 2 else self.time
         order = self.der_order(args[2], node) if len(args) == 3 else 1
         if coordinate is None:
-            raise self.error(f"{self.quote(node)}: there is no time coordinate to differentiate by")
+            raise self.error(f"{self.quote(node)}: there is no time coordinate to differentiate by (name one 't' or "
+                             "add 'time: <name>'; a steady problem has no der(u))")
         if coordinate != self.time and not self.allow_space_derivatives:
             raise self.error(
                 f"{self.quote(node)}: derivatives in non-time coordinates are not supported (only der(u) = du/d{self.time})"

@@ -188,6 +188,21 @@ def _time(codebook, what: str):
                      f"({', '.join(codebook.coordinate_names)})")
 
 
+def _line_axis(codebook, what: str):
+    """The coordinate curves run along: time, or for a steady codebook its first space coordinate."""
+    for c in codebook.coordinates:
+        if c.role == "time":
+            return c
+    for c in codebook.coordinates:
+        if c.role == "space":
+            return c
+    return _time(codebook, what)
+
+
+def _steady(codebook) -> bool:
+    return not any(c.role == "time" for c in codebook.coordinates)
+
+
 def _midpoint(c) -> float:
     return 0.5 * (c.domain[0] + c.domain[1])
 
@@ -225,30 +240,46 @@ def reference_solver(codebook, *, source: str = "<codebook>", method: str | None
         raise PgdError(f"the reference solver is not available ({exc})") from None
     problem = parse_spec(codebook.spec_text, source=source, allow_nonlinear=True)
 
-    def solve(params: Mapping[str, np.ndarray], times: np.ndarray):
-        return solve_reference(problem, dict(params), np.asarray(times, dtype=float),
+    def solve(params: Mapping[str, np.ndarray], times: np.ndarray | None):
+        return solve_reference(problem, dict(params), None if times is None else np.asarray(times, dtype=float),
                                method=method, rtol=rtol, atol=atol)
 
-    solve.description = ("solve_ivp " + (method or "(default method)")
-                         + (f", rtol={rtol:g}, atol={atol:g}" if rtol is not None and atol is not None else ""))
+    if problem.time is None:
+        solve.description = "Chebyshev collocation, sparse direct solve"
+    else:
+        solve.description = ("solve_ivp " + (method or "(default method)")
+                             + (f", rtol={rtol:g}, atol={atol:g}" if rtol is not None and atol is not None else ""))
     return solve
 
 
 def _reference_values(reference: Callable, field: str, params: Mapping[str, np.ndarray],
-                      times: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Reference values (S, T) of ``field``; rows whose solve failed are NaN, with a message each."""
-    result = reference({k: np.asarray(v, dtype=float).reshape(-1) for k, v in params.items()}, times)
-    values = np.array(result.values[field], dtype=float, copy=True)
+                      times: np.ndarray | None, axis: str | None = None) -> tuple[np.ndarray, list[str]]:
+    """Reference values (S, T) of ``field``; rows whose solve failed are NaN, with a message each.
+
+    ``times`` are the values along the curves. With ``axis`` (a steady problem: no times) they
+    are the values of that coordinate, and the S x T points are solved as points of a
+    reference without times; ``times=None`` solves the S points themselves (T = 1).
+    """
+    params = {k: np.asarray(v, dtype=float).reshape(-1) for k, v in params.items()}
     size = len(next(iter(params.values()))) if params else 1
-    values = values.reshape(size, len(times))
-    success = np.asarray(getattr(result, "success", np.ones(size, bool)), dtype=bool).reshape(-1)
-    messages = list(getattr(result, "messages", [""] * size) or [""] * size)
+    if axis is not None:
+        count = len(times)
+        points = {k: np.repeat(v, count) for k, v in params.items()}
+        points[axis] = np.tile(np.asarray(times, dtype=float), size)
+        result = reference(points, None)
+    else:
+        count = 1 if times is None else len(times)
+        result = reference(params, times)
+    values = np.array(result.values[field], dtype=float, copy=True).reshape(size, count)
+    total = size * count if axis is not None else size
+    success = np.asarray(getattr(result, "success", np.ones(total, bool)), dtype=bool).reshape(size, -1).all(axis=1)
+    messages = list(getattr(result, "messages", None) or [""] * total)
     failures = []
     for s in np.flatnonzero(~success):
         values[s] = np.nan
-        where = _label({k: float(np.asarray(v).reshape(-1)[s]) for k, v in params.items()})
-        msg = messages[s] if s < len(messages) else ""
-        failures.append(f"reference failed at {where}: {' '.join(str(msg).split()) or 'unknown reason'}")
+        where = _label({k: float(v[s]) for k, v in params.items()})
+        bad = [m for m in messages[s * (total // size):(s + 1) * (total // size)] if m] or [""]
+        failures.append(f"reference failed at {where}: {' '.join(str(bad[0]).split()) or 'unknown reason'}")
     return values, failures
 
 
@@ -456,8 +487,8 @@ def _march_convergence_data(codebook) -> dict:
 
 
 def _line_points(codebook, at, what: str) -> tuple[object, list[dict[str, float]]]:
-    """Complete ``--at`` points: every non-time coordinate set (default: domain midpoint)."""
-    tc = _time(codebook, what)
+    """Complete ``--at`` points: every coordinate but the curves' axis set (default: domain midpoint)."""
+    tc = _line_axis(codebook, what)
     others = [c for c in codebook.coordinates if c is not tc]
     if isinstance(at, (str, Mapping)):
         at = [at]
@@ -481,7 +512,7 @@ def _line_points(codebook, at, what: str) -> tuple[object, list[dict[str, float]
 
 def _map_axes(codebook, over, fix, npts: int):
     if over is None:
-        tc = _time(codebook, "a map without --over")
+        tc = _line_axis(codebook, "a map without --over")
         others = [c for c in codebook.coordinates if c is not tc]
         if not others:
             raise QueryError("--over: this codebook has a single coordinate; there is no map to draw")
@@ -512,6 +543,10 @@ def _map_coordinates(xn, yn, xv, yv, fixed) -> dict[str, np.ndarray]:
 
 def _map_reference(codebook, reference, field, xn, yn, xv, yv, fixed) -> tuple[np.ndarray, list[str]]:
     """The reference on the map grid, shape (len(yv), len(xv))."""
+    coords = _map_coordinates(xn, yn, xv, yv, fixed)
+    if _steady(codebook):  # no times: every map point is a point of the reference
+        values, failures = _reference_values(reference, field, {k: v.reshape(-1) for k, v in coords.items()}, None)
+        return values.reshape(yv.size, xv.size), failures
     tc = _time(codebook, "a reference solution")
     if tc.name in (xn, yn):  # one solve per point of the other axis, all times at once
         pn, pv, time_is_x = (yn, yv, True) if tc.name == xn else (xn, xv, False)
@@ -520,7 +555,6 @@ def _map_reference(codebook, reference, field, xn, yn, xv, yv, fixed) -> tuple[n
         params.update({k: np.full(pv.size, v) for k, v in fixed.items() if k != tc.name})
         values, failures = _reference_values(reference, field, params, times)  # (n_p, n_t)
         return (values if time_is_x else values.T), failures
-    coords = _map_coordinates(xn, yn, xv, yv, fixed)
     t = fixed[tc.name]
     params = {k: v.reshape(-1) for k, v in coords.items() if k != tc.name}
     values, failures = _reference_values(reference, field, params, np.array([t]))
@@ -575,7 +609,7 @@ def solution_data(codebook, field: str | None = None, *, at=None, over=None, fix
         if ref is not None:
             tr = np.linspace(tc.domain[0], tc.domain[1], REFERENCE_MARKERS)
             params = {k: np.array([p[k] for p in pts]) for k in pts[0]} if pts and pts[0] else {}
-            rv, failures = _reference_values(ref, name, params, tr)
+            rv, failures = _reference_values(ref, name, params, tr, tc.name if _steady(codebook) else None)
             out["reference"] = {"t": tr, "values": rv, "description": _reference_description(ref)}
             out["failures"] = failures
         return out
@@ -619,7 +653,7 @@ def error_data(codebook, field: str | None = None, *, at=None, over=None, fix=No
         t = np.linspace(tc.domain[0], tc.domain[1], _count_points(points, LINE_POINTS))
         cbv = np.array([codebook.evaluate({**p, tc.name: t}, fields=[name])[name] for p in pts])
         params = {k: np.array([p[k] for p in pts]) for k in pts[0]} if pts[0] else {}
-        rv, failures = _reference_values(ref, name, params, t)
+        rv, failures = _reference_values(ref, name, params, t, tc.name if _steady(codebook) else None)
         err = np.abs(cbv - rv)
         out.update(layout="lines", time=tc.name, t=t, points=pts, labels=[_label(p) for p in pts],
                    codebook=cbv, reference=rv, values=err, failures=failures)

@@ -89,8 +89,8 @@ class ReferenceResult:
     ----------
     values : dict of str to ndarray, shape (S, T)
         Unknown name -> values at sample ``i`` (row) and the ``j``-th given
-        time (column), in the order the times were given. NaN where the
-        sample failed.
+        time (column), in the order the times were given; shape (S,) for a
+        steady problem. NaN where the sample failed.
     success : ndarray of bool, shape (S,)
     messages : list of str
         Per sample: ``''`` when fine, else why the integration failed.
@@ -460,7 +460,7 @@ def _run_in_chunks(n_samples: int, chunk_size: int, jobs: int, progress, values:
 def solve_reference(
     problem,
     params: Mapping[str, np.ndarray],
-    times: np.ndarray,
+    times: np.ndarray | None,
     *,
     method: str | None = None,
     rtol: float | None = None,
@@ -485,10 +485,11 @@ def solve_reference(
     params : dict of str to array_like, shape (S,)
         A value per sample for every non-time coordinate, space coordinates
         included (``{}`` for a problem without parameters: one sample).
-    times : array_like, shape (T,)
+    times : array_like, shape (T,), or None
         Times at which to report the solution, each at or after the start
         of the time domain (where the initial values hold); any order,
-        repeats allowed.
+        repeats allowed. None for a steady problem (no time coordinate),
+        whose values then have shape (S,).
     method : str, optional
         One of :data:`METHODS` (default DOP853); with space coordinates one
         of :data:`PDE_METHODS` (default BDF).
@@ -948,6 +949,9 @@ class _PdeSystem:
         self.b = {k: np.asarray(src[k]) if k in src else np.zeros(S * m) for k in self.keys}
         self.M = {k: sp.block_diag(mass[k], format="csr") for k in mass}
         self.static = model.static_mass
+        if model.time is None:  # steady: no der(), nothing to invert
+            self.diagonal = self.constant = True
+            return
         self.diagonal = all((M - sp.diags(M.diagonal())).count_nonzero() == 0 for M in self.M.values())
         if self.static:
             M = self.M.get(None, zero)
@@ -1034,10 +1038,47 @@ class _PdeSystem:
         return sp.csr_matrix(splu(M.tocsc()).solve(J.toarray()))
 
 
+def _solve_steady_pde(model: _PdeModel, params, S, times):
+    """Sparse LU solves of ``A y + b = 0``, one per sample, as :func:`_integrate_pde` returns them.
+
+    A sample whose matrix is singular (a pivot below 1e-12 of the largest: pure Neumann
+    conditions, say) fails rather than returning the garbage a near-zero pivot gives.
+    """
+    from scipy.sparse.linalg import splu
+
+    q, n, m = model.q, model.grid.n, model.m
+    with np.errstate(all="ignore"):
+        system = _PdeSystem(model, params, S, 0)
+        A = system.matrix(0.0).tocsr()
+        b = np.asarray(sum(system.b.values()) if system.b else np.zeros(S * m), dtype=float)
+        y = np.full((S, m), np.nan)
+        for i in range(S):
+            rows = slice(i * m, (i + 1) * m)
+            try:
+                lu = splu(A[rows, rows].tocsc())
+            except RuntimeError:  # SuperLU: "Factor is exactly singular"
+                continue
+            pivots = np.abs(lu.U.diagonal())
+            if np.isfinite(pivots).all() and pivots.min() > 1e-12 * pivots.max():
+                y[i] = lu.solve(-b[rows])
+    finite = np.isfinite(y).all(axis=1)
+    if not finite.all():
+        return None, ~finite, ("the steady system is singular at this point (do the boundary conditions determine "
+                               "the solution?)")
+    full = (model.Z @ y.T).T + system.h  # (S, q n)
+    out = np.broadcast_to(full.reshape(S, q, 1, n), (S, q, times.size, n)).copy()
+    return out, np.zeros(S, dtype=bool), ""
+
+
 def _integrate_pde(model: _PdeModel, params, S, t0, times, method, rtol, atol, max_evaluations):
-    """One solve_ivp call over S samples. Returns (full grid values (S, q, T, n) or None, failed, message)."""
+    """One solve_ivp call over S samples. Returns (full grid values (S, q, T, n) or None, failed, message).
+
+    A steady problem (no time coordinate) is one linear solve; its values repeat over ``times``.
+    """
     from scipy.integrate import solve_ivp
 
+    if model.time is None:
+        return _solve_steady_pde(model, params, S, times)
     q, n, T = model.q, model.grid.n, times.size
     with np.errstate(all="ignore"):
         system = _PdeSystem(model, params, S, max_evaluations)
@@ -1235,7 +1276,7 @@ def _space_nodes(problem, space_nodes) -> dict[str, int]:
 def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, chunk_size, progress,
                  max_evaluations):
     """Full-grid values (S, q, T_unique, n) at the unique sorted times, success, messages, the model."""
-    t0 = float(problem.time_coordinate.domain[0])
+    t0 = _start_time(problem)
     unique, inverse = np.unique(times, return_inverse=True)
     model = _pde_model(problem.source_text, problem.source, tuple(sorted(nodes.items()))) \
         if problem.source_text else _PdeModel(problem, nodes)
@@ -1261,6 +1302,22 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     _run_in_chunks(S, chunk_size, jobs, progress, values, success, messages, solve_here,
                    submit if problem.source_text else None)
     return values, success, messages, model, unique, inverse
+
+
+def _start_time(problem) -> float:
+    """The start of the time domain; -inf for a steady problem (every time is 'late')."""
+    return -np.inf if problem.time is None else float(problem.time_coordinate.domain[0])
+
+
+def _reference_times(problem, times) -> np.ndarray:
+    """Validated times; a steady problem takes ``None`` and gets one placeholder time."""
+    if problem.time is None:
+        if times is not None:
+            raise SolverError(f"{problem.source}: times: a steady problem (no time coordinate) takes times=None")
+        return np.zeros(1)
+    if times is None:
+        raise SolverError("times: expected a non-empty 1-D array of times, got None")
+    return _check_times(times, _start_time(problem), problem.time)
 
 
 def _interpolation_matrices(model: _PdeModel, points: Mapping[str, np.ndarray]) -> list[np.ndarray]:
@@ -1293,7 +1350,7 @@ def solve_reference_pde(
     problem,
     params: Mapping[str, np.ndarray],
     space_points: Mapping[str, np.ndarray] | None,
-    times: np.ndarray,
+    times: np.ndarray | None,
     *,
     grid: bool = True,
     space_nodes: int | Mapping[str, int] = DEFAULT_SPACE_NODES,
@@ -1330,8 +1387,9 @@ def solve_reference_pde(
         Points per space coordinate. ``grid=True``: the tensor grid of these 1-D arrays;
         ``grid=False``: ``P`` scattered points, one array of length ``P`` per coordinate.
         None: the collocation nodes themselves (tensor grid).
-    times : array_like, shape (T,)
-        Times at or after the start of the time domain; any order, repeats allowed.
+    times : array_like, shape (T,), or None
+        Times at or after the start of the time domain; any order, repeats allowed. None for a
+        steady problem (no time coordinate), which is one sparse linear solve per sample.
     grid : bool
         See ``space_points``.
     space_nodes : int or dict of str to int
@@ -1352,7 +1410,8 @@ def solve_reference_pde(
     Returns
     -------
     PdeReferenceResult
-        ``values[u]`` has shape ``(S, T, X_1, ..., X_d)`` (grid) or ``(S, T, P)`` (scattered).
+        ``values[u]`` has shape ``(S, T, X_1, ..., X_d)`` (grid) or ``(S, T, P)`` (scattered);
+        without the ``T`` axis for a steady problem.
 
     Raises
     ------
@@ -1373,8 +1432,8 @@ def solve_reference_pde(
     names = [c.name for c in sampled_coordinates(problem)]
     arrays, S = _check_params(params, names, problem.time, space)
     nodes = _space_nodes(problem, space_nodes)
-    t0 = float(problem.time_coordinate.domain[0])
-    times = _check_times(times, t0, problem.time)
+    t0 = _start_time(problem)
+    times = _reference_times(problem, times)
 
     if space_points is None:
         points = None
@@ -1435,6 +1494,8 @@ def solve_reference_pde(
                 ok = success
                 vals[ok, j] = exact[ok] if np.ndim(exact) else 0.0
             out[u] = vals[:, inverse]
+    if problem.time is None:
+        out = {u: v[:, 0] for u, v in out.items()}
     return PdeReferenceResult(values=out, success=success, messages=messages, space=space,
                               space_points=result_points, nodes=nodes, grid=bool(grid or points is None),
                               method=method, rtol=float(rtol), atol=float(atol), times=times)
@@ -1463,8 +1524,8 @@ def _solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, 
             raise SolverError(f"params: {c.name} = {float(x[outside][0])!r} is outside the domain [{low:g}, {high:g}]")
         arrays[c.name] = np.clip(x, low, high)
     nodes = _space_nodes(problem, space_nodes)
-    t0 = float(problem.time_coordinate.domain[0])
-    times = _check_times(times, t0, problem.time)
+    t0 = _start_time(problem)
+    times = _reference_times(problem, times)
     if sampled:
         stacked = np.column_stack([arrays[n] for n in sampled])
         distinct, group = np.unique(stacked, axis=0, return_inverse=True)
@@ -1503,5 +1564,7 @@ def _solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, 
                 exact = np.broadcast_to(unknown.initial.evaluate(**arrays), (S,)) if unknown.initial.terms \
                     else np.zeros(S)
                 values[unknown.name][np.ix_(success, columns)] = exact[success, None]
+    if problem.time is None:
+        values = {u: v[:, 0] for u, v in values.items()}
     return ReferenceResult(values=values, success=success, messages=messages, method=method, rtol=float(rtol),
                            atol=float(atol), times=times)

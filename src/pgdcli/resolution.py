@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .separated import orthogonal_sweep
 from .tt import tt_centre_cores
 
 __all__ = ["resolution_tails"]
@@ -74,20 +75,18 @@ def resolution_tails(codebook) -> dict[str, dict[str, float]]:
                 res[coords[j].name] = float(per.max() / np.sqrt(total / sizes[j]))
         else:
             a = fm.alphas
-            grams = [m.T @ m for m in fm.modes]
             for j, c in enumerate(coords):
                 t = tails[j]
                 if t is None or a.size == 0:
                     res[c.name] = float("nan") if t is None else 0.0
                     continue
-                other = np.ones((a.size, a.size))
-                for m, g in enumerate(grams):
-                    if m != j:
-                        other *= g
-                worst = 0.0
-                for row in t @ fm.modes[j]:  # (rank,) coefficients of each tail row
-                    w = a * row
-                    worst = max(worst, float(np.sqrt(max(w @ other @ w, 0.0))))
+                # norms over the other coordinates through an orthogonal sweep, not Gram products:
+                # a tail far below the terms (a lift cancelled by the modes) would drown in the
+                # sqrt(eps) cancellation error of w @ G @ w
+                others = [m for k, m in enumerate(fm.modes) if k != j]
+                z = orthogonal_sweep(others) if others else np.ones((1, a.size))
+                coef = z @ (a[:, None] * (t @ fm.modes[j]).T)  # (r, tail rows)
+                worst = float(np.linalg.norm(coef, axis=0).max())
                 res[c.name] = worst / np.sqrt(total / sizes[j])
         out[name] = res
     return out

@@ -61,7 +61,8 @@ class Discretization:
     (size ``q * (n_t - 1)``), so each rank-one term carries its own time
     function for every unknown while the parameter factors are shared; the
     coupling between equations lives in this mode's matrices. Modes 1.. are
-    the parameter coordinates in spec order.
+    the other coordinates in spec order. A steady problem (``time`` None) has
+    a state mode of size ``q``: one weight per unknown.
 
     Attributes
     ----------
@@ -74,12 +75,14 @@ class Discretization:
     source : CPTensor
         Preconditioned right-hand side.
     lift : dict
-        Unknown name -> CPTensor of the initial value over all coordinates
-        (spec order, time factor 1), in nodal values.
+        Unknown name -> CPTensor over all coordinates (spec order), in nodal
+        values: the initial value (time factor 1), or for a steady problem the
+        Dirichlet values on the boundary nodes (zero inside).
     unknowns : list of str
     coordinates : list of str
         All coordinate names in spec order.
-    time : str
+    time : str or None
+        None for a steady problem.
     """
 
     names: list[str]
@@ -89,13 +92,13 @@ class Discretization:
     lift: dict[str, CPTensor]
     unknowns: list[str]
     coordinates: list[str]
-    time: str
+    time: str | None
     trial: dict = field(default_factory=dict)  # coordinate -> trial node indices (Dirichlet ends removed)
 
     def nodal_factors(self, factors: list[np.ndarray]) -> dict[str, list[np.ndarray]]:
         """Solver factors -> per unknown, nodal mode matrices over the coordinates (spec order)."""
-        nt = self.bases[self.time].nodes.size
-        state = factors[0].reshape(len(self.unknowns), nt - 1, -1)
+        free = 1 if self.time is None else self.bases[self.time].nodes.size - 1
+        state = factors[0].reshape(len(self.unknowns), free, -1)
         params = {}
         for name, f in zip(self.names[1:], factors[1:]):
             if name in self.trial:  # Dirichlet ends: the lift carries the value, v vanishes there
@@ -105,6 +108,10 @@ class Discretization:
             params[name] = f
         out = {}
         for s, u in enumerate(self.unknowns):
+            if self.time is None:  # the unknown's weight goes into the first coordinate's modes
+                first = self.coordinates[0]
+                out[u] = [params[c] * state[s] if c == first else params[c] for c in self.coordinates]
+                continue
             tf = np.vstack([np.zeros((1, state.shape[2])), state[s]])  # v(t0) = 0
             out[u] = [tf if c == self.time else params[c] for c in self.coordinates]
         return out
@@ -282,8 +289,88 @@ def _check_compatible_initial_values(problem, bases) -> None:
                         f"{problem.time_coordinate.domain[0]:g})")
 
 
+class _TimeOps:
+    """The time direction of the state mode: free nodes, the d/dt and mass rows, preconditioned.
+
+    The rows are multiplied by ``sqrt(weights) (d/dt)^-1``, so the residual is the L2 norm of
+    the time-integrated equation (see the module docstring).
+    """
+
+    def __init__(self, basis: Basis1D):
+        self.basis = basis
+        nt = basis.nodes.size
+        self.size = nt - 1  # v(t0) = 0: the first node is not free
+        integrate = np.linalg.inv(basis.time_stiffness(np.ones(nt))[:, 1:])
+        self.left = np.sqrt(basis.time_weights())[:, None] * integrate
+
+    def operator(self, values: np.ndarray, is_der: bool) -> np.ndarray:
+        """``c(t) du/dt`` or ``c(t) u`` on the free nodes: (size, size)."""
+        full = self.basis.time_stiffness(values) if is_der else self.basis.time_mass(values)
+        return self.left @ full[:, 1:]
+
+    def load(self, values: np.ndarray) -> np.ndarray:
+        """A source ``f(t)``: (size,)."""
+        return self.left @ self.basis.time_load(values)
+
+    def constant(self, values: np.ndarray) -> np.ndarray:
+        """``c(t) w`` for a ``w`` constant in time (the lift): (size,)."""
+        return self.left @ (self.basis.time_mass(values) @ np.ones(self.basis.nodes.size))
+
+
+class _SteadyOps:
+    """The time direction of a steady problem: none (one entry per unknown, no weight)."""
+
+    size = 1
+
+    def operator(self, values, is_der: bool) -> np.ndarray:
+        return np.ones((1, 1))
+
+    def load(self, values) -> np.ndarray:
+        return np.ones(1)
+
+    constant = load
+
+
+def _initial_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dict[str, np.ndarray]]]:
+    """The initial value's separated terms as ``(coef, {coordinate: nodal values})``."""
+    return [(init.coef, _factor_values(init, bases)) for init in unknown.initial.terms]
+
+
+def _dirichlet_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dict[str, np.ndarray]]]:
+    """A discrete lift of the Dirichlet values: the value on the boundary nodes, zero inside.
+
+    Each term is a cardinal vector at one end of its coordinate times the value's factors, so
+    the lift is separated whatever the value depends on. A node on the Dirichlet ends of two
+    coordinates (a corner) takes the value of the coordinate listed first: the later
+    coordinate's terms vanish there.
+    """
+    terms = []
+    masks: dict[str, np.ndarray] = {}  # earlier Dirichlet coordinates -> 0 on their Dirichlet ends
+    for coord, ends in unknown.boundary.items():
+        n = bases[coord].nodes.size
+        mask = np.ones(n)
+        for side, bc in enumerate(ends):
+            if bc.kind != "value":
+                continue
+            end = 0 if side == 0 else n - 1
+            mask[end] = 0.0
+            for g in bc.value.terms:
+                vals = _factor_values(g, bases)
+                vals[coord] = np.zeros(n)
+                vals[coord][end] = 1.0
+                for other, m in masks.items():
+                    vals[other] = vals[other] * m
+                terms.append((g.coef, vals))
+        if np.any(mask == 0.0):
+            masks[coord] = mask
+    return terms
+
+
 def discretize(problem) -> Discretization:
     """Assemble the separated operator, source and lift of a linear problem.
+
+    Time-dependent problems are lifted by the initial value (``u = u0 + v``, ``v(t0) = 0``);
+    steady ones by the Dirichlet values (``u = g + v``, ``v = 0`` on Dirichlet ends).
 
     Parameters
     ----------
@@ -299,23 +386,30 @@ def discretize(problem) -> Discretization:
     q = len(unknowns)
     index = {name: s for s, name in enumerate(unknowns)}
     bases = {info.name: info.basis() for info in coordinate_infos(problem, march=False)}
-    tb = bases[tname]
-    nt = tb.nodes.size
     params = [c.name for c in coords if c.name != tname]
     names = [STATE] + params
-    span = float(tb.nodes[-1] - tb.nodes[0])
-    ops = {c.name: _CoordinateOps(c.name, bases[c.name], c.role, _boundary_kinds(problem, c.name), span * TAU_FRACTION)
-           for c in coords if c.name != tname}
-    _check_compatible_initial_values(problem, bases)
-
-    # left preconditioner in time: sqrt(weights) * (integration matrix), per unknown
-    integrate = np.linalg.inv(tb.time_stiffness(np.ones(nt))[:, 1:])
-    p_time = np.sqrt(tb.time_weights())[:, None] * integrate
+    if tname is None:
+        time = _SteadyOps()
+        # tau = L^2 makes (M + tau K)^-1 K bounded above and below in each space coordinate,
+        # so the residual tracks the error (there is no time integration to do it)
+        tau = {c.name: (c.domain[1] - c.domain[0]) ** 2 for c in coords}
+        lifts = {u.name: _dirichlet_lift(u, bases) for u in problem.unknowns}
+    else:
+        time = _TimeOps(bases[tname])
+        span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
+        tau = {c.name: span * TAU_FRACTION for c in coords}
+        _check_compatible_initial_values(problem, bases)
+        lifts = {u.name: _initial_lift(u, bases) for u in problem.unknowns}
+    ops = {c: _CoordinateOps(c, bases[c], problem.coordinate(c).role, _boundary_kinds(problem, c), tau[c])
+           for c in params}
 
     def unit(r: int) -> np.ndarray:
         e = np.zeros(q)
         e[r] = 1.0
         return e
+
+    def time_values(vals: dict[str, np.ndarray]):
+        return None if tname is None else vals[tname]
 
     op_terms: list[tuple[np.ndarray, ...]] = []
     src_w: list[float] = []
@@ -323,7 +417,7 @@ def discretize(problem) -> Discretization:
 
     def add_source(r: int, coef: float, time_vec: np.ndarray, vectors: dict[str, np.ndarray]):
         src_w.append(coef)
-        src_f.append([np.kron(unit(r), p_time @ time_vec)] + [vectors[c] for c in params])
+        src_f.append([np.kron(unit(r), time_vec)] + [vectors[c] for c in params])
 
     def tested_values(vals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         return {c: ops[c].load(vals[c]) for c in params}
@@ -334,7 +428,7 @@ def discretize(problem) -> Discretization:
             if len(monomial) == 0:
                 for term in sep.terms:
                     vals = _factor_values(term, bases)
-                    add_source(r, -term.coef, tb.time_load(vals[tname]), tested_values(vals))
+                    add_source(r, -term.coef, time.load(time_values(vals)), tested_values(vals))
                 continue
             if len(monomial) != 1:
                 raise SolverError(f"equations[{r}]: nonlinear term; the linear solver needs equations linear in the unknowns")
@@ -344,7 +438,6 @@ def discretize(problem) -> Discretization:
             space_der = atom.order > 0 and atom.coordinate != tname
             for term in sep.terms:
                 vals = _factor_values(term, bases)
-                tmat = tb.time_stiffness(vals[tname]) if is_der else tb.time_mass(vals[tname])
                 coupling = np.zeros((q, q))
                 coupling[r, s] = term.coef
                 full = {}
@@ -359,14 +452,13 @@ def discretize(problem) -> Discretization:
                             full[c] = ops[c].first(vals[c])
                     else:
                         full[c] = ops[c].mass(vals[c])
-                op_terms.append((np.kron(coupling, p_time @ tmat[:, 1:]),)
+                op_terms.append((np.kron(coupling, time.operator(time_values(vals), is_der)),)
                                 + tuple(full[c][:, ops[c].trial] for c in params))
                 if not is_der:
-                    # the lift u0 (constant in time) moves to the right-hand side
-                    for init in problem.unknowns[s].initial.terms:
-                        ivals = _factor_values(init, bases)
-                        add_source(r, -term.coef * init.coef, tmat @ np.ones(nt),
-                                   {c: full[c] @ ivals[c] for c in params})
+                    # the lift (constant in time) moves to the right-hand side
+                    for coef, lvals in lifts[atom.unknown]:
+                        add_source(r, -term.coef * coef, time.constant(time_values(vals)),
+                                   {c: full[c] @ lvals[c] for c in params})
                 if space_der and atom.order == 2:
                     # weak form: the boundary flux [du/dx phi] of gradient ends is known data
                     c = atom.coordinate
@@ -377,7 +469,7 @@ def discretize(problem) -> Discretization:
                             gvals = _factor_values(g, bases)
                             vectors = {p: ops[p].load(vals[p] * gvals[p]) for p in params if p != c}
                             vectors[c] = ops[c].flux(side)
-                            add_source(r, -term.coef * g.coef, tmat @ np.ones(nt), vectors)
+                            add_source(r, -term.coef * g.coef, time.constant(time_values(vals)), vectors)
 
     if not op_terms:
         raise SolverError("the equations have no term in the unknowns")
@@ -386,15 +478,11 @@ def discretize(problem) -> Discretization:
     source = CPTensor(np.array(src_w), [np.column_stack([f[j] for f in src_f]) if src_f else np.zeros((sizes[j], 0))
                                         for j in range(len(names))])
     lift = {}
-    for u in problem.unknowns:
-        ws, fs = [], []
-        for init in u.initial.terms:
-            vals = _factor_values(init, bases)
-            ws.append(init.coef)
-            fs.append([vals[c.name] for c in coords])
-        lift[u.name] = CPTensor(
-            np.array(ws), [np.column_stack([f[j] for f in fs]) if fs else np.zeros((bases[c.name].nodes.size, 0))
-                           for j, c in enumerate(coords)])
+    for u in unknowns:
+        ws = [coef for coef, _ in lifts[u]]
+        lift[u] = CPTensor(
+            np.array(ws), [np.column_stack([vals[c.name] for _, vals in lifts[u]]) if ws
+                           else np.zeros((bases[c.name].nodes.size, 0)) for c in coords])
     trial = {c: ops[c].trial for c in params if ops[c].trial.size != bases[c].nodes.size}
     return Discretization(names, bases, SeparatedOperator(tuple(op_terms)), source, lift, unknowns,
                           [c.name for c in coords], tname, trial)
@@ -873,6 +961,9 @@ def _use_march(problem) -> bool:
         raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "
                           f"use 'march' or 'auto' for this problem")
     march = method == "march" or (method == "auto" and nonlinear)
+    if march and problem.time is None:
+        raise SolverError(f"{problem.source}: equations: a steady problem (no time coordinate) needs equations linear "
+                          f"in the unknowns and solver.method 'auto' or 'pgd' (the march steps in time)")
     space = [c.name for c in problem.coordinates if c.role == "space"]
     if march and space:
         raise SolverError(f"{problem.source}: equations: the separated time march handles ODEs only; "

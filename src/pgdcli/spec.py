@@ -88,7 +88,7 @@ class Coordinate:
     discretization : str
         ``'chebyshev'`` or ``'linear'``.
     role : str
-        ``'time'`` or ``'parameter'``.
+        ``'time'``, ``'space'`` (differentiated in the equations) or ``'parameter'``.
     """
 
     name: str
@@ -163,8 +163,9 @@ class Problem:
     name, description : str
     coordinates : tuple of Coordinate
         In spec order, which is the dimension order of the codebook.
-    time : str
-        Name of the time coordinate.
+    time : str or None
+        Name of the time coordinate; None for a steady problem (no ``der(u)``, no
+        initial values), whose unknowns are functions of space and parameters only.
     constants : dict of str to float
     unknowns : tuple of Unknown
         In declared order, which is the output order.
@@ -180,7 +181,7 @@ class Problem:
     name: str
     description: str
     coordinates: tuple[Coordinate, ...]
-    time: str
+    time: str | None
     constants: dict[str, float] = field(hash=False)
     unknowns: tuple[Unknown, ...]
     equations: tuple[Equation, ...]
@@ -205,8 +206,13 @@ class Problem:
         return tuple(u.name for u in self.unknowns)
 
     @property
-    def time_coordinate(self) -> Coordinate:
-        return self.coordinate(self.time)
+    def steady(self) -> bool:
+        """True when there is no time coordinate (an equilibrium problem)."""
+        return self.time is None
+
+    @property
+    def time_coordinate(self) -> Coordinate | None:
+        return None if self.time is None else self.coordinate(self.time)
 
     @property
     def parameter_coordinates(self) -> tuple[Coordinate, ...]:
@@ -454,19 +460,18 @@ def _parse_coordinate(check: _Checker, name: str, body: dict, time: str, constan
     return Coordinate(name, (low, high), nodes, discretization, role)
 
 
-def _parse_time(check: _Checker, data: dict, coordinate_names: list[str]) -> str:
+def _parse_time(check: _Checker, data: dict, coordinate_names: list[str]) -> str | None:
+    """The time coordinate: ``time:`` if given, else one named 't'; None (steady) without either."""
     listing = ", ".join(coordinate_names)
     if "time" not in data:
-        if "t" not in coordinate_names:
-            raise check.error(
-                "time", f"no coordinate is named 't'; add 'time: <name>' naming the time coordinate (coordinates: {listing})"
-            )
-        return "t"
+        return "t" if "t" in coordinate_names else None
     value = data["time"]
+    if value is None:  # 'time: null': steady, even with a coordinate named 't'
+        return None
     if isinstance(value, bool):
         raise check.error("time", f"got the YAML boolean {_show(value)}; quote the coordinate name")
     if not isinstance(value, str) or value not in coordinate_names:
-        raise check.error("time", f"expected the name of a coordinate ({listing}), got {_show(value)}")
+        raise check.error("time", f"expected the name of a coordinate ({listing}) or null (steady), got {_show(value)}")
     return value
 
 
@@ -486,6 +491,10 @@ def _parse_unknown(
     check: _Checker, name: str, body: dict, *, coordinates: list[str], constants: dict[str, float], unknowns: list[str], time: str
 ) -> Unknown:
     path = f"unknowns.{name}.initial"
+    boundary = _parse_boundary(check, name, body.get("boundary"), coordinates=coordinates, constants=constants,
+                               unknowns=unknowns, time=time)
+    if time is None:  # steady: parse_spec has checked there is no initial value
+        return Unknown(name, Separable(()), "", boundary)
     raw = check.require(body, "initial", f"unknowns.{name}")
     if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
         raise check.error(path, f"expected a number or an expression string, got {_show(raw)}")
@@ -507,8 +516,6 @@ def _parse_unknown(
         raise check.error(
             path, f"the initial value of '{name}' must not depend on the time coordinate '{time}', got '{text}'"
         )
-    boundary = _parse_boundary(check, name, body.get("boundary"), coordinates=coordinates, constants=constants,
-                               unknowns=unknowns, time=time)
     return Unknown(name, initial, text if isinstance(raw, str) else str(raw), boundary)
 
 
@@ -524,7 +531,7 @@ def _parse_boundary(check: _Checker, name: str, value: Any, *, coordinates: list
         cpath = f"{path}.{coord}"
         if coord not in coordinates:
             raise check.error(cpath, f"{coord!r} is not a coordinate ({', '.join(coordinates)})")
-        if coord == time:
+        if time is not None and coord == time:
             raise check.error(cpath, f"'{time}' is the time coordinate: its condition is the initial value")
         sides = check.mapping(sides, cpath, BOUNDARY_SIDES)
         pair = []
@@ -544,7 +551,7 @@ def _parse_boundary(check: _Checker, name: str, value: Any, *, coordinates: list
             if poly.unknowns:
                 raise check.error(spath, f"a boundary value must not depend on unknowns, got '{text}'")
             sep = poly.coefficient(())
-            if coord in sep.coordinates or time in sep.coordinates:
+            if coord in sep.coordinates or (time is not None and time in sep.coordinates):
                 raise check.error(spath, f"a boundary value at the {side} end of {coord!r} may depend on the other "
                                          f"non-time coordinates only, got '{text}'")
             pair.append(Boundary(kind, sep, text))
@@ -606,8 +613,20 @@ def _parse_equations(
             allow_space_derivatives=True,
         )
         equations.append(Equation(index, text, poly))
-    _check_time_derivatives(check, equations, unknowns, time)
+    if time is None:
+        _check_steady(check, equations, unknowns)
+    else:
+        _check_time_derivatives(check, equations, unknowns, time)
     return tuple(equations)
+
+
+def _check_steady(check: _Checker, equations: list[Equation], unknowns: list[str]) -> None:
+    """Without time every unknown must appear in some equation, or the system is singular."""
+    appearing = {atom.unknown for equation in equations for atom in equation.polynomial.atoms}
+    for name in unknowns:
+        if name not in appearing:
+            raise check.error("equations", f"unknown '{name}' appears in no equation of this steady problem "
+                                           "(no time coordinate); each unknown needs an equation")
 
 
 def _check_time_derivatives(check: _Checker, equations: list[Equation], unknowns: list[str], time: str) -> None:
@@ -765,10 +784,18 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
     )
     unknown_bodies = _parse_unknown_names(check, names, data["unknowns"])
     unknown_names = list(unknown_bodies)
+    if time is None and any("initial" in body for body in unknown_bodies.values()):
+        raise check.error("time", f"no coordinate is named 't'; add 'time: <name>' naming the time coordinate "
+                                  f"(coordinates: {', '.join(coordinate_names)}), or remove the initial values "
+                                  f"for a steady problem")
     context = dict(coordinates=coordinate_names, constants=constants, unknowns=unknown_names, time=time)
     unknowns = tuple(_parse_unknown(check, n, body, **context) for n, body in unknown_bodies.items())
     equations = _parse_equations(check, data["equations"], **context)
     coordinates = _assign_space_roles(check, coordinates, unknowns, equations, time)
+    if time is None and not any(c.role == "space" for c in coordinates):
+        raise check.error("time", "no coordinate is named 't' and no equation has a space derivative: name the time "
+                                  "coordinate ('t' or 'time: <name>') for an initial-value problem, or add "
+                                  "der(u, x, 2) for a steady one")
 
     problem = Problem(
         name=problem_name,

@@ -111,8 +111,8 @@ class VerifyReport:
         Path of the codebook file (None for an in-memory codebook).
     problem : str
         Problem name.
-    time : str
-        Name of the time coordinate.
+    time : str or None
+        Name of the time coordinate (None: a steady problem).
     coordinates : list of str
         All coordinates, codebook order.
     unknowns : dict of str to UnknownErrors
@@ -124,11 +124,11 @@ class VerifyReport:
     samples : dict of str to ndarray, shape (S,)
         The parameter points.
     times : ndarray, shape (T,)
-        The times (sorted).
+        The times (sorted; empty for a steady problem).
     reference, codebook_values : dict of str to ndarray, shape (S, T)
         Reference (NaN at failed points) and codebook values; with space
         coordinates shape (S, T, X_1, ..., X_d) on the tensor grid of
-        ``space_points``.
+        ``space_points``, and (S, X_1, ..., X_d) for a steady problem.
     wall_time : float
         Seconds.
     space_points : dict of str to ndarray
@@ -137,7 +137,7 @@ class VerifyReport:
 
     codebook: str | None
     problem: str
-    time: str
+    time: str | None
     coordinates: list[str]
     unknowns: dict[str, UnknownErrors]
     failures: list[Failure]
@@ -591,18 +591,21 @@ def verify(
         sample_points, S = {}, 1  # no parameters: one trajectory
         settings.update(samples=1, corners_total=0)
 
-    time_coordinate = cb.coordinate(time)
-    nodes = np.asarray(time_coordinate.basis().nodes, dtype=float)
-    t_low, t_high = time_coordinate.domain
-    rng = np.random.default_rng([seed, 1])
-    random_times = rng.uniform(t_low, t_high, times_count)
-    all_times = np.unique(np.clip(np.concatenate([nodes, random_times]), t_low, t_high))
+    if time is None:
+        all_times = np.zeros(1)  # steady: one placeholder time axis, dropped from the report
+        time_counts = dict(random_times=0, time_nodes=0, times=0)
+    else:
+        time_coordinate = cb.coordinate(time)
+        nodes = np.asarray(time_coordinate.basis().nodes, dtype=float)
+        t_low, t_high = time_coordinate.domain
+        rng = np.random.default_rng([seed, 1])
+        random_times = rng.uniform(t_low, t_high, times_count)
+        all_times = np.unique(np.clip(np.concatenate([nodes, random_times]), t_low, t_high))
+        time_counts = dict(random_times=times_count, time_nodes=int(nodes.size), times=int(all_times.size))
     settings.update(
         parameter_points=int(S),
-        random_times=times_count,
-        time_nodes=int(nodes.size),
-        times=int(all_times.size),
-        method=method,
+        **time_counts,
+        method="direct" if time is None else method,  # steady: one sparse LU solve per point
         rtol=float(rtol),
         atol=float(atol),
         jobs=int(jobs),
@@ -625,8 +628,11 @@ def verify(
             space_grid[name] = np.unique(np.clip(np.concatenate([np.asarray(c.basis().nodes, dtype=float), extra]),
                                                  low, high))
         nodes = DEFAULT_SPACE_NODES if space_nodes is None else space_nodes
-        result = solve_reference_pde(problem, sample_points, space_grid, all_times, grid=True, method=method,
-                                     rtol=rtol, atol=atol, jobs=jobs, progress=report_progress, space_nodes=nodes)
+        result = solve_reference_pde(problem, sample_points, space_grid, None if time is None else all_times,
+                                     grid=True, method=method, rtol=rtol, atol=atol, jobs=jobs,
+                                     progress=report_progress, space_nodes=nodes)
+        if time is None:  # the placeholder time axis, as the codebook values have it
+            result.values = {u: v[:, None] for u, v in result.values.items()}
         approx = _evaluate_codebook_space(cb, sample_points, S, time, all_times, space_grid, unknowns)
         settings.update(
             space_points={n: int(space_grid[n].size) for n in space},
@@ -645,6 +651,11 @@ def verify(
         Failure({n: float(sample_points[n][i]) for n in names}, result.messages[i] or "integration failed")
         for i in np.flatnonzero(~result.success)
     ]
+    reference = result.values
+    if time is None:
+        all_times = np.zeros(0)
+        reference = {u: v[:, 0] for u, v in reference.items()}
+        approx = {u: v[:, 0] for u, v in approx.items()}
     return VerifyReport(
         codebook=path,
         problem=problem.name,
@@ -657,7 +668,7 @@ def verify(
         max_rel_error=max_rel_error,
         samples=sample_points,
         times=all_times,
-        reference=result.values,
+        reference=reference,
         codebook_values=approx,
         wall_time=_time.perf_counter() - started,
         space_points=space_grid,
