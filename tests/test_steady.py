@@ -271,3 +271,28 @@ def test_plot_data_of_a_steady_codebook_runs_along_space(poisson):
     assert error_map["failures"] == [] and error_map["max"] <= 1e-9
     error_lines = error_data(cb, at=["y=0.3,a=2,g=-1,q=0"], points=7)
     assert error_lines["values"].shape == (1, 7) and error_lines["max"] <= 1e-9
+
+
+def _advection_diffusion_error(n, discretization):
+    # u'' = b u', u(0) = 0, u(1) = 1: u = (exp(b x) - 1) / (exp(b) - 1)
+    text = f"""
+coordinates:
+  x: {{domain: [0, 1], nodes: {n}, discretization: {discretization}}}
+  b: {{domain: [0.5, 2], nodes: 12}}
+unknowns:
+  u: {{boundary: {{x: {{low: 0, high: 1}}}}}}
+equations:
+  - "der(u, x, 2) - b*der(u, x) = 0"
+solver: {{tolerance: 1e-13}}
+"""
+    cb = _solve(text).codebook
+    x = cb.coordinate("x").basis().nodes
+    b = np.array([0.5, 1.1, 2.0])[:, None]
+    exact = np.expm1(b * x) / np.expm1(b)
+    return float(np.max(np.abs(cb(x=x[None, :], b=b)["u"] - exact)))
+
+
+def test_first_derivative_in_space_in_both_discretizations():
+    assert _advection_diffusion_error(20, "chebyshev") <= 1e-11
+    coarse, fine = _advection_diffusion_error(17, "linear"), _advection_diffusion_error(33, "linear")
+    assert 3.5 < coarse / fine < 4.5 and fine < 1e-3  # second order at the nodes

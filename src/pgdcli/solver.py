@@ -176,7 +176,8 @@ class _CoordinateOps:
 
     Parameters are collocated (diagonal matrices). Space coordinates are in weak form with
     the basis's quadrature: mass ``W``, stiffness ``K`` (Chebyshev ``D^T W D``; linear
-    elements the exact tridiagonal one), advection ``W D`` (Chebyshev only); a Dirichlet
+    elements the exact tridiagonal one), advection ``int f phi_i phi_j'`` (Chebyshev: exact
+    Gauss-Legendre; linear elements: f at the element midpoints); a Dirichlet
     end drops its node from the trial and test functions (the lift carries the value), a
     gradient (Neumann) end enters as a boundary flux. Every matrix is returned already
     multiplied by the left preconditioner: ``1/sqrt(w)`` for parameters, and
@@ -219,6 +220,7 @@ class _CoordinateOps:
             self.derivative = None
             self.interp = None
             self.stiffness = k
+            self.h = h
             mass = np.diag(w)  # lumped: second order, like the elements themselves
         t = self.test
         self.left = np.sqrt(w[t])[:, None] * np.linalg.inv(mass[np.ix_(t, t)] + tau * self.stiffness[np.ix_(t, t)])
@@ -238,9 +240,15 @@ class _CoordinateOps:
 
     def first(self, f: np.ndarray) -> np.ndarray:
         """``f du/dx`` tested: (test, all nodes)."""
-        if self.derivative is None:
-            raise SolverError(f"first derivatives in {self.name!r} need discretization: chebyshev")
-        return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp_d))
+        if self.derivative is not None:
+            return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp_d))
+        # hat functions: on element e, phi_j' = -+1/h and int phi_i = h/2, with f at the midpoint
+        n = self.basis.nodes.size
+        mid = 0.5 * (f[:-1] + f[1:])
+        a = np.zeros((n, n))
+        for e, fe in enumerate(mid):
+            a[e:e + 2, e:e + 2] += 0.5 * fe * np.array([[-1.0, 1.0], [-1.0, 1.0]])
+        return self._rows(a)
 
     def second(self) -> np.ndarray:
         """``d2u/dx2`` tested (weak form, boundary fluxes apart): (test, all nodes)."""
