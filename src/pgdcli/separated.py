@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["CPTensor", "SeparatedOperator", "orthogonal_sweep", "khatri_rao_rows"]
+__all__ = ["CPTensor", "SeparatedOperator", "orthogonal_sweep", "sweep_step", "sweep_order", "khatri_rao_rows"]
 
 
 def _as_factor(index: int, factor, rank: int | None) -> np.ndarray:
@@ -110,15 +110,48 @@ def khatri_rao_rows(z: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (z[:, None, :] * x[None, :, :]).reshape(-1, z.shape[1])
 
 
+def sweep_step(z: np.ndarray | None, x: np.ndarray) -> np.ndarray:
+    """One step of the orthogonal sweep: append mode ``x`` to the swept modes ``z``.
+
+    Parameters
+    ----------
+    z : ndarray, shape (r, C), or None
+        Result of the sweep over the previous modes (None: no mode yet).
+    x : ndarray, shape (n, C)
+        The next mode's factor matrix.
+
+    Returns
+    -------
+    ndarray, shape (min(r n, C), C)
+        The triangular factor of ``khatri_rao_rows(z, x)``, or that product
+        itself while it has no more rows than columns (a QR would not shrink it).
+    """
+    k = x if z is None else khatri_rao_rows(z, x)
+    if k.shape[0] > k.shape[1]:
+        return np.linalg.qr(k, mode="r")
+    return k
+
+
+def sweep_order(sizes: Sequence[int]) -> list[int]:
+    """The modes in the order :func:`orthogonal_sweep` visits them: largest first.
+
+    Once the row count saturates at C every step costs O(n_j C^3), so the
+    small modes should come last.
+    """
+    return sorted(range(len(sizes)), key=lambda j: -sizes[j])
+
+
 def orthogonal_sweep(factors: Sequence[np.ndarray]) -> np.ndarray:
     """Small matrix ``Z`` with ``vec(term_c) = Q @ Z[:, c]`` for an orthonormal ``Q``.
 
     Each column ``c`` of the factor matrices describes one rank-one term
     ``x_c^(1) (x) ... (x) x_c^(d)``. The sweep orthogonalizes mode by mode
     (QR of the Khatri-Rao product of the previous triangular factor with the
-    next factor matrix), so inner products and norms of any linear
-    combination of the terms are those of the columns of ``Z``, computed
-    with backward-stable Householder QR instead of Gram products.
+    next factor matrix, :func:`sweep_step`), so inner products and norms of
+    any linear combination of the terms are those of the columns of ``Z``,
+    computed with backward-stable Householder QR instead of Gram products.
+    The modes may be visited in any order: ``Z`` is unique up to an
+    orthogonal transformation on the left.
 
     Parameters
     ----------
@@ -128,17 +161,9 @@ def orthogonal_sweep(factors: Sequence[np.ndarray]) -> np.ndarray:
     -------
     ndarray, shape (r, C) with ``r <= C``
     """
-    # Largest modes first: once the row count saturates at C every step costs
-    # O(n_j C^3), so the small modes should come last.
-    order = sorted(range(len(factors)), key=lambda j: -factors[j].shape[0])
     z = None
-    for j in order:
-        x = factors[j]
-        k = x if z is None else khatri_rao_rows(z, x)
-        if k.shape[0] > k.shape[1]:
-            z = np.linalg.qr(k, mode="r")
-        else:
-            z = k
+    for j in sweep_order([f.shape[0] for f in factors]):
+        z = sweep_step(z, factors[j])
     return z
 
 

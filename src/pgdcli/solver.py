@@ -24,13 +24,14 @@ Algorithm (free functions below):
 3. :func:`update_mode` optionally re-solves all modes of one coordinate jointly,
    which keeps the rank low.
 4. The relative residual (eq. 16) is computed in separated form by an orthogonal
-   sweep (:func:`pgdcli.separated.orthogonal_sweep`), accurate to rounding.
+   sweep (:func:`pgdcli.separated.orthogonal_sweep`), accurate to rounding. The
+   projection's sweep keeps its partial results, so that the update of each mode
+   is checked with one more sweep step (:func:`_update_sweep`), not a full sweep.
 """
 
 from __future__ import annotations
 
 import time as _time
-import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -39,7 +40,7 @@ import scipy.linalg
 
 from .basis import Basis1D
 from .errors import SolverError
-from .separated import CPTensor, SeparatedOperator, orthogonal_sweep
+from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, sweep_order, sweep_step
 
 __all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
 
@@ -439,15 +440,18 @@ class _State:
         self.factors[j] = factor
         self.images[j] = np.einsum("kab,bn->kan", self.op.mode_stack(j), factor)
 
+    def residual_weights(self) -> np.ndarray:
+        """Weights of ``F - A U``, shape (nF + K n,): the source's, then ``-alphas`` per operator term."""
+        return np.concatenate([self.source.weights, -np.tile(self.alphas, self.op.n_terms)])
+
+    def residual_columns(self, j: int) -> np.ndarray:
+        """Mode ``j`` factors of ``F - A U``, shape (m_j, nF + K n): source columns, then images term-major."""
+        image = self.images[j]
+        return np.hstack([self.source.factors[j], image.transpose(1, 0, 2).reshape(image.shape[1], -1)])
+
     def residual(self) -> tuple[np.ndarray, list[np.ndarray]]:
         """``F - A U`` as weights (C,) and factors (m_j, C); source columns first."""
-        K = self.op.n_terms
-        w = np.concatenate([self.source.weights, -np.tile(self.alphas, K)])
-        fs = [
-            np.hstack([self.source.factors[j], self.images[j].transpose(1, 0, 2).reshape(self.images[j].shape[1], -1)])
-            for j in range(self.op.order)
-        ]
-        return w, fs
+        return self.residual_weights(), [self.residual_columns(j) for j in range(self.op.order)]
 
 
 def _others_product(mats: list[np.ndarray], j: int) -> np.ndarray:
@@ -531,17 +535,26 @@ def enrich(
     return R, iterations
 
 
+_POSV, _GESV = scipy.linalg.get_lapack_funcs(("posv", "gesv"), dtype=np.float64)
+
+
 def _solve_small(M: np.ndarray, b: np.ndarray, *, symmetric: bool) -> np.ndarray:
-    # Normal equations of nearly dependent modes are ill-conditioned by nature; the
-    # caller checks that the residual decreases, so the warning carries no news.
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-        try:
-            if symmetric:
-                return scipy.linalg.solve(M, b, assume_a="pos", check_finite=False)
-            return scipy.linalg.solve(M, b, check_finite=False)
-        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, ValueError):
-            return np.linalg.lstsq(M, b, rcond=None)[0]
+    """Solve ``M x = b``, shape (n, n) and (n,): Cholesky if ``symmetric``, else LU; least squares on failure.
+
+    LAPACK is called directly: these systems are tiny and solved thousands of
+    times per build, where ``scipy.linalg.solve``'s checks and condition
+    estimate cost ten times the factorization. Normal equations of nearly
+    dependent modes are ill-conditioned by nature (the caller checks that the
+    residual decreases); only a failed factorization (not positive definite,
+    exactly singular) falls back to least squares.
+    """
+    if symmetric:
+        _, x, info = _POSV(M, b)
+    else:
+        _, _, x, info = _GESV(M, b)
+    if info == 0:
+        return x
+    return np.linalg.lstsq(M, b, rcond=None)[0]
 
 
 def _relative_change(old: list[np.ndarray], new: list[np.ndarray]) -> float:
@@ -565,19 +578,55 @@ def project_alphas(state: _State, formulation: str = "minres") -> tuple[np.ndarr
     source_norm : float
         ``||F||``.
     """
+    alphas, residual, source_norm, _ = _project(state, formulation)
+    return alphas, residual, source_norm
+
+
+def _update_order(state: _State) -> list[int]:
+    """Modes in the order the update sweep visits them: smallest first.
+
+    The projection's sweep runs the other way (largest first, the cheap order
+    of :func:`~pgdcli.separated.sweep_order`), so its partial results are the
+    suffixes the update sweep needs (:func:`_suffix_sweeps`).
+    """
+    return sweep_order([state.images[j].shape[1] for j in range(state.op.order)])[::-1]
+
+
+def _suffix_sweeps(columns: list[np.ndarray], order: list[int]) -> list[np.ndarray | None]:
+    """Orthogonal sweeps over the trailing modes of ``order``.
+
+    Parameters
+    ----------
+    columns : list of ndarray, each shape (m_j, C)
+        Factor matrices of the residual terms.
+    order : list of int
+        A permutation of the modes.
+
+    Returns
+    -------
+    list of length d + 1
+        Entry ``i`` is the sweep over the modes ``order[i:]`` (shape (r_i, C),
+        visiting ``order[-1]`` first); entry 0 covers every mode, entry d is None.
+        They do not depend on the weights.
+    """
+    out: list[np.ndarray | None] = [None] * (len(order) + 1)
+    for i in range(len(order) - 1, -1, -1):
+        out[i] = sweep_step(out[i + 1], columns[order[i]])
+    return out
+
+
+def _project(state: _State, formulation: str) -> tuple[np.ndarray, float, float, list]:
+    """:func:`project_alphas`, also returning the suffix sweeps of :func:`_update_order`."""
     K, n, nF = state.op.n_terms, state.rank, state.source.rank
-    cols = [
-        np.hstack([state.source.factors[j], state.images[j].transpose(1, 0, 2).reshape(state.images[j].shape[1], -1)])
-        for j in range(state.op.order)
-    ]
-    Z = orthogonal_sweep(cols)
+    suffixes = _suffix_sweeps([state.residual_columns(j) for j in range(state.op.order)], _update_order(state))
+    Z = suffixes[0]
     zF = Z[:, :nF] @ state.source.weights
     phi = Z[:, nF:].reshape(Z.shape[0], K, n).sum(axis=1)
     if formulation == "minres":
         alphas = np.linalg.lstsq(phi, zF, rcond=None)[0]
     else:
         alphas = _galerkin_alphas(state)
-    return alphas, float(np.linalg.norm(zF - phi @ alphas)), float(np.linalg.norm(zF))
+    return alphas, float(np.linalg.norm(zF - phi @ alphas)), float(np.linalg.norm(zF)), suffixes
 
 
 def _galerkin_alphas(state: _State) -> np.ndarray:
@@ -643,16 +692,22 @@ def update_mode(state: _State, j: int, *, cg_iterations: int = 40) -> None:
     state.set_mode(j, X)
 
 
-def _kronecker_pcg(T: np.ndarray, G: np.ndarray, B: np.ndarray, X: np.ndarray, *, iterations: int) -> np.ndarray:
+def _kronecker_pcg(T: np.ndarray, G: np.ndarray, B: np.ndarray, X: np.ndarray, *, iterations: int,
+                   rtol: float = 0.0) -> np.ndarray:
     """Approximately solve ``sum_kl T_kl X G_kl^T = B`` for X, shape (n, m), by PCG.
 
     ``T`` has shape (K, n, K, n) (``T_kl = T[k, :, l, :]``), ``G`` shape (K, K, m, m);
     the operator is SPD (normal equations). Block-Jacobi preconditioner: one
-    ``m x m`` block per row of X.
+    ``m x m`` block per row of X. Stops after ``iterations`` steps, or once the
+    preconditioned residual norm has fallen by ``rtol``.
     """
+    K, n, m = T.shape[0], T.shape[1], G.shape[2]
+    # the operator as two matrix products (einsum would loop in C without BLAS)
+    T_rows = T.transpose(1, 0, 2, 3).reshape(n, K * K * n)  # [i, (k, l, p)]
+    G_t = np.ascontiguousarray(G.transpose(0, 1, 3, 2))  # [k, l, b, a]
+
     def apply(Y):
-        Z = np.einsum("pb,klab->klpa", Y, G)
-        return np.einsum("kilp,klpa->ia", T, Z)
+        return T_rows @ np.matmul(Y, G_t).reshape(K * K * n, m)
 
     diag_T = np.einsum("kili->kli", T)  # (K, K, n)
     blocks = np.einsum("kli,klab->iab", diag_T, G)  # (n, m, m)
@@ -660,14 +715,18 @@ def _kronecker_pcg(T: np.ndarray, G: np.ndarray, B: np.ndarray, X: np.ndarray, *
         inv_blocks = np.linalg.inv(blocks)
     except np.linalg.LinAlgError:
         inv_blocks = np.linalg.pinv(blocks, hermitian=True)
-    precond = lambda R: np.einsum("iab,ib->ia", inv_blocks, R)
+
+    def precond(R):
+        return np.matmul(inv_blocks, R[:, :, None])[:, :, 0]
+
     X = X.copy()
     R = B - apply(X)
     Zr = precond(R)
     Pd = Zr.copy()
     rz = np.vdot(R, Zr)
+    stop = rtol**2 * rz
     for _ in range(iterations):
-        if rz <= 0.0:
+        if rz <= stop or rz <= 0.0:
             break
         Q = apply(Pd)
         pq = np.vdot(Pd, Q)
@@ -907,10 +966,10 @@ def _run(disc: Discretization, opts, tol: float, nmax: int, callback):
             status = 2
             break
         state.append([f / nf for f, nf in zip(factors, norms)], float(np.prod(norms)))
-        alphas, res, _ = project_alphas(state, opts.formulation)
+        alphas, res, _, suffixes = _project(state, opts.formulation)
         state.alphas = alphas
         if opts.update and opts.formulation == "minres":
-            res = _update_sweep(state, res)
+            res = _update_sweep(state, res, suffixes)
         rel = res / source_norm
         history.append(rel)
         iterations.append(its)
@@ -937,14 +996,43 @@ def _random_start(res_f: list[np.ndarray], seed: int) -> list[np.ndarray]:
     return [rng.standard_normal(f.shape[0]) for f in res_f]
 
 
-def _update_sweep(state: _State, res: float) -> float:
-    """One update of every coordinate mode; keeps a mode's update only if it lowers the residual."""
-    for j in range(state.op.order):
+def _update_sweep(state: _State, res: float, suffixes: list) -> float:
+    """One update of every coordinate mode; keeps a mode's update only if it lowers the residual.
+
+    The modes are visited in :func:`_update_order`. Each candidate's residual
+    norm needs only one new sweep step: the modes before it (already final)
+    are swept into ``prefix`` as the loop goes, the modes after it are
+    unchanged since the projection, whose suffix sweeps ``suffixes`` (from
+    :func:`_project`, same factors) cover them.
+    """
+    prefix = None
+    order = _update_order(state)
+    for i, j in enumerate(order):
         saved = (state.alphas.copy(), state.factors[j].copy(), state.images[j].copy())
         update_mode(state, j)
-        alphas, new_res, _ = project_alphas(state, "minres")
+        columns = state.residual_columns(j)
+        new_res = _joined_norm(prefix, columns, suffixes[i + 1], state.residual_weights())
         if new_res <= res:
-            state.alphas, res = alphas, new_res
+            res = new_res
         else:
             state.alphas, state.factors[j], state.images[j] = saved
+            columns = state.residual_columns(j)
+        if i + 1 < len(order):
+            prefix = sweep_step(prefix, columns)
     return res
+
+
+def _joined_norm(prefix: np.ndarray | None, columns: np.ndarray, suffix: np.ndarray | None,
+                 weights: np.ndarray) -> float:
+    """Norm of ``sum_c w_c prefix_c (x) columns_c (x) suffix_c`` (sweep results around one mode).
+
+    ``prefix`` (r_p, C) and ``suffix`` (r_s, C) are orthogonal-sweep results
+    (coefficients in orthonormal bases, or None for no mode), ``columns`` is
+    the middle mode's factor matrix (m, C). The norm is the Frobenius norm of
+    an (r_p m, r_s) matrix: no further QR is needed, and the rounding error is
+    that of the last step of a full sweep (a weighted sum of the terms).
+    """
+    k = columns if prefix is None else khatri_rao_rows(prefix, columns)
+    if suffix is None:
+        return float(np.linalg.norm(k @ weights))
+    return float(np.linalg.norm((k * weights) @ suffix.T))
