@@ -20,11 +20,17 @@ rounding level.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
 
 __all__ = ["CPTensor", "SeparatedOperator", "orthogonal_sweep", "sweep_step", "sweep_order", "khatri_rao_rows"]
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def _as_factor(index: int, factor, rank: int | None) -> np.ndarray:
@@ -206,8 +212,36 @@ class SeparatedOperator:
         return len(self.terms)
 
     def mode_stack(self, j: int) -> np.ndarray:
-        """All matrices of mode ``j``, shape (K, m_j, n_j)."""
-        return np.stack([term[j] for term in self.terms])
+        """All matrices of mode ``j``, shape (K, m_j, n_j) (computed once, read-only)."""
+        return self._stacks[j]
+
+    def mode_gram(self, j: int) -> np.ndarray:
+        """``A_kj^T A_lj`` for every pair of terms, shape (K, K, n_j, n_j) (computed once, read-only)."""
+        return self._grams[j]
+
+    def mode_is_diagonal(self, j: int) -> bool:
+        """True when every matrix of mode ``j`` is square and diagonal."""
+        return self._diagonal[j]
+
+    # The solver asks for these thousands of times per build: cached on the (immutable) operator.
+    @cached_property
+    def _stacks(self) -> tuple[np.ndarray, ...]:
+        return tuple(_read_only(np.stack([term[j] for term in self.terms])) for j in range(self.order))
+
+    @cached_property
+    def _grams(self) -> tuple[np.ndarray, ...]:
+        return tuple(_read_only(np.einsum("kam,lan->klmn", s, s)) for s in self._stacks)
+
+    @cached_property
+    def _diagonal(self) -> tuple[bool, ...]:
+        out = []
+        for s in self._stacks:
+            off = s.copy()
+            if s.shape[1] == s.shape[2]:
+                idx = np.arange(s.shape[1])
+                off[:, idx, idx] = 0.0
+            out.append(s.shape[1] == s.shape[2] and not off.any())
+        return tuple(out)
 
     def apply(self, x: CPTensor) -> CPTensor:
         """``A x`` as a separated tensor of rank ``K * x.rank`` (term-major columns)."""
