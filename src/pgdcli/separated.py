@@ -20,12 +20,12 @@ rounding level.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Sequence
 
 import numpy as np
 
-__all__ = ["CPTensor", "SeparatedOperator", "orthogonal_sweep", "sweep_step", "sweep_order", "khatri_rao_rows"]
+__all__ = ["CPTensor", "SeparatedOperator", "orthogonal_sweep", "separated_norm", "sweep_step", "sweep_order", "khatri_rao_rows"]
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -87,9 +87,7 @@ class CPTensor:
 
     def norm(self) -> float:
         """Frobenius norm, accurate to rounding relative to the terms (orthogonal sweep)."""
-        if self.rank == 0:
-            return 0.0
-        return float(np.linalg.norm(orthogonal_sweep(self.factors) @ self.weights))
+        return separated_norm(self.weights, self.factors)
 
     def __add__(self, other: "CPTensor") -> "CPTensor":
         return CPTensor(
@@ -171,6 +169,63 @@ def orthogonal_sweep(factors: Sequence[np.ndarray]) -> np.ndarray:
     for j in sweep_order([f.shape[0] for f in factors]):
         z = sweep_step(z, factors[j])
     return z
+
+
+def _sweep_cost(sizes: Sequence[int], columns: int) -> int:
+    """Rows factorized by a sweep over modes of these sizes in :func:`sweep_order` (QR flops / C^2)."""
+    cost, rows = 0, 1
+    for j in sweep_order(sizes):
+        rows *= sizes[j]
+        if rows > columns:
+            cost += rows
+            rows = columns
+    return cost
+
+
+@lru_cache(maxsize=256)
+def _norm_split(sizes: tuple[int, ...], columns: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The split of the modes into two groups with the cheapest pair of sweeps (all splits tried)."""
+    d = len(sizes)
+    best = (_sweep_cost(sizes, columns), tuple(range(d)), ())
+    for mask in range(1, 2 ** (d - 1)):  # mode d - 1 always in the first group: each split once
+        second = tuple(j for j in range(d) if mask >> j & 1)
+        first = tuple(j for j in range(d) if not mask >> j & 1)
+        cost = (_sweep_cost([sizes[j] for j in first], columns)
+                + _sweep_cost([sizes[j] for j in second], columns))
+        if cost < best[0]:
+            best = (cost, first, second)
+    return best[1], best[2]
+
+
+def separated_norm(weights: np.ndarray, factors: Sequence[np.ndarray]) -> float:
+    """Frobenius norm of ``sum_c w_c x_c^(1) (x) ... (x) x_c^(d)``, accurate to rounding.
+
+    The modes are split into two groups, each reduced by an orthogonal sweep
+    to coefficients ``Z_A`` (r_A, C) and ``Z_B`` (r_B, C) in orthonormal
+    bases; the norm is then that of the (r_A, r_B) matrix
+    ``Z_A diag(w) Z_B^T``, whose rounding error is that of the last step of a
+    single sweep (a weighted sum of the terms). Two sweeps that each stop
+    before the row count saturates at C cost far less than one that carries
+    C rows through every remaining mode: for the 2D heat problem's six modes
+    (23, 20, 20, 18, 2, 2) with C = 110, about a quarter of the QR work.
+
+    Parameters
+    ----------
+    weights : ndarray, shape (C,)
+    factors : sequence of ndarray, each shape (n_j, C)
+
+    Returns
+    -------
+    float
+    """
+    if weights.size == 0:
+        return 0.0
+    first, second = _norm_split(tuple(f.shape[0] for f in factors), weights.size)
+    za = orthogonal_sweep([factors[j] for j in first])
+    if not second:
+        return float(np.linalg.norm(za @ weights))
+    zb = orthogonal_sweep([factors[j] for j in second])
+    return float(np.linalg.norm((za * weights) @ zb.T))
 
 
 @dataclass(frozen=True, eq=False)

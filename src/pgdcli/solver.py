@@ -41,7 +41,7 @@ import scipy.linalg
 
 from .basis import Basis1D
 from .errors import SolverError
-from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, orthogonal_sweep, sweep_order, sweep_step
+from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
 
 __all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
 
@@ -456,8 +456,7 @@ class _State:
 
     def residual_norm(self) -> float:
         """``||F - A U||`` by an orthogonal sweep, accurate to rounding."""
-        weights, columns = self.residual()
-        return float(np.linalg.norm(orthogonal_sweep(columns) @ weights))
+        return separated_norm(*self.residual())
 
     def snapshot(self) -> tuple:
         """A copy of the weights, factors and images, for :meth:`restore`."""
