@@ -414,6 +414,9 @@ class _State:
     alphas: np.ndarray
     factors: list[np.ndarray]
     images: list[np.ndarray]  # images[j]: (K, m_j, n) = A_kj @ U_j
+    # mode -> (images^T images, images^T source factors), until that mode changes (update_mode
+    # needs them for every other mode, d - 1 times per update sweep)
+    _products: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def empty(cls, op: SeparatedOperator, source: CPTensor) -> "_State":
@@ -431,15 +434,23 @@ class _State:
         return self.alphas.size
 
     def append(self, columns: list[np.ndarray], alpha: float) -> None:
+        self._products.clear()
         self.alphas = np.append(self.alphas, alpha)
         for j, col in enumerate(columns):
             self.factors[j] = np.column_stack([self.factors[j], col])
-            image = np.einsum("kab,b->ka", self.op.mode_stack(j), col)
+            stack = self.op.mode_stack(j)
+            image = (stack.reshape(-1, stack.shape[2]) @ col).reshape(stack.shape[0], -1)
             self.images[j] = np.concatenate([self.images[j], image[:, :, None]], axis=2)
 
-    def set_mode(self, j: int, factor: np.ndarray) -> None:
+    def set_mode(self, j: int, factor: np.ndarray, image: np.ndarray | None = None) -> None:
+        """Replace the factors of mode ``j`` (and their images, computed unless given)."""
+        self._products.pop(j, None)
         self.factors[j] = factor
-        self.images[j] = np.einsum("kab,bn->kan", self.op.mode_stack(j), factor)
+        if image is not None:
+            self.images[j] = image
+            return
+        stack = self.op.mode_stack(j)
+        self.images[j] = (stack.reshape(-1, stack.shape[2]) @ factor).reshape(stack.shape[0], stack.shape[1], -1)
 
     def residual_weights(self) -> np.ndarray:
         """Weights of ``F - A U``, shape (nF + K n,): the source's, then ``-alphas`` per operator term."""
@@ -463,19 +474,25 @@ class _State:
         return self.alphas.copy(), [f.copy() for f in self.factors], [m.copy() for m in self.images]
 
     def restore(self, snapshot: tuple) -> None:
+        self._products.clear()
         alphas, factors, images = snapshot
         self.alphas, self.factors, self.images = alphas, factors, images
 
+    def image_products(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Gram matrix of mode ``m``'s images, shape (K n, K n), and their products with the
+        source's factors, shape (K n, nF); rows and columns term-major."""
+        if m not in self._products:
+            img = self.images[m].transpose(1, 0, 2).reshape(self.images[m].shape[1], -1)  # (m_m, K n)
+            self._products[m] = (img.T @ img, img.T @ self.source.factors[m])
+        return self._products[m]
 
-def _others_product(mats: list[np.ndarray], j: int) -> np.ndarray:
-    """Hadamard product of ``mats[m]`` over ``m != j`` (ones when j is the only mode)."""
-    others = [a for m, a in enumerate(mats) if m != j]
-    if not others:
-        return np.ones_like(mats[j])
-    out = others[0].copy()
-    for a in others[1:]:
-        out *= a
-    return out
+
+def _suffix_products(mats: list[np.ndarray]) -> list[np.ndarray]:
+    """Hadamard products ``out[j] = mats[j] * ... * mats[-1]``; ``out[len(mats)]`` is ones."""
+    out = [np.ones_like(mats[-1])]
+    for a in mats[::-1]:
+        out.append(a * out[-1])
+    return out[::-1]
 
 
 def enrich(
@@ -531,23 +548,31 @@ def enrich(
     iterations = 0
     for iterations in range(1, max_iterations + 1):
         previous = [r.copy() for r in R]
+        # products over the other modes: the modes before j (already updated in this pass)
+        # times the modes after j (from the previous pass)
+        after_H = _suffix_products(H)
+        after_G = _suffix_products(G) if formulation == "minres" else _suffix_products(P)
+        before_H, before_G = np.ones_like(H[0]), np.ones_like(after_G[0])
         for j in range(d):
-            h = _others_product(H, j) * res_w  # (K, C) or (C,)
+            h = before_H * after_H[j + 1] * res_w  # (K, C) or (C,)
+            c = before_G * after_G[j + 1]  # (K, K) or (K,)
             if formulation == "minres":
                 n_j = R[j].size
-                M = (_others_product(G, j).reshape(-1) @ gram_ops[j]).reshape(n_j, n_j)
+                M = (c.reshape(-1) @ gram_ops[j]).reshape(n_j, n_j)
                 b = (h @ res_f[j].T).reshape(-1) @ rows[j]
                 R[j] = _solve_small(M, b, symmetric=True)
                 V[j] = (rows[j] @ R[j]).reshape(K, -1)
                 G[j] = V[j] @ V[j].T
                 H[j] = V[j] @ res_f[j]
+                before_G = before_G * G[j]
             else:
-                c = _others_product(P, j)
                 M = np.einsum("k,kab->ab", c, stacks[j])
                 b = res_f[j] @ h
                 R[j] = _solve_small(M, b, symmetric=False)
                 P[j] = np.einsum("a,kab,b->k", R[j], stacks[j], R[j])
                 H[j] = R[j] @ res_f[j]
+                before_G = before_G * P[j]
+            before_H = before_H * H[j]
         if _relative_change(previous, R) < tolerance:
             break
     return R, iterations
@@ -698,19 +723,21 @@ def update_mode(state: _State, j: int, *, cg_iterations: int = 40, cg_rtol: floa
     for m in range(op.order):
         if m == j:
             continue
-        img = state.images[m].transpose(1, 0, 2).reshape(state.images[m].shape[1], -1)  # (m_m, K n)
-        T *= (img.T @ img).reshape(K, n, K, n)
-        rhs_c *= (img.T @ state.source.factors[m]).reshape(K, n, -1)
+        gram, cross = state.image_products(m)
+        T *= gram.reshape(K, n, K, n)
+        rhs_c *= cross.reshape(K, n, -1)
     T *= a[None, :, None, None] * a[None, None, None, :]
-    W = np.einsum("kic,c,ac->kia", rhs_c, state.source.weights, state.source.factors[j])  # (K, n, m_j)
+    # (einsum contractions written as matrix products: these run thousands of times per build)
+    W = ((rhs_c * state.source.weights).reshape(K * n, -1) @ state.source.factors[j].T).reshape(K, n, -1)  # (K, n, m_j)
     if op.mode_is_diagonal(j):
         diag = np.einsum("kaa->ka", stack)  # (K, n_j)
-        N = np.einsum("kilp,ka,la->aip", T, diag, diag)  # (n_j, n, n)
+        pairs = (diag[:, None, :] * diag[None, :, :]).reshape(K * K, -1)  # [(k, l), a]
+        N = (pairs.T @ T.transpose(0, 2, 1, 3).reshape(K * K, n * n)).reshape(-1, n, n)  # (n_j, n, n)
         rhs = np.einsum("ka,kia->ai", diag, W) * a[None, :]
         X = _solve_batched(N, rhs)  # (n_j, n)
     else:
         gram = op.mode_gram(j)
-        rhs = np.einsum("kam,kia->im", stack, W) * a[:, None]  # (n, n_j)
+        rhs = (W.transpose(1, 0, 2).reshape(n, -1) @ stack.reshape(-1, stack.shape[2])) * a[:, None]  # (n, n_j)
         X = _kronecker_pcg(T, gram, rhs, state.factors[j].T, iterations=cg_iterations,
                            rtol=cg_rtol).T  # (n_j, n)
     norms = np.linalg.norm(X, axis=0)
@@ -737,8 +764,8 @@ def _kronecker_pcg(T: np.ndarray, G: np.ndarray, B: np.ndarray, X: np.ndarray, *
     def apply(Y):
         return T_rows @ np.matmul(Y, G_t).reshape(K * K * n, m)
 
-    diag_T = np.einsum("kili->kli", T)  # (K, K, n)
-    blocks = np.einsum("kli,klab->iab", diag_T, G)  # (n, m, m)
+    diag_T = np.einsum("kili->kli", T).reshape(K * K, n)
+    blocks = (diag_T.T @ G.reshape(K * K, m * m)).reshape(n, m, m)
     try:
         inv_blocks = np.linalg.inv(blocks)
     except np.linalg.LinAlgError:
@@ -1062,7 +1089,8 @@ def _update_sweep(state: _State, res: float, suffixes: list) -> float:
         if new_res <= res:
             res = new_res
         else:
-            state.alphas, state.factors[j], state.images[j] = saved
+            state.alphas = saved[0]
+            state.set_mode(j, saved[1], saved[2])
             if extended is not None:
                 extended, _ = _extend_and_norm(prefix, state, j, suffixes[i + 1])
         prefix = extended
