@@ -33,7 +33,9 @@ from __future__ import annotations
 
 import math
 import time as _time
+import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -766,10 +768,7 @@ def _kronecker_pcg(T: np.ndarray, G: np.ndarray, B: np.ndarray, X: np.ndarray, *
 
     diag_T = np.einsum("kili->kli", T).reshape(K * K, n)
     blocks = (diag_T.T @ G.reshape(K * K, m * m)).reshape(n, m, m)
-    try:
-        inv_blocks = np.linalg.inv(blocks)
-    except np.linalg.LinAlgError:
-        inv_blocks = np.linalg.pinv(blocks, hermitian=True)
+    inv_blocks = _inverse_spd_blocks(blocks)
 
     def precond(R):
         return np.matmul(inv_blocks, R[:, :, None])[:, :, 0]
@@ -797,12 +796,31 @@ def _kronecker_pcg(T: np.ndarray, G: np.ndarray, B: np.ndarray, X: np.ndarray, *
     return X
 
 
+def _inverse_spd_blocks(blocks: np.ndarray) -> np.ndarray:
+    """Inverses of symmetric positive semi-definite matrices, shape (n, m, m).
+
+    Cholesky-based (half the cost of numpy's LU-based batched inverse); a singular
+    block (not positive definite) gets a pseudo-inverse. An ill-conditioned one is
+    inverted as it is: this is a preconditioner.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+        try:
+            return scipy.linalg.inv(blocks, assume_a="pos", check_finite=False)
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, ValueError):
+            return np.linalg.pinv(blocks, hermitian=True)
+
+
 def _solve_batched(N: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve ``N[a] x[a] = rhs[a]`` for SPD (possibly singular) ``N[a]``, shape (m, n, n) and (m, n)."""
+    """Solve ``N[a] x[a] = rhs[a]`` for SPD (possibly singular) ``N[a]``, shape (m, n, n) and (m, n).
+
+    A Cholesky factorization decides whether every ``N[a]`` is positive definite (else
+    least squares, one system at a time); the solve itself is numpy's batched LU, which
+    is faster than two batched "general" solves with the triangular factors.
+    """
     try:
-        c = np.linalg.cholesky(N)
-        y = np.linalg.solve(c, rhs[:, :, None])
-        return np.linalg.solve(np.swapaxes(c, 1, 2), y)[:, :, 0]
+        np.linalg.cholesky(N)
+        return np.linalg.solve(N, rhs[:, :, None])[:, :, 0]
     except np.linalg.LinAlgError:
         return np.stack([np.linalg.lstsq(N[a], rhs[a], rcond=None)[0] for a in range(N.shape[0])])
 
@@ -997,7 +1015,8 @@ def _run(disc: Discretization, opts, tol: float, nmax: int, callback):
     for _ in range(nmax):
         res_w, res_f = state.residual()
         factors, its = None, 0
-        for start in (_dominant_term(res_w, res_f), _random_start(res_f, state.rank)):
+        starts = (make(res_f) for make in (partial(_dominant_term, res_w), partial(_random_start, seed=state.rank)))
+        for start in starts:  # the random start only if the first gives a zero factor
             factors, its = enrich(
                 disc.operator, res_w, res_f,
                 formulation=opts.formulation,
