@@ -498,17 +498,6 @@ class _State:
         return self._products[m]
 
 
-def _suffix_products(mats: list[np.ndarray], last: np.ndarray | None = None) -> list[np.ndarray]:
-    """Hadamard products ``out[j] = mats[j] * ... * mats[-1] * last``; ``out[len(mats)] = last``.
-
-    ``last`` defaults to ones.
-    """
-    out = [np.ones_like(mats[-1]) if last is None else np.broadcast_to(last, mats[-1].shape)]
-    for a in mats[::-1]:
-        out.append(a * out[-1])
-    return out[::-1]
-
-
 def enrich(
     op: SeparatedOperator,
     res_w: np.ndarray,
@@ -542,8 +531,7 @@ def enrich(
     factors : list of ndarray, each shape (n_j,)
     iterations : int
     """
-    d = op.order
-    K = op.n_terms
+    d, K, C = op.order, op.n_terms, res_w.size
     stacks = [op.mode_stack(j) for j in range(d)]
     # the factors are views into one vector: the fixed point's change is then a few array operations
     offsets = np.cumsum([0] + [s.shape[2] for s in stacks[:-1]])
@@ -560,38 +548,41 @@ def enrich(
         # A_kj^T applied to every residual column, rows (k, c): H_j = <A_kj R_j, res_c> is Y_j R_j
         Y = [(s.transpose(0, 2, 1) @ f).transpose(0, 2, 1).reshape(-1, s.shape[2]) for s, f in zip(stacks, res_f)]
         V = [(rows[j] @ R[j]).reshape(K, -1) for j in range(d)]
-        G = [v @ v.T for v in V]
-        H = [(Y[j] @ R[j]).reshape(K, -1) for j in range(d)]
+        # G[j] = (A_kj R_j . A_lj R_j), H[j] = (A_kj R_j . res_c); stacked with one more slot
+        # (ones, the residual's weights) so that the products over the modes after j are one
+        # cumulative product per pass
+        G, H = np.empty((d + 1, K, K)), np.empty((d + 1, K, C))
+        for j in range(d):
+            G[j], H[j] = V[j] @ V[j].T, (Y[j] @ R[j]).reshape(K, -1)
     else:
-        P = [np.einsum("a,kab,b->k", R[j], stacks[j], R[j]) for j in range(d)]
-        H = [R[j] @ res_f[j] for j in range(d)]
+        # G[j] = (R_j . A_kj R_j), H[j] = (R_j . res_c), stacked likewise
+        G, H = np.empty((d + 1, K)), np.empty((d + 1, C))
+        for j in range(d):
+            G[j], H[j] = np.einsum("a,kab,b->k", R[j], stacks[j], R[j]), R[j] @ res_f[j]
+    G[d], H[d] = 1.0, res_w
 
     iterations = 0
     for iterations in range(1, max_iterations + 1):
         previous = flat.copy()
         # products over the other modes: the modes before j (already updated in this pass)
-        # times the modes after j (from the previous pass), the residual's weights folded in
-        after_H = _suffix_products(H, res_w)
-        after_G = _suffix_products(G) if formulation == "minres" else _suffix_products(P)
-        before_H, before_G = np.ones_like(H[0]), np.ones_like(after_G[0])
+        # times the modes after j (from the previous pass; the residual's weights included)
+        after_G = np.cumprod(G[::-1], axis=0)[::-1]
+        after_H = np.cumprod(H[::-1], axis=0)[::-1]
+        before_G = before_H = 1.0
         for j in range(d):
-            h = before_H * after_H[j + 1]  # (K, C) or (C,), times res_w
             c = before_G * after_G[j + 1]  # (K, K) or (K,)
+            h = before_H * after_H[j + 1]  # (K, C) or (C,)
             if formulation == "minres":
                 n_j = R[j].size
                 M = (c.reshape(-1) @ gram_ops[j]).reshape(n_j, n_j)
                 R[j][:] = _solve_small(M, h.reshape(-1) @ Y[j], symmetric=True)
                 V[j] = (rows[j] @ R[j]).reshape(K, -1)
-                G[j] = V[j] @ V[j].T
-                H[j] = (Y[j] @ R[j]).reshape(K, -1)
-                before_G = before_G * G[j]
+                G[j], H[j] = V[j] @ V[j].T, (Y[j] @ R[j]).reshape(K, -1)
             else:
                 M = np.einsum("k,kab->ab", c, stacks[j])
-                b = res_f[j] @ h
-                R[j][:] = _solve_small(M, b, symmetric=False)
-                P[j] = np.einsum("a,kab,b->k", R[j], stacks[j], R[j])
-                H[j] = R[j] @ res_f[j]
-                before_G = before_G * P[j]
+                R[j][:] = _solve_small(M, res_f[j] @ h, symmetric=False)
+                G[j], H[j] = np.einsum("a,kab,b->k", R[j], stacks[j], R[j]), R[j] @ res_f[j]
+            before_G = before_G * G[j]
             before_H = before_H * H[j]
         if _relative_change(previous, flat, offsets) < tolerance:
             break
