@@ -22,11 +22,14 @@ Algorithm (free functions below):
 2. :func:`project_alphas` recomputes every weight (eq. 15 for Galerkin, a
    least-squares problem for minres, solved through an orthogonal sweep).
 3. :func:`update_mode` optionally re-solves all modes of one coordinate jointly,
-   which keeps the rank low.
-4. The relative residual (eq. 16) is computed in separated form by an orthogonal
-   sweep (:func:`pgdcli.separated.orthogonal_sweep`), accurate to rounding. The
-   projection's sweep keeps its partial results, so that the update of each mode
-   is checked with one more sweep step (:func:`_update_sweep`), not a full sweep.
+   which keeps the rank low. With updates (minres), every coordinate is updated
+   after each enrichment and the residual checked once (:func:`_update_all`): the
+   first update re-fits all weights, which does step 2's job. Should the residual
+   not have fallen, the careful path is taken: step 2, then updates kept one by
+   one only if they lower the residual, each checked with one more step of the
+   projection's sweep (:func:`_update_sweep`).
+4. The relative residual (eq. 16) is computed in separated form by orthogonal
+   sweeps (:func:`pgdcli.separated.separated_norm`), accurate to rounding.
 """
 
 from __future__ import annotations
