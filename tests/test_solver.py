@@ -371,6 +371,30 @@ def test_reported_residual_is_honest(solved, name):
     assert dense == pytest.approx(result.residual, rel=1e-2, abs=1e-14)
 
 
+def test_update_fallback_reports_the_residual_of_what_it_keeps(monkeypatch):
+    # After an enrichment every mode is updated and the residual checked once; if it did not fall,
+    # the solver falls back to projecting and updating mode by mode (each update checked with one
+    # sweep step from the projection's partial sweeps). Force the fallback at every enrichment and
+    # compare the residual it reports with a full orthogonal sweep of the state it leaves.
+    from pgdcli import solver
+
+    checked = []
+    one_pass, sweep = solver._update_all, solver._update_sweep
+
+    def checked_sweep(state, res, suffixes):
+        out = sweep(state, res, suffixes)
+        checked.append((out, state.residual_norm(), state.source.norm()))
+        return out
+
+    monkeypatch.setattr(solver, "_update_all", lambda state, previous: one_pass(state, 0.0))
+    monkeypatch.setattr(solver, "_update_sweep", checked_sweep)
+    result = solve(load_spec(PROBLEMS / "relaxation.yaml"))
+    assert result.converged, result.message
+    assert len(checked) == result.n_modes
+    for reported, full_sweep, f_norm in checked:
+        assert abs(reported - full_sweep) <= 1e-6 * full_sweep + 1e-15 * f_norm
+
+
 def test_not_converged_when_max_modes_too_small():
     problem = load_spec(PROBLEMS / "spring.yaml")
     result = solve(problem, max_modes=2)
