@@ -633,6 +633,11 @@ class Codebook:
             "solve_time": float(rep.get("wall_time", np.nan)),
             "pgdcli_version": str(rep.get("pgdcli_version", "")),
         }
+        if "check_error" in rep:
+            out["check"] = {"error": float(rep["check_error"]), "node_error": float(rep["check_node_error"]),
+                            "between_error": float(rep["check_between_error"]), "points": int(rep["check_points"]),
+                            "failed": int(rep["check_failed"]), "where": str(rep["check_where"]),
+                            "march_tolerance": float(rep["march_tolerance"])}
         if "resolution" in rep and "resolution_coordinates" in rep:
             names = str(rep["resolution_coordinates"]).split(",")
             table = np.asarray(rep["resolution"], dtype=float)

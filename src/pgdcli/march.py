@@ -22,7 +22,10 @@ add up to at most 0.3 tolerance), state rounding <= ``0.02 * tolerance`` per
 step, stage rounding <= ``0.05 * tolerance`` (its effect on the step is scaled
 by ``h``). The report's ``error_estimate`` adds these up over the march; it
 does not include the growth of errors through the dynamics (the Lipschitz
-factor), which the tests measure against solve_ivp.
+factor), and the worst point of the grid can be 5-20 times the RMS: the user's
+tolerance is a max abs error, measured against scipy after the march and
+enforced by repeating it with a tighter RMS target (:mod:`pgdcli.check`,
+``pgdcli.solver._checked_march``).
 """
 
 from __future__ import annotations

@@ -1,0 +1,154 @@
+"""The march's tolerance as a checked bound: pgdcli.check and the retry loop in pgdcli.solve.
+
+The measured error is checked against exact solutions (never against itself), and
+the shipped nonlinear problems' codebooks against the tolerance of their specs at
+an independent sample (pgd verify's Sobol points, random times).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+from conftest import PROBLEMS
+
+import pgdcli
+from pgdcli import check, load_spec, parse_spec, solver
+from pgdcli.cli import cli
+from pgdcli.codebook import Codebook, FieldTT
+
+
+def exact_logistic(t, r, u0):
+    e = np.exp(r * t)
+    return u0 * e / (1.0 - u0 + u0 * e)
+
+
+def _variant(name: str, edit) -> str:
+    data = yaml.safe_load((PROBLEMS / f"{name}.yaml").read_text())
+    edit(data)
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def test_sample_holds_every_corner_grid_nodes_and_points_between(solved):
+    cb = solved("coupled").codebook
+    problem = load_spec(PROBLEMS / "coupled.yaml")
+    points, at_nodes = check.check_sample(problem, cb)
+    names = ["a", "b", "c"]
+    grid = {n: cb.coordinate(n).basis().nodes for n in names}
+    on_grid = np.all([np.isin(points[n], grid[n]) for n in names], axis=0)
+    np.testing.assert_array_equal(on_grid, at_nodes)  # node points are nodes, the others are not
+    assert (~at_nodes).sum() == check.BETWEEN
+    corners = {tuple(c) for c in itertools.product((0.0, 1.0), repeat=3)}
+    found = {tuple(float(points[n][i]) for n in names) for i in np.flatnonzero(at_nodes)}
+    assert corners <= found
+    for n in names:
+        assert points[n].min() >= 0.0 and points[n].max() <= 1.0
+
+
+def test_sample_beyond_the_corner_budget_is_a_subset_of_corners(solved):
+    cb = solved("rigid_body").codebook
+    problem = load_spec(PROBLEMS / "rigid_body.yaml")
+    points, at_nodes = check.check_sample(problem, cb)
+    names = [c.name for c in problem.parameter_coordinates]
+    box = np.column_stack([points[n][at_nodes] for n in names])
+    corner_rows = np.all((box == 0.5) | (box == 1.5), axis=1)
+    assert corner_rows.sum() >= check.CORNERS  # 64 of the 64 corners of a 6-D box, and face points
+
+
+def test_measured_error_is_the_true_error_of_the_codebook(solved):
+    """check_codebook against the exact logistic solution at the same points and times."""
+    result = solved("logistic")
+    cb = result.codebook
+    problem = load_spec(PROBLEMS / "logistic.yaml")
+    measured = check.check_codebook(problem, cb)
+    points, _ = check.check_sample(problem, cb)
+    times = cb.coordinate("t").basis().nodes
+    values = cb(t=times[None, :], r=points["r"][:, None], u0=points["u0"][:, None])["u"]
+    true = np.abs(values - exact_logistic(times[None, :], points["r"][:, None], points["u0"][:, None]))
+    assert true.max() > 1e-13  # not a codebook exact to rounding: the comparison can fail
+    assert measured.error == pytest.approx(true.max(), rel=1e-2, abs=1e-12)
+    assert measured.points == points["r"].size and measured.failed == 0
+
+
+def test_a_wrong_codebook_is_measured_wrong(solved):
+    cb = solved("logistic").codebook
+    problem = load_spec(PROBLEMS / "logistic.yaml")
+    fm = cb.fields["u"]
+    cores = list(fm.cores)
+    cores[-1] = cores[-1] * (1.0 + 1e-4)  # the whole field 1e-4 too large
+    wrong = Codebook(cb.coordinates, {"u": FieldTT(tuple(cores), fm.mode_order)}, name="wrong")
+    measured = check.check_codebook(problem, wrong)
+    points, _ = check.check_sample(problem, cb)
+    t = cb.coordinate("t").basis().nodes
+    expected = 1e-4 * exact_logistic(t[None, :], points["r"][:, None], points["u0"][:, None]).max()
+    assert measured.error == pytest.approx(expected, rel=1e-3)
+
+
+def test_report_states_the_measured_error(solved):
+    result = solved("coupled")
+    rep = result.codebook.report
+    tol = rep["tolerance"]
+    assert 0.0 < rep["check_error"] <= tol
+    assert rep["check_points"] > 100 and rep["check_failed"] == 0
+    assert rep["check_error"] == max(rep["check_node_error"], rep["check_between_error"])
+    assert f"max abs error {rep['check_error']:.3g} at {rep['check_points']} check points" in result.message
+    assert rep["march_attempts"].shape[1] == 2
+
+
+def test_march_is_tightened_until_the_check_passes(monkeypatch):
+    """The first check reports 4x the tolerance at the nodes: the march is repeated with a tighter target."""
+    real = check.check_codebook
+    calls = []
+
+    def fake(problem, codebook, **kw):
+        out = real(problem, codebook, **kw)
+        calls.append(codebook.report["tolerance"])
+        if len(calls) == 1:
+            out.error = out.node_error = 4.0 * problem.solver.tolerance
+        return out
+
+    monkeypatch.setattr(check, "check_codebook", fake)
+    text = _variant("logistic", lambda d: d["solver"].update(tolerance=1e-8))
+    result = pgdcli.solve(parse_spec(text, source="logistic-check.yaml"))
+    rep = result.codebook.report
+    assert len(calls) == 2
+    assert calls[1] == pytest.approx(calls[0] * solver.CHECK_SAFETY / 4.0)
+    assert rep["march_tolerance"] == pytest.approx(calls[1]) and rep["tolerance"] == 1e-8
+    np.testing.assert_allclose(rep["march_attempts"][:, 0], calls)
+    assert "rejected), 2 marches, max abs error" in result.message and rep["check_error"] <= 1e-8
+    assert not result.warnings
+
+
+def test_error_between_nodes_asks_for_nodes_not_a_tighter_march():
+    """Too few nodes in r: the nodes are right, the interpolation is not; one march and a warning."""
+    text = _variant("logistic", lambda d: d["coordinates"]["r"].update(nodes=6))
+    result = pgdcli.solve(parse_spec(text, source="logistic-coarse.yaml"))
+    rep = result.codebook.report
+    assert rep["march_attempts"].shape[0] == 1
+    assert rep["check_node_error"] <= 1e-10 < rep["check_between_error"]
+    assert any("add nodes to the parameter coordinates" in w for w in result.warnings), result.warnings
+    # the warning's number is the true error: the exact solution at the reported place
+    where = dict(kv.split("=") for kv in rep["check_where"].split(", "))
+    p = {k: float(v) for k, v in where.items()}
+    true = abs(result.codebook(**p)["u"] - exact_logistic(p["t"], p["r"], p["u0"]))
+    assert true == pytest.approx(rep["check_between_error"], rel=1e-6)
+
+
+def test_solve_and_info_print_the_measured_error(tmp_path):
+    out = tmp_path / "logistic.h5"
+    runner = CliRunner()
+    res = runner.invoke(cli, ["solve", str(PROBLEMS / "logistic.yaml"), "-o", str(out), "--format", "json"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    cb = Codebook.load(out)
+    assert summary["check_error"] == cb.report["check_error"] <= 1e-10
+    info = runner.invoke(cli, ["info", str(out), "--format", "json"])
+    data = json.loads(info.stdout)
+    assert data["check"]["error"] == cb.report["check_error"]
+    assert data["check"]["points"] == cb.report["check_points"]
+    text = runner.invoke(cli, ["info", str(out)])
+    assert f"max error: {cb.report['check_error']:.3e} at {cb.report['check_points']} check points" in text.stdout
