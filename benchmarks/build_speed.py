@@ -17,8 +17,13 @@ nodes per IC, 16 time nodes): the build of the codebook, ``pgdcli.solve(pgdcli.l
 Both at rtol = atol = 1e-8 and 1e-12. Note that a vectorized call controls the error norm of the
 whole 24000-vector (scipy's RMS norm), not each IC's: its worst IC is less accurate than the same
 tolerance in a loop, which the "accuracy of the alternatives" row measures (at the 400 timed ICs,
-against the loop at 1e-12). The coupled codebook is also built at ``solver.tolerance: 1e-8`` (the
-shipped spec asks 1e-9) to see whether the gap to the loop is the tolerance.
+against the loop at 1e-12). The coupled codebook is also built at ``solver.tolerance: 1e-7`` (the
+shipped spec asks 1e-9; the loop at 1e-8 is within ~7e-8) to see whether the gap to the loop is the
+tolerance.
+
+The march's tolerance is a max abs error that ``pgdcli.solve`` measures against scipy at its own
+check sample and enforces by repeating the march (README, "The march's tolerance is checked"): the
+build times include that check and any repeated march, and the rows say how many marches ran.
 
 rigid_body (problems/rigid_body.yaml: six initial velocities on [0.5, 1.5] with 8 nodes each, t in
 [0, 1], 16 time nodes; solver tolerance 1e-5): the build (one run) beside one vectorized ``solve_ivp``
@@ -121,6 +126,11 @@ def timed(func):
     start = time.perf_counter()
     value = func()
     return time.perf_counter() - start, value
+
+
+def marches(report) -> str:
+    n = len(report.get("march_attempts", [[0, 0]]))
+    return "1 march" if n == 1 else f"{n} marches"
 
 
 def median_of(func, repeats: int):
@@ -278,7 +288,7 @@ def bench_coupled(rows: list, work: Path) -> None:
                  "runs " + ", ".join(f"{t:.2f}" for t in build_runs) + " s", "", "", None))
 
     # the same problem built at a tolerance matched to the loop's (is the gap the shipped 1e-9?)
-    matched = 1e-8
+    matched = 1e-7
     problem_matched = with_tolerance(COUPLED, matched)
     print(f"coupled: building at tolerance {matched:g} (3 runs)", file=sys.stderr)
     matched_time, _, matched_result = build(problem_matched, repeats=3)
@@ -333,8 +343,8 @@ def bench_coupled(rows: list, work: Path) -> None:
     err = float(errors.max())
     rows.append((label, f"codebook max abs error, {ics.shape[0]} ICs (200 random, 48 on faces, 8 corners) x "
                         f"{tnodes.size} t, vs solve_ivp 1e-12",
-                 f"{err:.2e}", f"{where_text(errors, 8, 48)}; solver tolerance {report['tolerance']:g} (RMS), "
-                               f"estimate {report['error_estimate']:.2e}, {report['steps']} steps",
+                 f"{err:.2e}", f"{where_text(errors, 8, 48)}; solver tolerance {report['tolerance']:g} (max abs; "
+                               f"its check: {report['check_error']:.2e}), {marches(report)}, {report['steps']} steps",
                  "", f"<= {TARGET_COUPLED_ERROR:g}", err <= TARGET_COUPLED_ERROR))
 
     matched_err = float(codebook_errors(matched_result.codebook, ics, params, tnodes, reference).max())
@@ -395,7 +405,8 @@ def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
         err = float(errors.max())
         also = " (as at 1e-4)" if stretch else ""  # the issue sets time and size targets for the 1e-4 build
         rows.append((name, f"build: {how}, one run", fmt_time(build_time),
-                     f"{rep['steps']} steps, error estimate {rep['error_estimate']:.2e} (RMS)", "",
+                     f"{marches(rep)}, {rep['steps']} steps, solver's check {rep['check_error']:.2e} "
+                     f"(tolerance {rep['tolerance']:g})", "",
                      f"<= {TARGET_RIGID_TIME:g} s{also}", build_time <= TARGET_RIGID_TIME))
         target = f"<= {target_error:g}" + (" (stretch)" if stretch else "")
         rows.append((name, f"codebook max abs error, {sample_text}, vs solve_ivp 1e-12", f"{err:.2e}",
