@@ -347,6 +347,22 @@ def test_batches_threads_and_chunks(solved, monkeypatch, name):
             np.testing.assert_allclose(other[u], ref[u], rtol=1e-14, atol=1e-14)
 
 
+def test_tensor_train_batches_threads_and_chunks(solved, monkeypatch):
+    """The tensor-train batch path: threads never change a value, and batch values agree with
+    one-point evaluation (the point past the last full chunk, which joins it, included)."""
+    cb = solved("logistic").codebook
+    rng = np.random.default_rng(9)
+    size = codebook_module._PARALLEL_MIN_POINTS + 2 * codebook_module._TT_CHUNK + 1
+    p = {c.name: rng.uniform(*c.domain, size) for c in cb.coordinates}
+    ref = cb(**p)
+    for i in list(rng.choice(size, 20, replace=False)) + [size - 1]:
+        one = cb(**{k: float(v[i]) for k, v in p.items()})
+        np.testing.assert_allclose(ref["u"][i], one["u"], rtol=1e-13, atol=1e-14)
+    for threads in (1, 2, 3):
+        monkeypatch.setattr(codebook_module, "_threads", lambda: threads)
+        assert cb(**p)["u"].tobytes() == ref["u"].tobytes(), threads
+
+
 def test_batch_of_one_chunk_is_the_plain_algorithm_bitwise(solved):
     """Up to one chunk, a batch makes exactly the numpy/BLAS calls of the plain algorithm."""
     cb = solved("spring").codebook

@@ -472,11 +472,16 @@ class Codebook:
         flat = [self._checked(c, a.reshape(-1)) for c, a in zip(self.coordinates, arrays)]
         size = flat[0].size
         values = {u: np.empty(size) for u in tt}
-        for lo in range(0, size, _TT_CHUNK):
-            hi = min(size, lo + _TT_CHUNK)
-            mats = [b.interpolation_matrix(x[lo:hi]) for b, x in zip(self._bases, flat)]
-            for u in tt:
-                values[u][lo:hi] = _contract_tt(self.fields[u], mats)
+
+        def run(bounds):
+            for lo, hi in bounds:
+                mats = [b.interpolation_matrix(x[lo:hi]) for b, x in zip(self._bases, flat)]
+                for u in tt:
+                    values[u][lo:hi] = _contract_tt(self.fields[u], mats)
+
+        if size:
+            # the CP path's BLAS and thread policy (one BLAS thread, chunks shared by our threads)
+            _run_chunks(run, _chunk_bounds(size, _TT_CHUNK))
         out.update({u: v.reshape(shape) for u, v in values.items()})
         return {u: out[u] for u in selected}
 
