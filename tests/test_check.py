@@ -150,5 +150,9 @@ def test_solve_and_info_print_the_measured_error(tmp_path):
     data = json.loads(info.stdout)
     assert data["check"]["error"] == cb.report["check_error"]
     assert data["check"]["points"] == cb.report["check_points"]
+    assert data["roundings"] == {k: cb.report[f"roundings_{k}"] for k in ("exact", "sketched", "redone")}
+    assert data["roundings"]["exact"] > 0
     text = runner.invoke(cli, ["info", str(out)])
+    r = data["roundings"]
+    assert f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized" in text.stdout
     assert f"max error: {cb.report['check_error']:.3e} at {cb.report['check_points']} check points" in text.stdout

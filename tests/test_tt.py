@@ -301,6 +301,26 @@ def test_round_sum_of_products_matches_the_explicit_sum(hint):
     assert x.ranks == true_ranks
 
 
+def test_round_sum_of_products_counts_its_roundings():
+    """A sketch far below the true rank is a failed compression: counted, redone larger, and the
+    result is as accurate as the explicit sum's rounding."""
+    from pgdcli.tt import tt_ones, tt_round_sum_of_products
+
+    rng = np.random.default_rng(12)
+    shape = (8, 9, 7, 6)
+    a, b, c, d = (_random_train(rng, shape, r) for r in (4, 5, 4, 5))
+    exact = a.full() * b.full() + c.full() * d.full()
+    delta = 1e-9 * np.linalg.norm(exact)
+    stats = {}
+    x = tt_round_sum_of_products([(1.0, a, b), (1.0, c, d)], absolute=delta, rank_hint=1, oversample=2,
+                                 rng=rng, stats=stats)
+    assert np.linalg.norm(x.full() - exact) <= 10 * delta
+    assert stats["sketched"] == 1 and stats["redone"] >= 2  # sketch 3 -> 6 -> 12 -> ... (true rank 40)
+    small = {}
+    tt_round_sum_of_products([(1.0, a, tt_ones(shape))], absolute=delta, rank_hint=8, stats=small)
+    assert small == {"exact": 1}
+
+
 def test_centre_cores_carry_the_whole_tensor():
     from pgdcli.tt import tt_centre_cores
 

@@ -337,6 +337,10 @@ def info(codebook, fmt):
         console.print(f"max error: {chk['error']:.3e} at {chk['points']} check points vs scipy, at {chk['where']} "
                       f"(tolerance {summary['tolerance']:.1e})")
     console.print(f"{label}: {summary['residual']:.3e} (tolerance {summary['tolerance']:.1e}, {state})")
+    if summary.get("roundings") is not None:
+        r = summary["roundings"]
+        console.print(f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized "
+                      f"({r['redone']} redone with a larger sketch)")
     console.print(f"solve time: {summary['solve_time']:.3f} s")
     console.print(f"size: {_human_size(summary['size_bytes'])} ({summary['size_bytes']} bytes)")
     console.print(f"format: {summary['format']}, written by pgdcli {summary['pgdcli_version']}, {summary['created']}")

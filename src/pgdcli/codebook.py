@@ -638,6 +638,8 @@ class Codebook:
             "solve_time": float(rep.get("wall_time", np.nan)),
             "pgdcli_version": str(rep.get("pgdcli_version", "")),
         }
+        if "roundings_exact" in rep:
+            out["roundings"] = {k: int(rep[f"roundings_{k}"]) for k in ("exact", "sketched", "redone")}
         if "check_error" in rep:
             out["check"] = {"error": float(rep["check_error"]), "node_error": float(rep["check_node_error"]),
                             "between_error": float(rep["check_between_error"]), "points": int(rep["check_points"]),

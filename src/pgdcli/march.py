@@ -234,7 +234,7 @@ def _time_ratio(f, g):
 
 
 def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: float, max_rank: int,
-                 rng: np.random.Generator | None = None) -> list[TT]:
+                 rng: np.random.Generator | None = None, stats: dict | None = None) -> list[TT]:
     """``f_s(t, p, u)`` for every unknown, each rounded to absolute Frobenius error ``delta``.
 
     Every monomial becomes one Hadamard pair ``(coefficient * u_a, u_b)`` that
@@ -256,11 +256,11 @@ def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: floa
             terms.append((1.0, state[0].scaled(0.0), ones))
         per_unknown.append(terms)
     hints = [max(u.ranks, default=1) for u in state]
-    return round_terms(per_unknown, delta, hints, max_rank, rng)
+    return round_terms(per_unknown, delta, hints, max_rank, rng, stats)
 
 
 def round_terms(per_unknown: list[list[tuple[float, TT, TT]]], delta: float, hints: list[int], max_rank: int,
-                rng: np.random.Generator | None) -> list[TT]:
+                rng: np.random.Generator | None, stats: dict | None = None) -> list[TT]:
     """Sum and round ``sum_m w_m A_m * B_m`` for every unknown (absolute Frobenius bound ``delta``).
 
     Small implicit ranks: explicit sums rounded together (batched QR/SVD across
@@ -280,8 +280,11 @@ def round_terms(per_unknown: list[list[tuple[float, TT, TT]]], delta: float, hin
         for terms in per_unknown:
             parts = [a if _is_ones(b) else tt_hadamard(a, b) for _, a, b in terms]
             sums.append(tt_sum(parts, [w for w, _, _ in terms]))
+        if stats is not None:
+            stats["exact"] = stats.get("exact", 0) + len(sums)
         return tt_round_many(sums, absolute=delta, max_rank=max_rank)
-    return [tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint + 4, rng=rng, max_rank=max_rank)
+    return [tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint + 4, rng=rng, max_rank=max_rank,
+                                     stats=stats)
             for terms, hint in zip(per_unknown, hints)]
 
 
@@ -298,6 +301,7 @@ class MarchResult:
     times: np.ndarray | None = None  # the time nodes the states are at
     breakpoints: np.ndarray | None = None  # slab boundaries (automatic slabs only)
     pieces: list | None = None  # per unknown: trains with a leading mode over consecutive time nodes
+    roundings: dict = field(default_factory=dict)  # {"exact", "sketched", "redone"}: counts
 
 
 def _lift(train: TT) -> TT:
@@ -384,10 +388,11 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     stage_delta = STAGE_FRACTION * frobenius
 
     rng = np.random.default_rng(20240607)  # the randomized roundings: same spec, same codebook
+    stats = {"exact": 0, "sketched": 0, "redone": 0}  # roundings, for the report
     ones = tt_ones(system.shape)
 
     def rhs(t, state):
-        return evaluate_rhs(system, t, state, stage_delta, max_rank, rng)
+        return evaluate_rhs(system, t, state, stage_delta, max_rank, rng, stats)
 
     def combine(y, ks, weights, delta, base_weight=1.0):
         """``base_weight * y + sum_j w_j k_j`` per unknown, rounded."""
@@ -395,7 +400,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
         for i in range(q):
             terms = [(base_weight, y[i], ones)] + [(float(w), k[i], ones) for k, w in zip(ks, weights) if w != 0.0]
             per_unknown.append([tm for tm in terms if tm[0] != 0.0])
-        return round_terms(per_unknown, delta, [max(u.ranks, default=1) for u in y], max_rank, rng)
+        return round_terms(per_unknown, delta, [max(u.ranks, default=1) for u in y], max_rank, rng, stats)
 
     y = tt_round_many(system.initial, absolute=state_delta, max_rank=max_rank)
     t = float(nodes[0])
@@ -472,7 +477,8 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             # combination mode and round once, then each value is a contraction of that mode
             weights = [_dense_weights((tn - t) / h, h, D) for tn in interior]
             scale = max(float(np.linalg.norm(w)) for w in weights)
-            joined = join_and_round([[y[i], y_new[i]] + [k[i] for k in K] for i in range(q)], state_delta / scale, rng)
+            joined = join_and_round([[y[i], y_new[i]] + [k[i] for k in K] for i in range(q)], state_delta / scale, rng,
+                                    stats=stats)
             dense = iter([[_contract_leading(j, w) for j in joined] for w in weights])
         for tn in outs:
             if tn >= t_new:
@@ -508,11 +514,12 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     error_estimate += state_delta  # the rounding of the values at the time nodes (once)
     rms = error_estimate / np.sqrt(float(np.prod(system.shape)))
     return MarchResult(states, steps, rejected, rms, ranks, sizes, np.array(times),
-                       np.array(breakpoints) if slab_nodes else None, pieces)
+                       np.array(breakpoints) if slab_nodes else None, pieces, stats)
 
 
 def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generator | None = None,
-                   fan_in: int = 8, lifted: bool = False, batched: bool = True) -> list[TT]:
+                   fan_in: int = 8, lifted: bool = False, batched: bool = True,
+                   stats: dict | None = None) -> list[TT]:
     """Each group's trains joined along a new leading mode (``X[n, ...] = group[n][...]``), rounded
     to Frobenius error ``delta``; with ``lifted`` the trains already carry that leading mode
     (runs of time nodes) and are concatenated along it.
@@ -536,7 +543,7 @@ def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generato
         flat = [chunk for g in chunks for chunk in g]
         # the error budget of a level is shared by its chunks (orthogonal blocks)
         chunk_delta = budgets[min(level, levels - 1)] / np.sqrt(max(len(g) for g in chunks))
-        rounded = _round_concatenations(flat, chunk_delta, rng, batched)
+        rounded = _round_concatenations(flat, chunk_delta, rng, batched, stats)
         it = iter(rounded)
         pieces = [[next(it) for _ in g] for g in chunks]
         if all(len(g) == 1 for g in pieces):
@@ -544,7 +551,8 @@ def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generato
     raise AssertionError("the join tree did not close")  # pragma: no cover
 
 
-def _round_concatenations(chunks: list[list[TT]], delta: float, rng, batched: bool = True) -> list[TT]:
+def _round_concatenations(chunks: list[list[TT]], delta: float, rng, batched: bool = True,
+                          stats: dict | None = None) -> list[TT]:
     """Round ``tt_concatenate(chunk)`` for every chunk: exactly when small, else sketched.
 
     ``batched`` rounds equal-shape chunks together (fast; each keeps the largest rank of its
@@ -553,6 +561,8 @@ def _round_concatenations(chunks: list[list[TT]], delta: float, rng, batched: bo
     sums = [sum(max(t.ranks, default=1) for t in chunk) for chunk in chunks]
     if max(sums) <= EXACT_RANK_LIMIT:
         joined = [tt_concatenate(chunk) for chunk in chunks]
+        if stats is not None:
+            stats["exact"] = stats.get("exact", 0) + len(joined)
         by_shape: dict = {}
         for i, j in enumerate(joined):
             by_shape.setdefault(j.shape, []).append(i)
@@ -578,7 +588,7 @@ def _round_concatenations(chunks: list[list[TT]], delta: float, rng, batched: bo
             offset += n
         # a join spans the members' union: start the sketch at twice the largest member rank
         hint = 2 * max(max(t.ranks, default=1) for t in chunk)
-        out.append(tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint, rng=rng))
+        out.append(tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint, rng=rng, stats=stats))
     return out
 
 
@@ -667,7 +677,9 @@ def solve_march(problem, tolerance: float, callback=None):
     fields = {}
     st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     # one unknown at a time: batching would give every unknown the largest ranks of all
-    trains = join_and_round(result.pieces, st_delta, np.random.default_rng(7), lifted=True, batched=False)
+    stats = result.roundings
+    trains = join_and_round(result.pieces, st_delta, np.random.default_rng(7), lifted=True, batched=False,
+                            stats=stats)
     for u, train in zip(system.unknowns, trains):
         cores = train.cores
         if single:  # fold the virtual one-node mode into the time core
@@ -690,6 +702,11 @@ def solve_march(problem, tolerance: float, callback=None):
         "rejected_steps": int(result.rejected),
         "step_sizes": np.array(result.step_sizes),
         "node_ranks": ranks,  # (time nodes, unknowns, bonds)
+        # tensor-train roundings: exact (QR + SVD of the explicit sum), randomized (sketched), and the
+        # sketches redone with twice the size because the rounded rank came too close to the sketch's
+        "roundings_exact": int(stats.get("exact", 0)),
+        "roundings_sketched": int(stats.get("sketched", 0)),
+        "roundings_redone": int(stats.get("redone", 0)),
         "max_rank": int(opts.max_rank),
         "wall_time": wall,
         "pgdcli_version": __version__,

@@ -403,7 +403,8 @@ def _left_product(left: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, oversample: int = 8,
-                             rng: np.random.Generator | None = None, max_rank: int | None = None) -> TT:
+                             rng: np.random.Generator | None = None, max_rank: int | None = None,
+                             stats: dict | None = None) -> TT:
     """Rounded ``sum_m w_m A_m * B_m`` (Hadamard products; use :func:`tt_ones` for a lone factor).
 
     Small implicit ranks are summed and rounded exactly; large ones go
@@ -416,7 +417,13 @@ def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, over
     terms : list of (float, TT, TT)
     absolute : float
         Frobenius error bound of the final rounding.
+    stats : dict, optional
+        Counters incremented in place: ``"exact"`` (summed and rounded exactly),
+        ``"sketched"`` (randomized roundings) and ``"redone"`` (sketches whose
+        rounded rank came too close to their size: a failed compression, redone
+        with twice the sketch).
     """
+    stats = {} if stats is None else stats
     terms = [(float(w), a, b) for w, a, b in terms if w != 0.0]
     if not terms:
         raise ValueError("no terms to sum")
@@ -426,13 +433,16 @@ def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, over
     sketch = rank_hint + oversample
     if d == 1 or sum(implicit) <= 2 * sketch:
         exact = tt_sum([a if _is_ones(b) else tt_hadamard(a, b) for _, a, b in terms], [w for w, _, _ in terms])
+        stats["exact"] = stats.get("exact", 0) + 1
         return tt_round(exact, absolute=absolute, max_rank=max_rank)
     rng = np.random.default_rng(0) if rng is None else rng
     limit = sum(implicit)
+    stats["sketched"] = stats.get("sketched", 0) + 1
     while True:
         x = tt_round(_sketch_sum_of_products(terms, min(sketch, limit), rng), absolute=absolute, max_rank=max_rank)
         if sketch >= limit or max(x.ranks) <= sketch - oversample // 2 or (max_rank and sketch >= max_rank):
             return x
+        stats["redone"] = stats.get("redone", 0) + 1
         sketch *= 2
 
 
