@@ -693,6 +693,7 @@ def test_march_convergence_data_is_the_report(march_codebooks):
         assert data["steps"] == rep["steps"] == data["step_sizes"].size
         assert data["rejected"] == rep["rejected_steps"]
         assert data["error_estimate"] == rep["error_estimate"] and data["tolerance"] == rep["tolerance"]
+        assert data["check_error"] == rep["check_error"]
         assert data["converged"]
 
 
@@ -717,7 +718,7 @@ def test_march_convergence_figure_draws_the_data(march_codebooks):
     assert labels[0] == "u1" and all(lab.startswith(u) for lab, u in zip(labels, data["unknowns"]))
     title = fig._suptitle.get_text()
     assert P._sci(data["error_estimate"]) in title and P._sci(data["tolerance"]) in title
-    assert "tolerance 1e-9" in title
+    assert "tolerance 1e-9" in title and f"max error {P._sci(data['check_error'])} vs scipy" in title
     assert f"{data['steps']} accepted steps" in ax1.get_title(loc="left")
 
 

@@ -421,7 +421,7 @@ def convergence_data(codebook) -> dict:
         ``ranks`` (T, unknowns) the largest bond rank of each unknown's state at
         each time node (the report's ``node_ranks`` (T, unknowns, bonds) maxed
         over the bonds; 1 when there are no bonds); ``node_ranks`` as stored;
-        ``steps``, ``rejected``, ``error_estimate``, ``tolerance``, ``converged``.
+        ``steps``, ``rejected``, ``error_estimate``, ``check_error``, ``tolerance``, ``converged``.
     """
     rep = codebook.report
     if rep.get("method") == "march" or "step_sizes" in rep:
@@ -481,6 +481,7 @@ def _march_convergence_data(codebook) -> dict:
         "steps": int(rep.get("steps", sizes.size)),
         "rejected": int(rep.get("rejected_steps", 0)),
         "error_estimate": float(rep.get("error_estimate", np.nan)),
+        "check_error": float(rep.get("check_error", np.nan)),  # NaN: a codebook from before the check
         "tolerance": float(rep.get("tolerance", np.nan)),
         "converged": bool(rep.get("converged", False)),
     }
@@ -869,7 +870,8 @@ def _draw_march_convergence(data: dict, *, fig=None, figsize=None):
     ax2.set_title("(b) rank of the state over the non-time coordinates, at the time nodes", fontsize="medium",
                   loc="left")
     state = "" if data["converged"] else ", not converged"
-    _title(fig, data, f"time march, error estimate {_sci(data['error_estimate'])} "
+    measured = "" if np.isnan(data["check_error"]) else f"max error {_sci(data['check_error'])} vs scipy, "
+    _title(fig, data, f"time march, {measured}RMS estimate {_sci(data['error_estimate'])} "
                       f"(tolerance {_sci(data['tolerance'])}){state}")
     return fig
 
