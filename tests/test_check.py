@@ -156,3 +156,23 @@ def test_solve_and_info_print_the_measured_error(tmp_path):
     r = data["roundings"]
     assert f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized" in text.stdout
     assert f"max error: {cb.report['check_error']:.3e} at {cb.report['check_points']} check points" in text.stdout
+
+
+def test_march_without_parameters_checks_its_one_point():
+    text = """
+name: single
+coordinates:
+  t: {domain: [0, 2], nodes: 8}
+unknowns:
+  u: {initial: 0.3}
+equations:
+  - "der(u) = 1.5*u*(1 - u)"
+solver:
+  tolerance: 1e-10
+"""
+    result = pgdcli.solve(parse_spec(text, source="single.yaml"))
+    rep = result.codebook.report
+    assert rep["check_points"] == 1 and "at 1 check point against scipy" in result.message
+    t = result.codebook.coordinate("t").basis().nodes
+    true = np.abs(result.codebook(t=t)["u"] - exact_logistic(t, 1.5, 0.3)).max()
+    assert rep["check_error"] == pytest.approx(true, rel=1e-2, abs=1e-13) and true <= 1e-10

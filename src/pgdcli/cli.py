@@ -213,6 +213,18 @@ def _solve_summary(problem, result, target: Path) -> dict:
     }
 
 
+def _points(n: int) -> str:
+    return f"{n} check point" + ("s" if n != 1 else "")
+
+
+def _short_where(where: str) -> str:
+    """``"t=0.34776852054, a=0"`` with 6 significant digits (the report keeps them all)."""
+    try:
+        return ", ".join(f"{k}={float(v):.6g}" for k, v in (kv.split("=") for kv in where.split(", ")))
+    except ValueError:
+        return where
+
+
 def _summary_table(summary: dict):
     from rich.table import Table
 
@@ -223,7 +235,7 @@ def _summary_table(summary: dict):
     table.add_row("status", status)
     if summary.get("method") == "march":
         if "check_error" in summary:
-            table.add_row("max error", f"{summary['check_error']:.3e} at {summary['check_points']} check points "
+            table.add_row("max error", f"{summary['check_error']:.3e} at {_points(summary['check_points'])} "
                                        f"vs scipy (tolerance {summary['tolerance']:.1e})")
         table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
         table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
@@ -334,7 +346,7 @@ def info(codebook, fmt):
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("check") is not None:
         chk = summary["check"]
-        console.print(f"max error: {chk['error']:.3e} at {chk['points']} check points vs scipy, at {chk['where']} "
+        console.print(f"max error: {chk['error']:.3e} at {_points(chk['points'])} vs scipy, at {_short_where(chk['where'])} "
                       f"(tolerance {summary['tolerance']:.1e})")
     console.print(f"{label}: {summary['residual']:.3e} (tolerance {summary['tolerance']:.1e}, {state})")
     if summary.get("roundings") is not None:

@@ -1161,7 +1161,7 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
     if len(attempts) > 1:
         steps += f", {len(attempts)} marches"
     if np.isfinite(check.error):
-        measured = (f"max abs error {check.error:.3g} at {check.points} check points against scipy "
+        measured = (f"max abs error {check.error:.3g} at {check.points} check point{'s' if check.points != 1 else ''} against scipy "
                     f"(tolerance {tolerance:.3g})")
     else:
         measured = f"not checked: the reference integration failed at all check points (tolerance {tolerance:.3g})"
