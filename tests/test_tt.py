@@ -332,3 +332,26 @@ def test_centre_cores_carry_the_whole_tensor():
         c = np.transpose(centre, (1, 0, 2)).reshape(centre.shape[1], -1)
         np.testing.assert_allclose(np.linalg.svd(c, compute_uv=False)[: min(c.shape)],
                                    np.linalg.svd(unfolding, compute_uv=False)[: min(c.shape)], rtol=1e-10, atol=1e-12)
+
+
+def test_round_many_of_sums_with_ranks_above_the_outer_modes():
+    """Sums of many trains have bonds far above the outer mode sizes (the march's stage sums): the
+    batched rounding cuts them first and still lands within the bound on the unbatched ranks."""
+    from pgdcli.tt import tt_round_many
+
+    rng = np.random.default_rng(21)
+    shape = (6, 9, 5, 7)
+    sums, fulls = [], []
+    for _ in range(3):
+        parts = [_random_train(rng, shape, 4) for _ in range(13)]
+        weights = list(rng.standard_normal(13))
+        sums.append(tt_sum(parts, weights))
+        fulls.append(sum(w * t.full() for w, t in zip(weights, parts)))
+    assert sums[0].ranks[0] == 52 > shape[0] and sums[0].ranks[-1] == 52 > shape[-1]
+    delta = 1e-8 * max(np.linalg.norm(f) for f in fulls)
+    rounded = tt_round_many(sums, absolute=delta)
+    for x, s, f in zip(rounded, sums, fulls):
+        assert np.linalg.norm(x.full() - f) <= delta
+        single = tt_round(s, absolute=delta)
+        assert x.ranks[0] <= shape[0] and x.ranks[-1] <= shape[-1]
+        assert max(x.ranks) >= max(single.ranks)  # batched: the largest rank of the batch per bond

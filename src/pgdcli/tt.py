@@ -235,6 +235,36 @@ def _pad_to(cores: list[np.ndarray], ranks: list[int]) -> list[np.ndarray]:
     return out
 
 
+def _reduce_wide_ends(cores: list[np.ndarray]) -> None:
+    """Cut bonds above what the outer modes allow, in place, on stacked cores ``(B, r0, n, r1)``.
+
+    A sum of trains has bond ranks that add up (the march's stage sums: 13 trains),
+    far above ``n`` at the outer bonds, where no tensor can have more. The full
+    sweep of the rounding then pays QRs of ``(n r1, r0)`` unfoldings with the large
+    ``r0``. Reducing first, from the last core while ``n r1 < r0`` and from the first
+    while ``r0 n < r1`` (orthogonal transformations: the tensor is unchanged), leaves
+    that sweep small matrices; on coupled.yaml (n = 20, sums of rank 50-80) it
+    replaces QRs of 400 x 60 by 20 x 60 ones.
+    """
+    b, d = cores[0].shape[0], len(cores)
+    for k in range(d - 1, 0, -1):
+        _, r0, n, r1 = cores[k].shape
+        if n * r1 >= r0:
+            break
+        q, r = np.linalg.qr(cores[k].reshape(b, r0, n * r1).transpose(0, 2, 1))  # r: (B, n r1, r0)
+        cores[k] = q.transpose(0, 2, 1).reshape(b, n * r1, n, r1)
+        _, ra, na, _ = cores[k - 1].shape
+        cores[k - 1] = (cores[k - 1].reshape(b, ra * na, r0) @ r.transpose(0, 2, 1)).reshape(b, ra, na, n * r1)
+    for k in range(d - 1):
+        _, r0, n, r1 = cores[k].shape
+        if r0 * n >= r1:
+            break
+        q, r = np.linalg.qr(cores[k].reshape(b, r0 * n, r1))  # r: (B, r0 n, r1)
+        cores[k] = q.reshape(b, r0, n, r0 * n)
+        _, _, nb, rb = cores[k + 1].shape
+        cores[k + 1] = (r @ cores[k + 1].reshape(b, r1, nb * rb)).reshape(b, r0 * n, nb, rb)
+
+
 def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None = None) -> list[TT]:
     """:func:`tt_round` of several trains of the same shape at once (batched linear algebra).
 
@@ -252,6 +282,7 @@ def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None
     ranks = [1] + [max(t.cores[k].shape[2] for t in trains) for k in range(d - 1)] + [1]
     cores = [np.stack(cs) for cs in zip(*[_pad_to(list(t.cores), ranks) for t in trains])]  # (B, r0, n, r1)
     b = len(trains)
+    _reduce_wide_ends(cores)
     for k in range(d - 1, 0, -1):
         _, r0, n, r1 = cores[k].shape
         q, r = np.linalg.qr(cores[k].reshape(b, r0, n * r1).transpose(0, 2, 1))
