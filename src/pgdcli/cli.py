@@ -118,7 +118,8 @@ def _stderr_console():
 @click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="Codebook path [default: the spec's output, else codebooks/<name>.h5].")
-@click.option("--tolerance", type=float, help="Override solver.tolerance (relative residual).")
+@click.option("--tolerance", type=float,
+              help="Override solver.tolerance (enrichment: relative residual; march: max abs error, checked).")
 @click.option("--max-modes", type=int, help="Override solver.max_modes.")
 @click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
               help="text: summary table on stderr; json: the summary as JSON on stdout.")
@@ -126,9 +127,10 @@ def _stderr_console():
 def solve(spec, output, tolerance, max_modes, fmt, quiet):
     """Solve the problem in SPEC (YAML) and write its codebook.
 
-    The codebook is written (atomically) only when the relative residual
-    reaches the tolerance; otherwise nothing is written at the target path
-    and the exit status is 1.
+    The codebook is written (atomically) only when the solver converged (the
+    enrichment's relative residual reached the tolerance; the march reached
+    the end of the time domain, its max error measured against scipy); otherwise
+    nothing is written at the target path and the exit status is 1.
     """
     _run(_solve, spec, output, tolerance, max_modes, fmt, quiet)
 
