@@ -562,3 +562,23 @@ def test_tensor_train_point_errors_and_fallbacks():
     assert float(one["u"]) == float(cb(t=1.0, x=0.0, y=1.0)["u"])
     shaped = cb(t=[[1.0]], x=0.0, y=1.0)  # one point given as an array keeps its shape
     assert shaped["u"].shape == (1, 1) and shaped["u"][0, 0] == pytest.approx(float(one["u"]), rel=1e-13)
+
+
+def test_one_point_of_a_mixed_codebook():
+    """CP modes, a stacked tensor train and one of another core order (outside the stack) together."""
+    from pgdcli.codebook import FieldTT
+
+    tt = _small_tt_codebook((0, 1, 2))
+    other = _small_tt_codebook((2, 0, 1)).fields["u"]
+    rng = np.random.default_rng(14)
+    cp = FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3)) for c in tt.coordinates))
+    cb = Codebook(tt.coordinates, {"m": cp, "u": tt.fields["u"], "o": other}, name="mixed", report={})
+    assert isinstance(cb.fields["o"], FieldTT) and cb._tt_all is None and list(cb._tt_stack.index) == ["u"]
+    for p in _tt_points(cb):
+        one = cb(**p)
+        batch = cb(**{k: np.array([v, v]) for k, v in p.items()})
+        assert list(one) == ["m", "u", "o"]
+        for u in cb.unknown_names:
+            assert one[u].shape == ()
+            assert abs(float(one[u]) - batch[u][0]) <= 1e-13 * max(1.0, abs(batch[u][0])), (p, u)
+        assert float(cb.evaluate(p, fields=["o", "m"])["m"]) == float(one["m"])

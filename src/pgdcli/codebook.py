@@ -712,28 +712,14 @@ class Codebook:
         return weights
 
     def _evaluate_point(self, xs: list[float], selected: list[str], shape: tuple) -> dict[str, np.ndarray]:
-        """One point: per coordinate, its cardinal row times its modes (CP) or cores (tensor trains).
+        """One point: per coordinate, its cardinal row times its modes (CP); tensor trains: :meth:`_TTStack.at_point`.
 
         For CP unknowns the same arithmetic, in the same order, as the batch path on one point.
         """
+        rows = None
         out = {}
-        stack = self._tt_stack
-        if stack is not None and any(u in stack.index for u in selected):
-            values = stack.at_point(self._point_weights(xs))
-            for u in selected:
-                if u in stack.index:
-                    out[u] = np.array(values[stack.index[u]])
-        rest = [u for u in selected if u not in out]
-        if rest:
-            self._evaluate_point_rows(xs, rest, out)
-        if shape == ():
-            return {u: out[u] for u in selected}
-        return {u: out[u].reshape(shape) for u in selected}
-
-    def _evaluate_point_rows(self, xs: list[float], selected: list[str], out: dict) -> None:
-        """One point from its cardinal rows: CP unknowns, and tensor trains outside the common stack."""
-        rows = self._point_rows(xs)
         if any(u in self._slices for u in selected):
+            rows = self._point_rows(xs)
             product = None
             for row, p in zip(rows, self._point):
                 # np.dot: the gemv of `row @ modes` with less call overhead (for vector . vector it is
@@ -743,10 +729,20 @@ class Codebook:
             for u in selected:
                 if u in self._slices:
                     out[u] = np.array(product[self._slices[u]] @ self.fields[u].alphas)
+        stack = self._tt_stack
+        if stack is not None and any(u in stack.index for u in selected):
+            values = stack.at_point(self._point_weights(xs))
+            for u in selected:
+                if u in stack.index:
+                    out[u] = np.array(values[stack.index[u]])
         for u in selected:
             if u not in out:  # a tensor train outside the common stack (other core order)
+                rows = self._point_rows(xs) if rows is None else rows
                 mats = [r[None, :] for r in rows]
                 out[u] = np.array(_contract_tt(self.fields[u], mats)[0])
+        if shape == ():
+            return {u: out[u] for u in selected}
+        return {u: out[u].reshape(shape) for u in selected}
 
     def _evaluate_flat(self, flat: list[np.ndarray], selected: list[str]) -> dict[str, np.ndarray]:
         """Evaluate at the points ``flat[j][i]`` (one array per coordinate, same length, not 1).
