@@ -460,3 +460,125 @@ def test_blas_limit_is_restored_after_batches(solved):
     assert len(results) == 4 and all(r.tobytes() == ref.tobytes() for r in results)
     assert _blas_threads(threadpoolctl) == before
     assert codebook_module._blas_users == 0
+
+
+# ----------------------------------------------------------------------------------------------
+# one tensor-train point (node tables, merged first pair, vector-first cores)
+# ----------------------------------------------------------------------------------------------
+def _small_tt_codebook(order, first_rank=9):
+    """Two tensor-train unknowns of different ranks (zero-padded in the stack) on a piecewise
+    time coordinate (3 slabs of 5 nodes), a Chebyshev and a linear one, cores in ``order``."""
+    from pgdcli.codebook import FieldTT
+
+    coords = [CoordinateInfo("t", (0.0, 3.0), 13, "chebyshev", "time", breakpoints=(0.0, 0.7, 1.9, 3.0)),
+              CoordinateInfo("x", (-1.0, 2.0), 7, "chebyshev"),
+              CoordinateInfo("y", (0.5, 1.5), 6, "linear")]
+    rng = np.random.default_rng(12)
+    fields = {}
+    for name, ranks in (("u", (1, first_rank, 4, 1)), ("w", (1, first_rank - 2, 3, 1))):
+        cores = tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1]))
+                      for k, j in enumerate(order))
+        fields[name] = FieldTT(cores, order)
+    return Codebook(coords, fields, name="small-tt", report={})
+
+
+def _direct_tt(cb, point):
+    """The tensor train at one point by plain numpy: cardinal rows times the cores, core by core."""
+    out = {}
+    for u, fm in cb.fields.items():
+        v = np.ones(1)
+        for core, j in zip(fm.cores, fm.mode_order):
+            c = cb.coordinates[j]
+            row = c.basis().interpolation_matrix([point[c.name]])[0]
+            v = np.einsum("r,rns,n->s", v, core, row)
+        out[u] = float(v[0])
+    return out
+
+
+def _tt_points(cb):
+    """Between nodes, at nodes, at slab breakpoints, at and just inside the ends, mixed."""
+    rng = np.random.default_rng(13)
+    values = {}
+    for c in cb.coordinates:
+        lo, hi = c.domain
+        nodes = c.basis().nodes
+        values[c.name] = [float(rng.uniform(lo, hi)), float(nodes[2]), lo, hi, lo + 1e-15, hi - 1e-15 * (hi - lo),
+                          float(nodes[3]) + 1e-13, *c.breakpoints[1:-1]]
+    points = []
+    for k in range(40):
+        points.append({name: v[k % len(v)] if k < 10 else v[int(rng.integers(len(v)))] for name, v in values.items()})
+    return points
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2), (1, 0, 2), (2, 1, 0)], ids=str)
+@pytest.mark.parametrize("layout", ["default", "no pair", "vector first"])
+def test_tensor_train_point_agrees_with_batch_and_plain_contraction(monkeypatch, order, layout):
+    if layout != "default":
+        monkeypatch.setattr(codebook_module, "_PAIR_MAX", 0)
+    if layout == "vector first":
+        monkeypatch.setattr(codebook_module, "_ROW_FIRST_MAX", 0)
+    cb = _small_tt_codebook(order)
+    stack = cb._tt_stack
+    # the first coordinate's window (a slab: 5 nodes, x: 7, an element of y: 2) is below the rank 9
+    assert (stack.pair is not None) == (layout == "default")
+    if layout == "vector first":
+        assert not any(through_table for _, through_table, *_ in stack.cores[1:])
+    for p in _tt_points(cb):
+        one = cb(**p)
+        batch = cb(**{k: np.array([v, 0.5 * sum(c.domain)]) for c, (k, v) in zip(cb.coordinates, p.items())})
+        plain = _direct_tt(cb, p)
+        assert list(one) == ["u", "w"]
+        for u in cb.unknown_names:
+            assert isinstance(one[u], np.ndarray) and one[u].shape == () and one[u].dtype == np.float64
+            scale = max(1.0, abs(plain[u]))
+            assert abs(float(one[u]) - batch[u][0]) <= 1e-13 * scale, (p, u)
+            assert abs(float(one[u]) - plain[u]) <= 1e-13 * scale, (p, u)
+        # evaluate with fields (the general one-point path) and numpy scalars give the same values
+        assert float(cb.evaluate(p, fields=["w"])["w"]) == float(one["w"])
+        assert float(cb(**{k: np.float64(v) for k, v in p.items()})["u"]) == float(one["u"])
+
+
+def test_tensor_train_point_at_nodes_is_the_nodal_value():
+    cb = _small_tt_codebook((0, 1, 2))
+    nodes = [c.basis().nodes for c in cb.coordinates]
+    full = {u: cb.nodal_values(u) for u in cb.unknown_names}
+    for index in [(0, 0, 0), (4, 3, 2), (8, 6, 5), (12, 1, 4)]:  # t[4], t[8]: slab breakpoints
+        one = cb(**{c.name: float(n[i]) for c, n, i in zip(cb.coordinates, nodes, index)})
+        for u in cb.unknown_names:
+            assert float(one[u]) == pytest.approx(full[u][index], rel=1e-14, abs=1e-14)
+
+
+def test_tensor_train_point_errors_and_fallbacks():
+    cb = _small_tt_codebook((0, 1, 2))
+    with pytest.raises(QueryError, match=r"coordinate 'x': value 2\.5 is outside the domain \[-1, 2\]"):
+        cb(t=1.0, x=2.5, y=0.7)
+    with pytest.raises(QueryError, match=r"coordinate 't': value nan is outside"):
+        cb(t=float("nan"), x=9.0, y=0.7)  # the first bad coordinate in coordinate order, as for arrays
+    with pytest.raises(QueryError, match="missing coordinate 'y'"):
+        cb(t=1.0, x=0.5)
+    with pytest.raises(QueryError, match="unknown coordinate 'z'"):
+        cb(t=1.0, x=0.5, y=0.7, z=1.0)
+    one = cb(t=1, x=0, y=1)  # Python ints, as floats
+    assert float(one["u"]) == float(cb(t=1.0, x=0.0, y=1.0)["u"])
+    shaped = cb(t=[[1.0]], x=0.0, y=1.0)  # one point given as an array keeps its shape
+    assert shaped["u"].shape == (1, 1) and shaped["u"][0, 0] == pytest.approx(float(one["u"]), rel=1e-13)
+
+
+def test_one_point_of_a_mixed_codebook():
+    """CP modes, a stacked tensor train and one of another core order (outside the stack) together."""
+    from pgdcli.codebook import FieldTT
+
+    tt = _small_tt_codebook((0, 1, 2))
+    other = _small_tt_codebook((2, 0, 1)).fields["u"]
+    rng = np.random.default_rng(14)
+    cp = FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3)) for c in tt.coordinates))
+    cb = Codebook(tt.coordinates, {"m": cp, "u": tt.fields["u"], "o": other}, name="mixed", report={})
+    assert isinstance(cb.fields["o"], FieldTT) and cb._tt_all is None and list(cb._tt_stack.index) == ["u"]
+    for p in _tt_points(cb):
+        one = cb(**p)
+        batch = cb(**{k: np.array([v, v]) for k, v in p.items()})
+        assert list(one) == ["m", "u", "o"]
+        for u in cb.unknown_names:
+            assert one[u].shape == ()
+            assert abs(float(one[u]) - batch[u][0]) <= 1e-13 * max(1.0, abs(batch[u][0])), (p, u)
+        assert float(cb.evaluate(p, fields=["o", "m"])["m"]) == float(one["m"])
