@@ -176,3 +176,23 @@ solver:
     t = result.codebook.coordinate("t").basis().nodes
     true = np.abs(result.codebook(t=t)["u"] - exact_logistic(t, 1.5, 0.3)).max()
     assert rep["check_error"] == pytest.approx(true, rel=1e-2, abs=1e-13) and true <= 1e-10
+
+
+def test_a_march_the_reference_cannot_check_says_so(monkeypatch, tmp_path):
+    """If scipy cannot integrate the problem the march stands, unchecked, and says so everywhere."""
+    from pgdcli.errors import PgdError
+
+    def refuse(problem, codebook, **kw):
+        raise PgdError("equations[0]: not for the reference")
+
+    monkeypatch.setattr(check, "check_codebook", refuse)
+    out = tmp_path / "logistic.h5"
+    res = CliRunner().invoke(cli, ["solve", str(PROBLEMS / "logistic.yaml"), "-o", str(out), "--format", "json"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)  # valid JSON: no NaN
+    assert summary["check_error"] is None and "not checked against scipy" in summary["message"]
+    assert any("could not be checked against scipy: equations[0]: not for the reference" in w
+               for w in summary["warnings"])
+    info = json.loads(CliRunner().invoke(cli, ["info", str(out), "--format", "json"]).stdout)
+    assert info["check"]["error"] is None and info["check"]["points"] == 0
+    assert "max error" not in CliRunner().invoke(cli, ["info", str(out)]).stdout

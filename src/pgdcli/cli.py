@@ -203,7 +203,7 @@ def _solve_summary(problem, result, target: Path) -> dict:
         "converged": bool(result.converged),
         "message": result.message,
         "residual": float(result.residual),  # march: the RMS error estimate
-        **({"check_error": float(cb.report["check_error"]), "check_points": int(cb.report["check_points"])}
+        **({"check_error": _finite_or_none(cb.report["check_error"]), "check_points": int(cb.report["check_points"])}
            if march and "check_error" in cb.report else {}),
         "tolerance": float(cb.report["tolerance"]),
         "modes": {u: fm.rank for u, fm in cb.fields.items()},  # march: the largest tensor-train rank
@@ -213,6 +213,11 @@ def _solve_summary(problem, result, target: Path) -> dict:
         "wall_time": float(result.wall_time),
         "output": str(target) if result.converged else None,
     }
+
+
+def _finite_or_none(value) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
 
 
 def _points(n: int) -> str:
@@ -236,7 +241,7 @@ def _summary_table(summary: dict):
     status = "[green]converged[/]" if summary["converged"] else "[red]not converged[/]"
     table.add_row("status", status)
     if summary.get("method") == "march":
-        if "check_error" in summary:
+        if summary.get("check_error") is not None:
             table.add_row("max error", f"{summary['check_error']:.3e} at {_points(summary['check_points'])} "
                                        f"vs scipy (tolerance {summary['tolerance']:.1e})")
         table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
@@ -346,7 +351,7 @@ def info(codebook, fmt):
         for u, v in summary["unknowns"].items()))
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
-    if summary.get("check") is not None:
+    if summary.get("check") is not None and summary["check"]["error"] is not None:
         chk = summary["check"]
         console.print(f"max error: {chk['error']:.3e} at {_points(chk['points'])} vs scipy, at {_short_where(chk['where'])} "
                       f"(tolerance {summary['tolerance']:.1e})")

@@ -819,8 +819,12 @@ class Codebook:
         if "roundings_exact" in rep:
             out["roundings"] = {k: int(rep[f"roundings_{k}"]) for k in ("exact", "sketched", "redone")}
         if "check_error" in rep:
-            out["check"] = {"error": float(rep["check_error"]), "node_error": float(rep["check_node_error"]),
-                            "between_error": float(rep["check_between_error"]), "points": int(rep["check_points"]),
+            def finite(key):  # JSON has no NaN: an unchecked march gives None
+                v = float(rep[key])
+                return v if np.isfinite(v) else None
+
+            out["check"] = {"error": finite("check_error"), "node_error": finite("check_node_error"),
+                            "between_error": finite("check_between_error"), "points": int(rep["check_points"]),
                             "failed": int(rep["check_failed"]), "where": str(rep["check_where"]),
                             "march_tolerance": float(rep["march_tolerance"])}
         if "resolution" in rep and "resolution_coordinates" in rep:

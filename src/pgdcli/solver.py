@@ -45,7 +45,7 @@ import numpy as np
 import scipy.linalg
 
 from .basis import Basis1D
-from .errors import SolverError
+from .errors import PgdError, SolverError
 from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
 
 __all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
@@ -1139,7 +1139,11 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
             notes.append(f"the march with the tighter target {target:.2g} failed ({result.message}); "
                          f"kept the one with target {attempts[-1][0]:.2g}")
             break
-        kept, check = result, check_codebook(problem, result.codebook)
+        try:
+            measured = check_codebook(problem, result.codebook)
+        except PgdError as exc:  # the reference cannot integrate this problem: say so, keep the march
+            measured = _unchecked(result, exc)
+        kept, check = result, measured
         attempts.append((target, check.error))
         if not np.isfinite(check.node_error) or check.node_error <= tolerance:
             break
@@ -1164,11 +1168,13 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
         measured = (f"max abs error {check.error:.3g} at {check.points} check point{'s' if check.points != 1 else ''} against scipy "
                     f"(tolerance {tolerance:.3g})")
     else:
-        measured = f"not checked: the reference integration failed at all check points (tolerance {tolerance:.3g})"
+        measured = f"not checked against scipy (tolerance {tolerance:.3g}; see the warnings)"
     message = f"converged: {steps}, {measured}"
     rep["message"] = message
     warns = list(kept.warnings) + notes
-    if check.failed:
+    if check.failed and not check.points:
+        warns.append(f"the reference integration failed at all {check.failed} check points: the error is not measured")
+    elif check.failed:
         warns.append(f"the reference integration failed at {check.failed} of {check.failed + check.points} "
                      f"check points; they are not in the measured error")
     if np.isfinite(check.error) and check.error > tolerance:
@@ -1179,6 +1185,14 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
             warns.append(f"the measured error {check.error:.2g} (at {where}) exceeds the tolerance "
                          f"{tolerance:.2g} after {len(attempts)} marches")
     return replace(kept, message=message, wall_time=wall, warnings=warns)
+
+
+def _unchecked(result, exc) -> "CheckResult":
+    from .check import CheckResult
+
+    result.warnings.append(f"the march's error could not be checked against scipy: {' '.join(str(exc).split())}")
+    nan = float("nan")
+    return CheckResult(nan, nan, nan, 0, 0)
 
 
 def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveResult":
