@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["CheckResult", "check_codebook", "check_sample"]
+__all__ = ["CheckResult", "check_codebook", "check_sample", "points_text"]
 
 CORNERS = 64
 FACE_NODES = 96
@@ -62,6 +62,11 @@ class CheckResult:
     failed: int
     where: dict = field(default_factory=dict)
     per_unknown: dict = field(default_factory=dict)
+
+
+def points_text(n: int) -> str:
+    """``"1 check point"``, ``"183 check points"``."""
+    return f"{n} check point" + ("s" if n != 1 else "")
 
 
 def check_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray], np.ndarray]:

@@ -220,10 +220,6 @@ def _finite_or_none(value) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def _points(n: int) -> str:
-    return f"{n} check point" + ("s" if n != 1 else "")
-
-
 def _short_where(where: str) -> str:
     """``"t=0.34776852054, a=0"`` with 6 significant digits (the report keeps them all)."""
     try:
@@ -235,6 +231,8 @@ def _short_where(where: str) -> str:
 def _summary_table(summary: dict):
     from rich.table import Table
 
+    from .check import points_text
+
     table = Table(title=f"pgd solve: {summary['problem']}", show_header=False, title_justify="left")
     table.add_column(style="bold")
     table.add_column()
@@ -242,7 +240,7 @@ def _summary_table(summary: dict):
     table.add_row("status", status)
     if summary.get("method") == "march":
         if summary.get("check_error") is not None:
-            table.add_row("max error", f"{summary['check_error']:.3e} at {_points(summary['check_points'])} "
+            table.add_row("max error", f"{summary['check_error']:.3e} at {points_text(summary['check_points'])} "
                                        f"vs scipy (tolerance {summary['tolerance']:.1e})")
         table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
         table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
@@ -337,6 +335,8 @@ def info(codebook, fmt):
     from rich.console import Console
     from rich.table import Table
 
+    from .check import points_text
+
     console = Console(highlight=False, soft_wrap=True)
     console.print(f"[bold]{summary['name']}[/]  {summary['description']}".rstrip())
     coords = Table(title="coordinates", title_justify="left")
@@ -353,7 +353,7 @@ def info(codebook, fmt):
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("check") is not None and summary["check"]["error"] is not None:
         chk = summary["check"]
-        console.print(f"max error: {chk['error']:.3e} at {_points(chk['points'])} vs scipy, at {_short_where(chk['where'])} "
+        console.print(f"max error: {chk['error']:.3e} at {points_text(chk['points'])} vs scipy, at {_short_where(chk['where'])} "
                       f"(tolerance {summary['tolerance']:.1e})")
     console.print(f"{label}: {summary['residual']:.3e} (tolerance {summary['tolerance']:.1e}, {state})")
     if summary.get("roundings") is not None:

@@ -195,7 +195,8 @@ class _PointData:
     """Constants of one coordinate for the one-point path of :meth:`Codebook.evaluate`."""
 
     __slots__ = ("name", "domain", "low", "high", "lower", "upper", "chebyshev", "nodes", "node_list",
-                 "node_index", "bary", "unit", "modes", "basis", "piecewise", "breaks", "slab", "slab_nodes")
+                 "node_index", "bary", "unit", "modes", "basis", "piecewise", "breaks", "slab", "slab_nodes",
+                 "bounds")
 
     def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
         low, high = c.domain
@@ -217,6 +218,26 @@ class _PointData:
         # each slab's nodes as its own array: a point's slab costs a list lookup, not a slice
         self.slab_nodes = [basis.nodes[s * (self.slab - 1): s * (self.slab - 1) + self.slab]
                            for s in range(len(self.breaks) + 1)] if self.piecewise else []
+        self.bounds = self.window_bounds()
+
+    def clipped(self, x: float) -> float:
+        """``x`` checked against the domain (with its slack) and clipped into it, as the batch path."""
+        if not (x >= self.lower and x <= self.upper):
+            raise _outside(self, x)
+        x = x if x > self.low else self.low
+        return x if x < self.high else self.high
+
+    def row(self, x: float) -> np.ndarray:
+        """The cardinal row (a unit row at a node) of the clipped value ``x``, shape (nodes,)."""
+        k, c = self.weights(x)
+        if c is None:
+            return self.unit[k]
+        if self.chebyshev and not self.piecewise:
+            return c / _add_reduce(c)
+        lo, hi = self.bounds[k]
+        row = np.zeros(self.nodes.size)
+        row[lo:hi] = c / _add_reduce(c) if self.piecewise else c  # linear: (1 - theta, theta) as they are
+        return row
 
     def windows(self, table: np.ndarray) -> list[np.ndarray]:
         """The row blocks of ``table`` (one row per node) that :meth:`weights` selects.
@@ -672,44 +693,11 @@ class Codebook:
 
     def _point_rows(self, xs: list[float]) -> list[np.ndarray]:
         """Cardinal rows (a unit row at a node) of one point, coordinate by coordinate."""
-        rows = []
-        for x, p in zip(xs, self._point):
-            if not (x >= p.lower and x <= p.upper):
-                raise _outside(p, x)
-            x = x if x > p.low else p.low  # np.clip, as the batch path
-            x = x if x < p.high else p.high
-            k = p.node_index.get(x)
-            if k is not None:
-                row = p.unit[k]
-            elif p.piecewise:  # barycentric on the slab of x (a breakpoint is a node: handled above)
-                first = bisect_right(p.breaks, x) * (p.slab - 1)
-                nodes = p.nodes[first:first + p.slab]
-                c = p.bary / (x - nodes)
-                row = np.zeros(p.nodes.size)
-                row[first:first + p.slab] = c / _add_reduce(c)
-            elif p.chebyshev:
-                c = p.bary / (x - p.nodes)
-                row = c / _add_reduce(c)
-            else:
-                nodes = p.node_list
-                left = min(max(bisect_right(nodes, x) - 1, 0), len(nodes) - 2)
-                theta = (x - nodes[left]) / (nodes[left + 1] - nodes[left])
-                row = np.zeros(len(nodes))
-                row[left] = 1.0 - theta
-                row[left + 1] = theta
-            rows.append(row)
-        return rows
+        return [p.row(p.clipped(x)) for x, p in zip(xs, self._point)]
 
     def _point_weights(self, xs: list[float]) -> list[tuple]:
         """:meth:`_PointData.weights` of one point, coordinate by coordinate (checked and clipped as rows)."""
-        weights = []
-        for x, p in zip(xs, self._point):
-            if not (x >= p.lower and x <= p.upper):
-                raise _outside(p, x)
-            x = x if x > p.low else p.low  # np.clip, as the batch path
-            x = x if x < p.high else p.high
-            weights.append(p.weights(x))
-        return weights
+        return [p.weights(p.clipped(x)) for x, p in zip(xs, self._point)]
 
     def _evaluate_point(self, xs: list[float], selected: list[str], shape: tuple) -> dict[str, np.ndarray]:
         """One point: per coordinate, its cardinal row times its modes (CP); tensor trains: :meth:`_TTStack.at_point`.

@@ -1123,7 +1123,7 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
     """
     from dataclasses import replace
 
-    from .check import check_codebook
+    from .check import check_codebook, points_text
     from .march import solve_march
 
     started = _time.perf_counter()
@@ -1161,11 +1161,12 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
     rep["check_failed"] = int(check.failed)
     rep["check_where"] = ", ".join(f"{k}={v!r}" for k, v in check.where.items())
     where = ", ".join(f"{k}={v:.6g}" for k, v in check.where.items())
-    steps = f"reached {problem.time} = {kept.codebook.coordinate(problem.time).domain[1]:.6g} in {rep['steps']} steps ({rep['rejected_steps']} rejected)"
+    end = kept.codebook.coordinate(problem.time).domain[1]
+    steps = f"reached {problem.time} = {end:.6g} in {rep['steps']} steps ({rep['rejected_steps']} rejected)"
     if len(attempts) > 1:
         steps += f", {len(attempts)} marches"
     if np.isfinite(check.error):
-        measured = (f"max abs error {check.error:.3g} at {check.points} check point{'s' if check.points != 1 else ''} against scipy "
+        measured = (f"max abs error {check.error:.3g} at {points_text(check.points)} against scipy "
                     f"(tolerance {tolerance:.3g})")
     else:
         measured = f"not checked against scipy (tolerance {tolerance:.3g}; see the warnings)"
