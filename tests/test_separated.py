@@ -120,7 +120,7 @@ def test_norm_resolves_residual_far_below_gram_limit(seed):
         gram *= f.T @ f
     squared = diff.weights @ gram @ diff.weights
     gram_norm = np.sqrt(squared) if squared > 0 else 0.0
-    assert not (gram_norm == pytest.approx(eps, rel=0.5))
+    assert not (gram_norm == pytest.approx(eps, rel=0.5, abs=0.0))  # approx defaults to abs=1e-12 > eps
 
 
 def test_norm_of_exact_cancellation_is_rounding_level():

@@ -489,6 +489,7 @@ def _limit_blas() -> bool:
             return False
         if _blas_users == 0:
             _blas_limiter = _blas_controller.limit(limits=1, user_api="blas")
+            _release_blas_control()
         _blas_users += 1
         return True
 
@@ -500,6 +501,24 @@ def _unlimit_blas() -> None:
         if _blas_users == 0:
             _blas_limiter.restore_original_limits()
             _blas_limiter = None
+            _release_blas_control()
+
+
+def _release_blas_control() -> None:
+    """Let any thread set OpenBLAS's (process-wide) limit next time.
+
+    threadpoolctl >= 3.8 hands that limit to the first thread that sets it and
+    silently ignores every other thread until the owner clears it; the limit
+    here is shared by the batches running and set or lifted, under
+    ``_blas_lock``, by whichever thread comes first or ends last. Without this a
+    batch run from a worker thread after one from the main thread ran with
+    BLAS unlimited (and values differing in the last bit).
+    """
+    import threadpoolctl  # imported by _limit_blas already
+
+    clear = getattr(getattr(threadpoolctl, "OpenBLASController", None), "clear_controlling_thread", None)
+    if clear is not None:
+        clear(force=True)
 
 
 class Codebook:
