@@ -356,9 +356,22 @@ def tt_centre_cores(cores: Sequence[np.ndarray]) -> list[np.ndarray]:
     return centres
 
 
+_ONES: dict[tuple[int, ...], TT] = {}
+
+
 def tt_ones(shape: Sequence[int]) -> TT:
-    """The all-ones tensor (rank 1), the neutral factor of a Hadamard product."""
-    return tt_constant(1.0, shape)
+    """The all-ones tensor (rank 1), the neutral factor of a Hadamard product.
+
+    One shared instance per shape (trains are immutable), so :func:`_is_ones`
+    recognises it by identity: the march asks thousands of times per solve.
+    """
+    shape = tuple(int(n) for n in shape)
+    ones = _ONES.get(shape)
+    if ones is None:
+        if len(_ONES) >= 64:
+            _ONES.clear()
+        ones = _ONES.setdefault(shape, tt_constant(1.0, shape))
+    return ones
 
 
 def _sketch_sum_of_products(terms, rank: int, rng: np.random.Generator) -> TT:
@@ -478,4 +491,6 @@ def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, over
 
 
 def _is_ones(t: TT) -> bool:
+    if _ONES.get(t.shape) is t:
+        return True
     return all(c.shape[0] == 1 and c.shape[2] == 1 and np.all(c == 1.0) for c in t.cores)
