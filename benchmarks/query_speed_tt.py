@@ -6,6 +6,9 @@ temporary directory, then measures in one process, per codebook:
 - single point, in-process: ``codebook(t=..., ...)`` with Python floats; median of 15 blocks
   of 200 calls;
 - batch: ``codebook.evaluate`` at 1e5 uniform random points, median of 5 runs;
+- grid: ``codebook.evaluate_grid`` on a cartesian product of random values per coordinate
+  (~1e6 points; 8 x 5^6 = 125,000 for the rigid body), median of 3, beside ``codebook.evaluate``
+  and the reference at the same points, flattened;
 - the same with scipy's ``RegularGridInterpolator`` (method 'linear', the cheapest
   interpolant) on the codebook's own full nodal grid (``Codebook.nodal_values``, all unknowns
   on a trailing axis), built in the same run; for the 7-D rigid body the grid has 26 x 8^6
@@ -53,10 +56,10 @@ def _single(cb, args: dict) -> float:
     return statistics.median(blocks)
 
 
-def _batch(fn, points) -> float:
+def _batch(fn, points, repeats: int = 5) -> float:
     fn(points)
     runs = []
-    for _ in range(5):
+    for _ in range(repeats):
         t0 = time.perf_counter()
         fn(points)
         runs.append(time.perf_counter() - t0)
@@ -98,6 +101,20 @@ def main() -> int:
                          f"RGI linear: {ref_single * 1e6:.1f} us", f"{ref_single / single:.2f}x"))
             rows.append((label, "batch of 1e5 random points", f"{n / batch:.3g} pts/s",
                          f"RGI linear: {n / ref_batch:.3g} pts/s", f"{ref_batch / batch:.2f}x"))
+            sizes = {"coupled": (64, 25), "logistic": (100, 100), "rigid_body": (8, 5)}[name]
+            axes = {c.name: np.sort(rng.uniform(*c.domain, sizes[0] if c.role == "time" else sizes[1]))
+                    for c in coords}
+            mesh = np.meshgrid(*[axes[c.name] for c in coords], indexing="ij")
+            flat = {c.name: m.reshape(-1) for c, m in zip(coords, mesh)}
+            m = mesh[0].size
+            on_grid = _batch(cb.evaluate_grid, axes, repeats=3)
+            on_points = _batch(cb.evaluate, flat, repeats=3)
+            ref_grid = _batch(grid, np.column_stack([flat[c.name] for c in coords]), repeats=3)
+            shape = "x".join(str(axes[c.name].size) for c in coords)
+            rows.append((label, f"grid {shape} = {m:.3g} points: evaluate_grid", f"{m / on_grid:.3g} pts/s",
+                         f"evaluate, same points: {m / on_points:.3g} pts/s", f"{on_points / on_grid:.0f}x"))
+            rows.append((label, "  (same grid)", f"{m / on_grid:.3g} pts/s",
+                         f"RGI linear, same points: {m / ref_grid:.3g} pts/s", f"{ref_grid / on_grid:.0f}x"))
     widths = [max(len(str(r[i])) for r in rows + [("codebook", "measure", "pgdcli", "reference", "ratio")])
               for i in range(5)]
     header = ("codebook", "measure", "pgdcli", "reference, same run", "ratio")

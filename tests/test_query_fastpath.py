@@ -582,3 +582,97 @@ def test_one_point_of_a_mixed_codebook():
             assert one[u].shape == ()
             assert abs(float(one[u]) - batch[u][0]) <= 1e-13 * max(1.0, abs(batch[u][0])), (p, u)
         assert float(cb.evaluate(p, fields=["o", "m"])["m"]) == float(one["m"])
+
+
+# ----------------------------------------------------------------------------------------------
+# Codebook.evaluate_grid: the cartesian product, coordinate by coordinate
+# ----------------------------------------------------------------------------------------------
+def _mixed_codebook():
+    """CP modes, a tensor train in coordinate order and one in another core order."""
+    tt = _small_tt_codebook((0, 1, 2))
+    other = _small_tt_codebook((2, 0, 1)).fields["u"]
+    rng = np.random.default_rng(14)
+    cp = FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3)) for c in tt.coordinates))
+    return Codebook(tt.coordinates, {"m": cp, "u": tt.fields["u"], "o": other, "w": tt.fields["w"]},
+                    name="mixed", report={})
+
+
+def _grid_axes(cb, seed=15):
+    """Per coordinate: random values, nodes, slab breakpoints, both ends (unsorted: any order is valid)."""
+    rng = np.random.default_rng(seed)
+    axes = {}
+    for c in cb.coordinates:
+        lo, hi = c.domain
+        nodes = c.basis().nodes
+        axes[c.name] = np.array([*rng.uniform(lo, hi, 4), nodes[1], hi, lo, *c.breakpoints[1:-1]])
+    return axes
+
+
+def _pointwise(cb, axes, fields=None):
+    mesh = np.meshgrid(*[axes[c.name] for c in cb.coordinates], indexing="ij")
+    return cb.evaluate({c.name: m for c, m in zip(cb.coordinates, mesh)}, fields=fields)
+
+
+def test_evaluate_grid_matches_pointwise_evaluation_of_the_product():
+    cb = _mixed_codebook()
+    axes = _grid_axes(cb)
+    grid = cb.evaluate_grid(axes)
+    flat = _pointwise(cb, axes)
+    assert list(grid) == ["m", "u", "o", "w"]
+    for u in cb.unknown_names:
+        assert grid[u].shape == tuple(axes[c.name].size for c in cb.coordinates)
+        scale = max(1.0, float(np.max(np.abs(flat[u]))))
+        assert np.max(np.abs(grid[u] - flat[u])) <= 1e-13 * scale, u
+
+
+@pytest.mark.parametrize("name", ["spring", "relaxation"])
+def test_evaluate_grid_of_shipped_cp_codebooks(solved, name):
+    """CP (spring), and linear-element coordinates (relaxation), against the point path and the exact solution."""
+    from conftest import EXACT
+
+    cb = solved(name).codebook
+    rng = np.random.default_rng(16)
+    axes = {c.name: np.sort(rng.uniform(*c.domain, 5 + j)) for j, c in enumerate(cb.coordinates)}
+    grid = cb.evaluate_grid(axes)
+    flat = _pointwise(cb, axes)
+    mesh = np.meshgrid(*[axes[c.name] for c in cb.coordinates], indexing="ij")
+    exact = EXACT[name]({c.name: m for c, m in zip(cb.coordinates, mesh)})
+    for u in cb.unknown_names:
+        assert np.max(np.abs(grid[u] - flat[u])) <= 1e-13 * max(1.0, float(np.max(np.abs(flat[u]))))
+        assert np.max(np.abs(grid[u] - exact[u])) <= 1e-8
+
+
+def test_evaluate_grid_at_all_nodes_is_the_nodal_tensor():
+    cb = _mixed_codebook()
+    grid = cb.evaluate_grid({c.name: c.basis().nodes for c in cb.coordinates})
+    for u in cb.unknown_names:
+        full = cb.nodal_values(u)
+        assert grid[u].shape == full.shape
+        assert np.max(np.abs(grid[u] - full)) <= 1e-14 * max(1.0, float(np.max(np.abs(full)))), u
+
+
+def test_evaluate_grid_shapes_order_and_fields():
+    cb = _mixed_codebook()
+    axes = {"y": [0.7, 1.1], "x": 0.25, "t": np.linspace(0.0, 3.0, 5)}  # mapping order is irrelevant
+    out = cb.evaluate_grid(axes, fields=["w", "m"])
+    assert list(out) == ["w", "m"]
+    assert out["w"].shape == (5, 1, 2)  # codebook order (t, x, y); a scalar is an axis of length 1
+    flat = _pointwise(cb, {k: np.atleast_1d(v) for k, v in axes.items()}, fields=["w", "m"])
+    for u in ("w", "m"):
+        assert np.max(np.abs(out[u] - flat[u])) <= 1e-13 * max(1.0, float(np.max(np.abs(flat[u]))))
+    empty = cb.evaluate_grid({"t": [], "x": [0.0, 1.0], "y": 1.0})
+    assert all(v.shape == (0, 2, 1) for v in empty.values())
+
+
+@pytest.mark.parametrize("axes, pattern", [
+    ({"t": [1.0], "x": [0.5]}, r"missing coordinate 'y' \(domain \[0\.5, 1\.5\]\)"),
+    ({"t": [1.0], "x": [0.5], "y": [1.0], "z": [0.0]}, r"unknown coordinate 'z'; this codebook has t, x, y"),
+    ({"t": [1.0], "x": [0.5, 2.5], "y": [1.0]}, r"coordinate 'x': value 2\.5 is outside the domain \[-1, 2\]"),
+    ({"t": [1.0], "x": [[0.5, 1.0]], "y": [1.0]}, r"coordinate 'x': a grid axis must be 1-D, got shape \(1, 2\)"),
+    ({"t": [float("nan")], "x": [0.5], "y": [1.0]}, r"coordinate 't': value nan is outside"),
+])
+def test_evaluate_grid_errors_name_the_coordinate(axes, pattern):
+    with pytest.raises(QueryError, match=pattern):
+        _mixed_codebook().evaluate_grid(axes)
+    with pytest.raises(QueryError, match=r"unknown field 'q'"):
+        _mixed_codebook().evaluate_grid({"t": 1.0, "x": 0.5, "y": 1.0}, fields=["q"])

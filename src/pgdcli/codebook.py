@@ -649,6 +649,59 @@ class Codebook:
         values = self._evaluate_flat(flat, selected)
         return {u: v.reshape(shape) for u, v in values.items()}
 
+    def evaluate_grid(self, axes: Mapping[str, object], fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Evaluate unknowns on the tensor grid of per-coordinate values (their cartesian product).
+
+        The values of :meth:`evaluate` at ``np.meshgrid(*axes, indexing="ij")`` (equal to
+        rounding), computed one coordinate at a time instead of point by point: each
+        coordinate's values are interpolated once, and the separated form is contracted
+        coordinate by coordinate, so the work per grid point is that of the last contraction
+        (a tensor-train rank, or the CP rank) rather than of a whole point evaluation. On a
+        grid of 10^5-10^6 points this is one to three orders of magnitude faster than
+        :meth:`evaluate` on the flattened grid (``benchmarks/query_speed_tt.py``).
+
+        Parameters
+        ----------
+        axes : mapping
+            Every coordinate name -> 1-D array_like of values (a scalar is an axis of length 1).
+        fields : sequence of str, optional
+            Unknowns to evaluate (default: all, in declared order).
+
+        Returns
+        -------
+        dict
+            Unknown name -> ndarray of shape ``(len(axes[c_1]), ..., len(axes[c_d]))``, the
+            coordinates in codebook order (``coordinate_names``), whatever the mapping's order.
+
+        Raises
+        ------
+        QueryError
+            Missing, unknown or out-of-domain coordinates, axes that are not 1-D, unknown fields.
+        """
+        names = self._names
+        for key in axes:
+            if key not in names:
+                raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
+        values = []
+        for c in self.coordinates:
+            if c.name not in axes:
+                raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
+            x = np.asarray(axes[c.name], dtype=float)
+            if x.ndim > 1:
+                raise QueryError(f"coordinate {c.name!r}: a grid axis must be 1-D, got shape {x.shape}")
+            values.append(self._checked(c, x.reshape(-1)))
+        selected = self._select(fields)
+        shape = tuple(v.size for v in values)
+        if 0 in shape:
+            return {u: np.empty(shape) for u in selected}
+        mats = [b.interpolation_matrix(v) for b, v in zip(self._bases, values)]
+        out = {}
+        for u in selected:
+            fm = self.fields[u]
+            grid = _grid_tt(fm, mats) if isinstance(fm, FieldTT) else _grid_cp(fm, mats)
+            out[u] = grid
+        return out
+
     def _tensor_train_point(self, coordinates: Mapping[str, object]) -> dict[str, np.ndarray] | None:
         """Every unknown at one point given as Python numbers, when all are in the tensor-train stack.
 
@@ -1043,6 +1096,41 @@ def _contract_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
             kr = (v[:, :, None] * mats[j][:, None, :]).reshape(v.shape[0], r0 * n)
             v = kr @ core.reshape(r0 * n, r1)
     return v[:, 0]
+
+
+def _grid_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
+    """Tensor train on the grid of the points behind ``mats[j]`` (P_j, nodes_j): shape (P_1, ..., P_d).
+
+    Core by core along the train: the running block (points so far, r) times the unfolded
+    core, then the new coordinate's cardinal rows applied to the node axis; the grid comes
+    out in the train's core order and is transposed to coordinate order.
+    """
+    block = np.ones((1, 1))  # (points of the cores so far, r_k)
+    sizes = []
+    for core, j in zip(fm.cores, fm.mode_order):
+        r0, n, r1 = core.shape
+        partial = (block @ core.reshape(r0, n * r1)).reshape(block.shape[0], n, r1)
+        block = np.matmul(mats[j], partial).reshape(-1, r1)  # (points so far x P_j, r1)
+        sizes.append(mats[j].shape[0])
+    return np.transpose(block.reshape(sizes), np.argsort(fm.mode_order))
+
+
+def _grid_cp(fm: FieldModes, mats: list[np.ndarray]) -> np.ndarray:
+    """CP field on the grid of the points behind ``mats[j]`` (P_j, nodes_j): shape (P_1, ..., P_d).
+
+    ``sum_r alpha_r prod_j V_j[:, r]`` with ``V_j`` the interpolated modes: the product over
+    every coordinate but the one with most points is formed as a (points, rank) block, and one
+    matrix product with that coordinate's ``V`` finishes the sum over the rank.
+    """
+    vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P_j, rank)
+    last = int(np.argmax([v.shape[0] for v in vs]))
+    block = fm.alphas[None, :]
+    for j, v in enumerate(vs):
+        if j != last:
+            block = (block[:, None, :] * v[None, :, :]).reshape(-1, v.shape[1])
+    sizes = [v.shape[0] for j, v in enumerate(vs) if j != last]
+    grid = (block @ vs[last].T).reshape(sizes + [vs[last].shape[0]])  # the longest axis last
+    return np.moveaxis(grid, -1, last)
 
 
 def _one_line(exc: BaseException) -> str:
