@@ -94,10 +94,10 @@ class _BlowupWatch:
     Only while the steps keep shrinking (``WATCH_STEPS`` in a row, ``WATCH_SHRINK``-fold
     below the largest) does it look at the state: the largest nodal value ``M(t)`` of any
     unknown. Near a pole ``1/M`` falls (almost linearly) to zero at the blow-up time ``t*``, so
-    the parabola through the last three samples estimates ``t*`` (the line through two, at first). The march is stopped when ``M`` grew
-    ``BLOWUP_GROWTH``-fold since the start, ``t*`` lies before the end of the time domain, and
-    the estimate made at least ``WATCH_SPAN`` x (the distance left) earlier agrees with the
-    current one to ``WATCH_AGREE`` x that distance. Exponential growth also shrinks the steps
+    the parabola through the last three samples estimates ``t*`` (the line through two, at
+    first). The march is stopped when ``M`` grew ``BLOWUP_GROWTH``-fold since the start, ``t*``
+    lies before the end of the time domain, and the estimate made at least ``WATCH_SPAN`` x (the
+    distance left) earlier agrees with the current one to ``WATCH_AGREE`` x that distance. Exponential growth also shrinks the steps
     (absolute error control), but its extrapolated ``t*`` stays ``1/lambda`` ahead of ``t``:
     the two estimates then differ by the span between them and it never fires.
     """
