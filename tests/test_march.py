@@ -443,6 +443,59 @@ solver: {tolerance: 1e-4, method: march}
     assert np.max(np.abs(got - u0 * np.exp(4.0 * t))) <= 1e-4
 
 
+def test_overflowing_trial_step_is_rejected_not_a_crash():
+    """u' = -r u^3 from u0 in [1, 2], r in [50, 100]: the first trial step (h = 0.1) overflows
+    (h f'(u) ~ -120); it used to end in numpy's 'SVD did not converge' traceback. Exact solution
+    u0 / sqrt(1 + 2 r u0^2 t)."""
+    text = """
+coordinates:
+  t: {domain: [0, 1], nodes: 8}
+  r: {domain: [50, 100], nodes: 12}
+  u0: {domain: [1, 2], nodes: 8}
+unknowns:
+  u: {initial: u0}
+equations:
+  - "der(u) = -r*u**3"
+solver: {tolerance: 1e-6}
+"""
+    result = pgdcli.solve(parse_spec(text, source="cubic.yaml"))
+    assert result.converged, result.message
+    assert result.codebook.report["rejected_steps"] >= 1
+    rng = np.random.default_rng(21)
+    t, r, u0 = rng.uniform(0, 1, 2000), rng.uniform(50, 100, 2000), rng.uniform(1, 2, 2000)
+    corners = np.array(list(itertools.product([0.0, 1.0], [50.0, 100.0], [1.0, 2.0]))).T
+    t, r, u0 = (np.concatenate([x, c]) for x, c in zip((t, r, u0), corners))
+    got = result.codebook(t=t, r=r, u0=u0)["u"]
+    assert np.max(np.abs(got - u0 / np.sqrt(1.0 + 2.0 * r * u0 * u0 * t))) <= 1e-6
+
+
+def test_stiff_rounding_noise_tightens_the_stage_rounding():
+    """u' = r (u - u^3), r up to 200: near u = 1 the Jacobian is -2r, and the stage values' rounding
+    errors reach the embedded estimate as J dY whatever the step; the march used to shrink the step
+    to the floor (t = 0.78). Exact: u = u0 / sqrt(u0^2 + (1 - u0^2) exp(-2 r t)), checked at the
+    parameter nodes (between them 12 nodes do not resolve r; the solve warns)."""
+    text = """
+coordinates:
+  t: {domain: [0, 1], nodes: 8}
+  r: {domain: [10, 200], nodes: 12}
+  u0: {domain: [0.5, 1.5], nodes: 8}
+unknowns:
+  u: {initial: u0}
+equations:
+  - "der(u) = -r*u**3 + r*u"
+solver: {tolerance: 1e-6}
+"""
+    result = pgdcli.solve(parse_spec(text, source="stiff.yaml"))
+    assert result.converged, result.message
+    cb = result.codebook
+    assert cb.report["stage_tightenings"] >= 1
+    t = np.random.default_rng(22).uniform(0, 1, 50)[:, None, None]
+    r = cb.coordinates[1].basis().nodes[None, :, None]
+    u0 = cb.coordinates[2].basis().nodes[None, None, :]
+    exact = u0 / np.sqrt(u0 * u0 + (1.0 - u0 * u0) * np.exp(-2.0 * r * t))
+    assert np.max(np.abs(cb(t=t, r=r, u0=u0)["u"] - exact)) <= 1e-6
+
+
 def test_cli_solve_blowup_exits_1_without_codebook(tmp_path):
     spec = tmp_path / "blowup.yaml"
     spec.write_text(BLOWUP_TEXT)
