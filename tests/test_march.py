@@ -358,20 +358,21 @@ def test_blowup_of_the_shipped_grid_is_predicted_early():
     assert "a=0, b=1, c=1" in result.message
 
 
+def _scalar_problem(equation: str, t_end: float, params: dict, tolerance: float, t_nodes: int = 10,
+                    method: str | None = None):
+    """A one-unknown problem ``u(0) = u0``: ``params`` maps a coordinate to (low, high, nodes)."""
+    data = {"coordinates": {"t": {"domain": [0, t_end], "nodes": t_nodes}},
+            "unknowns": {"u": {"initial": "u0"}}, "equations": [equation],
+            "solver": {"tolerance": tolerance, **({"method": method} if method else {})}}
+    for name, (low, high, nodes) in params.items():
+        data["coordinates"][name] = {"domain": [low, high], "nodes": nodes}
+    return parse_spec(yaml.safe_dump(data, sort_keys=False), source="scalar.yaml")
+
+
 def test_pole_beyond_the_end_is_no_blowup():
     """u' = u^2 from u0 in [0.1, 0.5] blows up at t = 1/u0 >= 2, after the end t = 1.9: the steps shrink
     and max|u| grows 20-fold (the prediction is armed) but the pole lies outside the domain."""
-    text = """
-coordinates:
-  t: {domain: [0, 1.9], nodes: 10}
-  u0: {domain: [0.1, 0.5], nodes: 12}
-unknowns:
-  u: {initial: u0}
-equations:
-  - "der(u) = u**2"
-solver: {tolerance: 1e-8}
-"""
-    result = pgdcli.solve(parse_spec(text, source="pole.yaml"))
+    result = pgdcli.solve(_scalar_problem("der(u) = u**2", 1.9, {"u0": (0.1, 0.5, 12)}, 1e-8))
     assert result.converged, result.message
     assert result.codebook.report["steps"] >= 2 * 8  # long enough to arm the prediction
     # at the u0 nodes: between them 12 nodes do not resolve the pole at u0 = 1/1.9 (the resolution
@@ -425,17 +426,7 @@ def test_blowup_watch_predicts_a_pole_and_not_an_exponential():
 def test_exponential_growth_is_no_blowup():
     """u' = 4 u (forced through the march) grows e^12-fold with ever smaller steps (absolute error
     control) and converges: no blow-up is predicted."""
-    text = """
-coordinates:
-  t: {domain: [0, 3], nodes: 10}
-  u0: {domain: [0.5, 1], nodes: 6}
-unknowns:
-  u: {initial: u0}
-equations:
-  - "der(u) = 4*u"
-solver: {tolerance: 1e-4, method: march}
-"""
-    result = pgdcli.solve(parse_spec(text, source="exponential.yaml"))
+    result = pgdcli.solve(_scalar_problem("der(u) = 4*u", 3.0, {"u0": (0.5, 1.0, 6)}, 1e-4, method="march"))
     assert result.converged, result.message
     t = np.linspace(0.0, 3.0, 31)[:, None]
     u0 = np.linspace(0.5, 1.0, 6)[None, :]
@@ -447,18 +438,8 @@ def test_overflowing_trial_step_is_rejected_not_a_crash():
     """u' = -r u^3 from u0 in [1, 2], r in [50, 100]: the first trial step (h = 0.1) overflows
     (h f'(u) ~ -120); it used to end in numpy's 'SVD did not converge' traceback. Exact solution
     u0 / sqrt(1 + 2 r u0^2 t)."""
-    text = """
-coordinates:
-  t: {domain: [0, 1], nodes: 8}
-  r: {domain: [50, 100], nodes: 12}
-  u0: {domain: [1, 2], nodes: 8}
-unknowns:
-  u: {initial: u0}
-equations:
-  - "der(u) = -r*u**3"
-solver: {tolerance: 1e-6}
-"""
-    result = pgdcli.solve(parse_spec(text, source="cubic.yaml"))
+    params = {"r": (50.0, 100.0, 12), "u0": (1.0, 2.0, 8)}
+    result = pgdcli.solve(_scalar_problem("der(u) = -r*u**3", 1.0, params, 1e-6, t_nodes=8))
     assert result.converged, result.message
     assert result.codebook.report["rejected_steps"] >= 1
     rng = np.random.default_rng(21)
@@ -474,18 +455,8 @@ def test_stiff_rounding_noise_tightens_the_stage_rounding():
     errors reach the embedded estimate as J dY whatever the step; the march used to shrink the step
     to the floor (t = 0.78). Exact: u = u0 / sqrt(u0^2 + (1 - u0^2) exp(-2 r t)), checked at the
     parameter nodes (between them 12 nodes do not resolve r; the solve warns)."""
-    text = """
-coordinates:
-  t: {domain: [0, 1], nodes: 8}
-  r: {domain: [10, 200], nodes: 12}
-  u0: {domain: [0.5, 1.5], nodes: 8}
-unknowns:
-  u: {initial: u0}
-equations:
-  - "der(u) = -r*u**3 + r*u"
-solver: {tolerance: 1e-6}
-"""
-    result = pgdcli.solve(parse_spec(text, source="stiff.yaml"))
+    params = {"r": (10.0, 200.0, 12), "u0": (0.5, 1.5, 8)}
+    result = pgdcli.solve(_scalar_problem("der(u) = -r*u**3 + r*u", 1.0, params, 1e-6, t_nodes=8))
     assert result.converged, result.message
     cb = result.codebook
     assert cb.report["stage_tightenings"] >= 1
