@@ -483,6 +483,25 @@ def test_cli_solve_blowup_exits_1_without_codebook(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blowup.yaml"]
 
 
+def test_cli_solve_blowup_json_is_strict_and_says_where(tmp_path):
+    """A pipeline reads the failure: strict JSON (no Infinity), the user's tolerance, no placeholder ranks."""
+    spec = tmp_path / "blowup.yaml"
+    spec.write_text(BLOWUP_TEXT)
+    result = _invoke(["solve", spec, "-o", tmp_path / "blowup.h5", "-q", "--format", "json"])
+    assert result.exit_code == 1
+
+    def reject(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    summary = json.loads(result.stdout, parse_constant=reject)
+    assert summary["converged"] is False and summary["output"] is None
+    assert summary["tolerance"] == yaml.safe_load(BLOWUP_TEXT)["solver"]["tolerance"]
+    assert summary["residual"] is None and summary["modes"] is None and summary["ranks"] is None
+    exact = _coupled_blowup_time([0.0, 1.0, 1.0])
+    assert summary["failed_time"] < exact and abs(summary["blowup_time"] - exact) <= 2e-3
+    assert f"t ~ {summary['blowup_time']:.4g}" in summary["message"]
+
+
 # ----------------------------------------------------------------------------------------------
 # method selection and compile errors
 # ----------------------------------------------------------------------------------------------

@@ -196,18 +196,23 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, tolerance, 
 
 def _solve_summary(problem, result, target: Path) -> dict:
     cb = result.codebook
-    march = cb.report.get("method") == "march"
+    rep = cb.report
+    march = rep.get("method") == "march"
+    # a march that failed holds no solution: its fields are placeholders, not ranks to report
+    placeholder = march and not result.converged
     return {
         "problem": problem.name,
         "method": "march" if march else "pgd",
         "converged": bool(result.converged),
         "message": result.message,
-        "residual": float(result.residual),  # march: the RMS error estimate
-        **({"check_error": _finite_or_none(cb.report["check_error"]), "check_points": int(cb.report["check_points"])}
-           if march and "check_error" in cb.report else {}),
-        "tolerance": float(cb.report["tolerance"]),
-        "modes": {u: fm.rank for u, fm in cb.fields.items()},  # march: the largest tensor-train rank
-        "ranks": {u: list(fm.ranks) for u, fm in cb.fields.items() if hasattr(fm, "ranks")},
+        "residual": _finite_or_none(result.residual),  # march: the RMS error estimate; null if none
+        **({"check_error": _finite_or_none(rep["check_error"]), "check_points": int(rep["check_points"])}
+           if march and "check_error" in rep else {}),
+        **({key: float(rep[key]) for key in ("failed_time", "blowup_time") if key in rep} if placeholder else {}),
+        "tolerance": float(rep["tolerance"]),
+        # march: the largest tensor-train rank
+        "modes": None if placeholder else {u: fm.rank for u, fm in cb.fields.items()},
+        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if hasattr(fm, "ranks")},
         "coordinates": {c.name: c.nodes for c in cb.coordinates},
         "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
         "wall_time": float(result.wall_time),
@@ -242,10 +247,18 @@ def _summary_table(summary: dict):
         if summary.get("check_error") is not None:
             table.add_row("max error", f"{summary['check_error']:.3e} at {points_text(summary['check_points'])} "
                                        f"vs scipy (tolerance {summary['tolerance']:.1e})")
-        table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
-        table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
+        if summary.get("failed_time") is not None:
+            reached = f"t = {summary['failed_time']:.6g}"
+            if summary.get("blowup_time") is not None:
+                reached += f" (blows up at t ~ {summary['blowup_time']:.4g})"
+            table.add_row("reached", reached)
+        if summary["residual"] is not None:
+            table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
+        if summary["ranks"] is not None:
+            table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
     else:
-        table.add_row("residual", f"{summary['residual']:.3e} (tolerance {summary['tolerance']:.1e})")
+        residual = "none" if summary["residual"] is None else f"{summary['residual']:.3e}"
+        table.add_row("residual", f"{residual} (tolerance {summary['tolerance']:.1e})")
         table.add_row("modes", ", ".join(f"{u}: {n}" for u, n in summary["modes"].items()))
     slabs = summary.get("slabs", {})
     table.add_row("nodes", ", ".join(f"{c}: {n}" + (f" ({slabs[c]} slabs)" if c in slabs else "")

@@ -1135,6 +1135,8 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
         result = solve_march(problem, target, callback=callback)
         if not result.converged:
             if kept is None:
+                # the report speaks of the user's tolerance; the march's own target beside it
+                result.codebook.report.update(tolerance=float(tolerance), march_tolerance=float(target))
                 return result
             notes.append(f"the march with the tighter target {target:.2g} failed ({result.message}); "
                          f"kept the one with target {attempts[-1][0]:.2g}")
