@@ -695,12 +695,8 @@ class Codebook:
         if 0 in shape:
             return {u: np.empty(shape) for u in selected}
         mats = [b.interpolation_matrix(v) for b, v in zip(self._bases, values)]
-        out = {}
-        for u in selected:
-            fm = self.fields[u]
-            grid = _grid_tt(fm, mats) if isinstance(fm, FieldTT) else _grid_cp(fm, mats)
-            out[u] = grid
-        return out
+        return {u: _grid_tt(self.fields[u], mats) if isinstance(self.fields[u], FieldTT) else
+                _grid_cp(self.fields[u], mats) for u in selected}
 
     def _tensor_train_point(self, coordinates: Mapping[str, object]) -> dict[str, np.ndarray] | None:
         """Every unknown at one point given as Python numbers, when all are in the tensor-train stack.

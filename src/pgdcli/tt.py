@@ -370,7 +370,10 @@ def tt_ones(shape: Sequence[int]) -> TT:
     if ones is None:
         if len(_ONES) >= 64:
             _ONES.clear()
-        ones = _ONES.setdefault(shape, tt_constant(1.0, shape))
+        ones = tt_constant(1.0, shape)
+        for core in ones.cores:  # shared: an in-place change would raise, not corrupt it
+            core.flags.writeable = False
+        ones = _ONES.setdefault(shape, ones)
     return ones
 
 
