@@ -23,7 +23,7 @@ from pgdcli import load_spec, parse_spec
 from pgdcli.cli import cli
 from pgdcli.codebook import Codebook, FieldTT
 from pgdcli.errors import SolverError
-from pgdcli.march import compile_system
+from pgdcli.march import WATCH_AGREE, compile_system
 
 EPS = np.finfo(float).eps
 
@@ -416,11 +416,27 @@ def test_blowup_watch_predicts_a_pole_and_not_an_exponential():
     # of 1/max|u| stays ahead of t, so no estimate ever agrees with an earlier one
     times = list(np.cumsum([0.0] + [0.05 * 0.9 ** k for k in range(200)]))
     assert _watch_run(times, lambda t: np.exp(20.0 * t), t_final=1.0) is None
-    # growth below BLOWUP_GROWTH: the steps shrink toward a pole but the state has not grown 10-fold
+    # a pole with a cubic term: the parabola's estimate is off, by less than the agreement asked
+    def bent(t):
+        return 1.0 / ((pole - t) + 40.0 * (pole - t) ** 3)
+
     times = [0.0]
     for _ in range(200):
         times.append(times[-1] + 0.05 * (pole - times[-1]))
+    stopped, found = _watch_run(times, bent, t_final=1.0)
+    assert stopped < pole and abs(found - pole) <= WATCH_AGREE * (pole - stopped)
+    # growth below BLOWUP_GROWTH: the steps shrink toward a pole but the state has not grown 10-fold
     assert _watch_run(times[:30], lambda t: 2.0 / (pole - t), t_final=1.0) is None
+
+
+def test_blowup_confirmation_needs_agreement_and_room_before_the_end():
+    from pgdcli.march import _confirmed
+
+    assert _confirmed(0.9, 0.95, 0.951, 1.0)  # spread 0.001 <= 0.1 x 0.05, and 0.952 < 1
+    assert not _confirmed(0.9, 0.95, 0.96, 1.0)  # spread 0.01 > 0.005: not converged yet
+    # the estimate lies before the end, but within twice the spread of it: the pole may be past the end
+    assert not _confirmed(0.9, 0.95, 0.952, 0.953)
+    assert _confirmed(0.9, 0.95, 0.952, 0.955)
 
 
 def test_exponential_growth_is_no_blowup():

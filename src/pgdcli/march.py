@@ -99,9 +99,10 @@ class _BlowupWatch:
     below the largest) does it look at the state: the largest nodal value ``M(t)`` of any
     unknown. Near a pole ``1/M`` falls (almost linearly) to zero at the blow-up time ``t*``, so
     the parabola through the last three samples estimates ``t*`` (the line through two, at
-    first). The march is stopped when ``M`` grew ``BLOWUP_GROWTH``-fold since the start, ``t*``
-    lies before the end of the time domain, and the estimate made at least ``WATCH_SPAN`` x (the
-    distance left) earlier agrees with the current one to ``WATCH_AGREE`` x that distance. Exponential growth also shrinks the steps
+    first). The march is stopped when ``M`` grew ``BLOWUP_GROWTH``-fold since the start, and
+    the estimate made at least ``WATCH_SPAN`` x (the distance left) earlier agrees with the
+    current one to ``WATCH_AGREE`` x that distance, and ``t*`` plus twice their disagreement
+    lies before the end of the time domain. Exponential growth also shrinks the steps
     (absolute error control), but its extrapolated ``t*`` stays ``1/lambda`` ahead of ``t``:
     the two estimates then differ by the span between them and it never fires.
     """
@@ -129,13 +130,18 @@ class _BlowupWatch:
         self.samples[-1] = (t, inverse, estimate)
         if estimate is None or biggest < BLOWUP_GROWTH * self.initial or estimate >= self.t_final:
             return None
-        left = estimate - t
         for t_then, _, earlier in reversed(self.samples[:-1]):
-            if t - t_then >= WATCH_SPAN * left:
-                if earlier is not None and abs(estimate - earlier) <= WATCH_AGREE * left:
-                    return estimate
-                break
+            if t - t_then >= WATCH_SPAN * (estimate - t):
+                return estimate if earlier is not None and _confirmed(t, estimate, earlier, self.t_final) else None
         return None
+
+
+def _confirmed(t: float, estimate: float, earlier: float, t_final: float) -> bool:
+    """Two estimates of the blow-up time agree to ``WATCH_AGREE`` x the distance left, and the
+    end lies after the estimate by more than twice their disagreement (a pole just past the end is
+    no failure: the march goes on and reaches the end)."""
+    spread = abs(estimate - earlier)
+    return spread <= WATCH_AGREE * (estimate - t) and estimate + 2.0 * spread < t_final
 
 
 def _first_zero_after(samples: list[tuple]) -> float | None:
