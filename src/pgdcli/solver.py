@@ -39,7 +39,7 @@ import time as _time
 import warnings
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import scipy.linalg
@@ -47,6 +47,9 @@ import scipy.linalg
 from .basis import Basis1D
 from .errors import PgdError, SolverError
 from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
+
+if TYPE_CHECKING:  # annotations only
+    from .check import CheckResult
 
 __all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
 
@@ -1062,8 +1065,6 @@ def solve(problem, *, tolerance: float | None = None, max_modes: int | None = No
     if nmax < 1:
         raise SolverError(f"max_modes must be at least 1, got {nmax}")
     if _use_march(problem):
-        from .march import solve_march
-
         with _blas_single_thread():
             return _with_resolution(_checked_march(problem, tol, callback), tol)
     started = _time.perf_counter()
