@@ -559,8 +559,8 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
                 last_rejection = None
                 continue
             last_rejection = (t, h, ratio)
-            # (a trial step that overflowed was far too long for a stiff or fast problem; a blow-up
-            # shows in the accepted steps instead, _BlowupWatch): shrink it as much as allowed
+            # an overflowed trial step (ratio inf) was far too long for a stiff or fast problem:
+            # shrink it as much as allowed (a blow-up shows in the accepted steps, _BlowupWatch)
             h *= max(0.2, SAFETY * ratio ** (-1.0 / 7.0))
             continue
         if max(max(u.ranks, default=0) for u in y_new) >= max_rank:
