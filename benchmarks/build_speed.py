@@ -214,6 +214,39 @@ def build(problem_or_path, repeats: int = 1):
     return median, times, result
 
 
+def factorization_floor(spec_path: Path, repeats: int = 5) -> tuple[int, float]:
+    """Shapes of every ``numpy.linalg.qr``/``svd`` call in one build, and the median time to redo
+    those factorizations alone on random matrices of the same shapes (what the tensor-train
+    roundings cost before any Python, copying or contraction)."""
+    import pgdcli
+
+    qr, svd = np.linalg.qr, np.linalg.svd
+    shapes = []
+
+    def record(kind, original):
+        def wrapped(a, *args, **kwargs):
+            shapes.append((kind, np.shape(a), args, tuple(sorted(kwargs.items()))))
+            return original(a, *args, **kwargs)
+        return wrapped
+
+    np.linalg.qr, np.linalg.svd = record("qr", qr), record("svd", svd)
+    try:
+        with blas1():
+            pgdcli.solve(pgdcli.load_spec(spec_path))
+    finally:
+        np.linalg.qr, np.linalg.svd = qr, svd
+    rng = np.random.default_rng(3)
+    work = [(qr if kind == "qr" else svd, rng.standard_normal(shape), args, dict(kw)) for kind, shape, args, kw in shapes]
+
+    def replay():
+        for func, a, args, kw in work:
+            func(a, *args, **kw)
+
+    with blas1():
+        median, _, _ = median_of(replay, repeats)
+    return len(shapes), median
+
+
 def with_tolerance(path: Path, tolerance: float):
     """The spec at ``path`` with ``solver.tolerance`` replaced (parse_spec on the modified YAML text)."""
     import re
@@ -352,6 +385,14 @@ def bench_coupled(rows: list, work: Path) -> None:
                         f"(same sample)", f"{fmt_time(matched_time)}; error {matched_err:.2e}",
                  f"loop 1e-8: {fmt_time(loop_times[1e-8])}", f"loop/build {loop_times[1e-8] / matched_time:.1f}x",
                  "", None))
+
+    print("coupled: the build's QR/SVD factorizations, recorded and replayed alone", file=sys.stderr)
+    calls, replay = factorization_floor(COUPLED)
+    rows.append((label, "floor: the build's QR/SVD factorizations alone (shapes recorded in one build, "
+                        "replayed on random matrices), median of 5",
+                 fmt_time(replay), f"{calls} LAPACK calls (stacked over the unknowns); build {fmt_time(build_time)}",
+                 f"{100 * replay / build_time:.0f}% of the build; 50x of the 1e-12 loop: "
+                 f"{fmt_time(loop_times[REFERENCE_TOL] / TARGET_LOOP_RATIO)}", "", None))
 
     floats, disk = codebook_size(cb, work, "coupled")
     grid_floats = n_grid * 3 * tnodes.size
