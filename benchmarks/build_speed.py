@@ -21,6 +21,10 @@ against the loop at 1e-12). The coupled codebook is also built at ``solver.toler
 shipped spec asks 1e-9; the loop at 1e-8 is within ~7e-8) to see whether the gap to the loop is the
 tolerance.
 
+A floor for the coupled build: the shapes of every ``numpy.linalg.qr``/``svd`` call of one build are
+recorded, and those factorizations are redone alone on random matrices of the same shapes (median
+of 5): the part of the build that no reduction of Python overhead can remove.
+
 The march's tolerance is a max abs error that ``pgdcli.solve`` measures against scipy at its own
 check sample and enforces by repeating the march (README, "The march's tolerance is checked"): the
 build times include that check and any repeated march, and the rows say how many marches ran.
