@@ -627,12 +627,7 @@ class Codebook:
                 return values
         names = self._names
         if len(coordinates) != len(names) or not self._name_set.issuperset(coordinates):
-            for key in coordinates:
-                if key not in names:
-                    raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
-            for c in self.coordinates:
-                if c.name not in coordinates:
-                    raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
+            self._check_names(coordinates)
         selected = self._select(fields)
         raw = [coordinates[n] for n in names]
         scalars = all(type(v) in _SCALAR_TYPES for v in raw)
@@ -678,14 +673,9 @@ class Codebook:
         QueryError
             Missing, unknown or out-of-domain coordinates, axes that are not 1-D, unknown fields.
         """
-        names = self._names
-        for key in axes:
-            if key not in names:
-                raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
+        self._check_names(axes)
         values = []
         for c in self.coordinates:
-            if c.name not in axes:
-                raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
             x = np.asarray(axes[c.name], dtype=float)
             if x.ndim > 1:
                 raise QueryError(f"coordinate {c.name!r}: a grid axis must be 1-D, got shape {x.shape}")
@@ -738,6 +728,16 @@ class Codebook:
             _run_chunks(run, _chunk_bounds(size, _TT_CHUNK))
         out.update({u: v.reshape(shape) for u, v in values.items()})
         return {u: out[u] for u in selected}
+
+    def _check_names(self, given: Mapping[str, object]) -> None:
+        """Raise QueryError for the first unknown, then the first missing coordinate name."""
+        names = self._names
+        for key in given:
+            if key not in names:
+                raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
+        for c in self.coordinates:
+            if c.name not in given:
+                raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
 
     def _select(self, fields: Sequence[str] | None) -> list[str]:
         if fields is None:
