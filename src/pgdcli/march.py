@@ -111,15 +111,17 @@ class _BlowupWatch:
         self.system, self.t_final = system, t_final
         self.initial = max(_largest(system, state, WATCH_POINTS)[0], 1e-300)
         self.sizes: list[float] = []
+        self.largest = 0.0  # the largest accepted step so far
         self.samples: list[tuple[float, float, float | None]] = []  # (t, 1/M, estimate of t*)
 
     def __call__(self, t: float, h: float, state: list[TT]) -> float | None:
         """Record an accepted step ending at ``t``; the predicted blow-up time, or None."""
         sizes = self.sizes
         sizes.append(h)
+        self.largest = max(self.largest, h)
         recent = sizes[-WATCH_STEPS - 1:]
         shrinking = (len(recent) == WATCH_STEPS + 1 and all(b < a for a, b in zip(recent, recent[1:]))
-                     and h * WATCH_SHRINK <= max(sizes))
+                     and h * WATCH_SHRINK <= self.largest)
         if not shrinking:
             self.samples.clear()
             return None
