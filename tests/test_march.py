@@ -395,8 +395,10 @@ def _watch_run(times, biggest, t_final):
     from pgdcli.tt import tt_constant
 
     watch = _BlowupWatch(_Grid(), [tt_constant(biggest(0.0), _Grid.shape)], t_final)
+    sizes = []
     for t0, t1 in zip(times, times[1:]):
-        found = watch(t1, t1 - t0, [tt_constant(-biggest(t1), _Grid.shape)])
+        sizes.append(t1 - t0)
+        found = watch(t1, sizes, [tt_constant(-biggest(t1), _Grid.shape)])
         if found is not None:
             return t1, found
     return None

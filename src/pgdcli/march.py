@@ -110,14 +110,13 @@ class _BlowupWatch:
     def __init__(self, system: "NonlinearSystem", state: list[TT], t_final: float):
         self.system, self.t_final = system, t_final
         self.initial = max(_largest(system, state, WATCH_POINTS)[0], 1e-300)
-        self.sizes: list[float] = []
         self.largest = 0.0  # the largest accepted step so far
         self.samples: list[tuple[float, float, float | None]] = []  # (t, 1/M, estimate of t*)
 
-    def __call__(self, t: float, h: float, state: list[TT]) -> float | None:
-        """Record an accepted step ending at ``t``; the predicted blow-up time, or None."""
-        sizes = self.sizes
-        sizes.append(h)
+    def __call__(self, t: float, sizes: list[float], state: list[TT]) -> float | None:
+        """After an accepted step ending at ``t`` (``sizes``: the march's accepted steps, this one
+        last): the predicted blow-up time, or None."""
+        h = sizes[-1]
         self.largest = max(self.largest, h)
         recent = sizes[-WATCH_STEPS - 1:]
         shrinking = (len(recent) == WATCH_STEPS + 1 and all(b < a for a, b in zip(recent, recent[1:]))
@@ -606,7 +605,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
         if callback is not None:
             callback({"time": t, "end": t_final, "ranks": [u.ranks for u in y], "steps": steps})
         if t < t_final:
-            blowup = watch(t, sizes[-1], y)
+            blowup = watch(t, sizes, y)
             if blowup is not None:
                 raise MarchFailure("the solution blows up", t, y, blowup)
     ranks = [[u.ranks for u in st] for st in states]
