@@ -103,3 +103,14 @@ def codebook_path(solved, tmp_path_factory):
         return cache[name]
 
     return get
+
+
+def assert_solved(result) -> None:
+    """The solver itself converged; its measured error may exceed the spec's tolerance.
+
+    For convergence studies on deliberately coarse grids, whose tolerance is the
+    solver's stopping target there and which the error gate (rightly) refuses.
+    """
+    from pgdcli.adapt import INACCURATE
+
+    assert result.converged or result.status == INACCURATE, result.message

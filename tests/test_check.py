@@ -66,11 +66,15 @@ def test_measured_error_is_the_true_error_of_the_codebook(solved):
     problem = load_spec(PROBLEMS / "logistic.yaml")
     measured = check.check_codebook(problem, cb)
     points, _ = check.check_sample(problem, cb)
-    times = cb.coordinate("t").basis().nodes
+    lines, _ = check.line_sample(problem, cb)
+    points = {n: np.concatenate([points[n], lines[n]]) for n in points}
+    nodes = cb.coordinate("t").basis().nodes
+    times = np.concatenate([nodes, 0.5 * (nodes[1:] + nodes[:-1])])  # the nodes and the midpoints between
     values = cb(t=times[None, :], r=points["r"][:, None], u0=points["u0"][:, None])["u"]
     true = np.abs(values - exact_logistic(times[None, :], points["r"][:, None], points["u0"][:, None]))
     assert true.max() > 1e-13  # not a codebook exact to rounding: the comparison can fail
     assert measured.error == pytest.approx(true.max(), rel=1e-2, abs=1e-12)
+    assert measured.ratio == pytest.approx(measured.error / problem.solver.tolerance)
     assert measured.points == points["r"].size and measured.failed == 0
 
 
@@ -109,6 +113,7 @@ def test_march_is_tightened_until_the_check_passes(monkeypatch):
         calls.append(codebook.report["tolerance"])
         if len(calls) == 1:
             out.error = out.node_error = 4.0 * problem.solver.tolerance
+            out.ratio = out.node_ratio = 4.0
         return out
 
     monkeypatch.setattr(check, "check_codebook", fake)
@@ -124,18 +129,22 @@ def test_march_is_tightened_until_the_check_passes(monkeypatch):
 
 
 def test_error_between_nodes_asks_for_nodes_not_a_tighter_march():
-    """Too few nodes in r: the nodes are right, the interpolation is not; one march and a warning."""
+    """Too few nodes in r: the nodes are right, the interpolation is not; one march, refused naming r."""
+    from pgdcli.adapt import INACCURATE
+
     text = _variant("logistic", lambda d: d["coordinates"]["r"].update(nodes=6))
     result = pgdcli.solve(parse_spec(text, source="logistic-coarse.yaml"))
     rep = result.codebook.report
     assert rep["march_attempts"].shape[0] == 1
     assert rep["check_node_error"] <= 1e-10 < rep["check_between_error"]
-    assert any("add nodes to the parameter coordinates" in w for w in result.warnings), result.warnings
-    # the warning's number is the true error: the exact solution at the reported place
+    assert result.status == INACCURATE and not result.converged and result.accurate is False
+    assert "coordinate 'r' lacks resolution" in result.message and "it has nodes: 6" in result.message
+    # the message's number is the true error: the exact solution at the reported place
     where = dict(kv.split("=") for kv in rep["check_where"].split(", "))
     p = {k: float(v) for k, v in where.items()}
     true = abs(result.codebook(**p)["u"] - exact_logistic(p["t"], p["r"], p["u0"]))
     assert true == pytest.approx(rep["check_between_error"], rel=1e-6)
+    assert f"max abs error {true:.3g}" in result.message
 
 
 def test_solve_and_info_print_the_measured_error(tmp_path):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
-from conftest import PROBLEMS
+from conftest import PROBLEMS, assert_solved
 from scipy.integrate import solve_ivp
 
 import pgdcli
@@ -373,7 +373,7 @@ def test_pole_beyond_the_end_is_no_blowup():
     """u' = u^2 from u0 in [0.1, 0.5] blows up at t = 1/u0 >= 2, after the end t = 1.9: the steps shrink
     and max|u| grows 20-fold (the prediction is armed) but the pole lies outside the domain."""
     result = pgdcli.solve(_scalar_problem("der(u) = u**2", 1.9, {"u0": (0.1, 0.5, 12)}, 1e-8))
-    assert result.converged, result.message
+    assert_solved(result)
     assert result.codebook.report["steps"] >= 2 * 8  # long enough to arm the prediction
     # at the u0 nodes: between them 12 nodes do not resolve the pole at u0 = 1/1.9 (the resolution
     # check says so), which is not what this test is about
@@ -475,7 +475,7 @@ def test_stiff_rounding_noise_tightens_the_stage_rounding():
     parameter nodes (between them 12 nodes do not resolve r; the solve warns)."""
     params = {"r": (10.0, 200.0, 12), "u0": (0.5, 1.5, 8)}
     result = pgdcli.solve(_scalar_problem("der(u) = -r*u**3 + r*u", 1.0, params, 1e-6, t_nodes=8))
-    assert result.converged, result.message
+    assert_solved(result)
     cb = result.codebook
     assert cb.report["stage_tightenings"] >= 1
     t = np.random.default_rng(22).uniform(0, 1, 50)[:, None, None]

@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-from conftest import codebook_points
+from conftest import codebook_points, assert_solved
 from pgdcli.cli import cli
 from pgdcli.errors import SolverError, SpecError
 
@@ -70,7 +70,7 @@ equations:
 solver: {tolerance: 1e-11}
 """
     result = pgdcli.solve(pgdcli.parse_spec(text, source="neumann.yaml"))
-    assert result.converged, result.message
+    assert_solved(result)
     p = codebook_points(result.codebook, 500, 4)
     exact = 1 + np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.cos(np.pi * p["x"])
     assert np.max(np.abs(result.codebook(**p)["u"] - exact)) <= 1e-8
@@ -93,7 +93,7 @@ equations:
 solver: {tolerance: 1e-11}
 """
     result = pgdcli.solve(pgdcli.parse_spec(text, source="flux.yaml"))
-    assert result.converged, result.message
+    assert_solved(result)
     p = codebook_points(result.codebook, 500, 5)
     exact = p["a"] * p["x"] + np.exp(-np.pi**2 * p["t"]) * np.cos(np.pi * p["x"])
     assert np.max(np.abs(result.codebook(**p)["u"] - exact)) <= 1e-8
@@ -107,7 +107,7 @@ def test_error_falls_with_space_nodes(kind, nodes, expected):
         text = HEAT1D.replace("x: {domain: [0, 1], nodes: 20}",
                               f"x: {{domain: [0, 1], nodes: {n}, discretization: {kind}}}")
         result = pgdcli.solve(pgdcli.parse_spec(text, source="h.yaml"))
-        assert result.converged, result.message
+        assert_solved(result)
         cb = result.codebook
         p = codebook_points(cb, 400, 6)
         exact = np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.sin(np.pi * p["x"])

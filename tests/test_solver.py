@@ -12,12 +12,13 @@ import textwrap
 
 import numpy as np
 import pytest
-from conftest import EXACT, PROBLEMS, codebook_points, exact_spring, max_abs_error, random_points
+from conftest import EXACT, PROBLEMS, codebook_points, exact_spring, max_abs_error, random_points, assert_solved
 from scipy.integrate import solve_ivp
 
 from pgdcli import Codebook, load_spec, parse_spec, solve
 from pgdcli.errors import SolverError
 from pgdcli.separated import CPTensor
+from pgdcli import solver
 from pgdcli.solver import STATE, SolveResult, discretize, residual_norm
 
 N_POINTS = 1000
@@ -74,7 +75,7 @@ def test_error_falls_as_time_nodes_are_added():
     errors = []
     for nt in (10, 12, 14, 16):
         result = solve(_variant("spring", {"t: {domain: [0, 4], nodes: 36}": f"t: {{domain: [0, 4], nodes: {nt}}}"}))
-        assert result.converged, result.message
+        assert_solved(result)
         errors.append(max(max_abs_error(result.codebook, exact_spring, points).values()))
     assert all(e2 < e1 / 10 for e1, e2 in zip(errors[:-1], errors[1:])), errors
 
@@ -96,7 +97,7 @@ def test_linear_time_elements_converge_at_second_order():
     errors = []
     for n in (20, 40, 80):
         result = solve(parse_spec(template % n))
-        assert result.converged, result.message
+        assert_solved(result)
         assert result.codebook.coordinate("t").discretization == "linear"
         errors.append(np.max(np.abs(result.codebook(**points)["u"] - np.exp(-points["k"] * points["t"]))))
     orders = [math.log2(e1 / e2) for e1, e2 in zip(errors[:-1], errors[1:])]
@@ -150,7 +151,7 @@ def test_coupled_system_with_time_dependent_coefficient_matches_solve_ivp():
         """
     )
     result = solve(parse_spec(spec))
-    assert result.converged, result.message
+    assert_solved(result)
     cb = result.codebook
     assert cb.unknown_names == ["x", "v"]
     rng = np.random.default_rng(17)
@@ -172,7 +173,7 @@ def test_coupled_system_with_time_dependent_coefficient_matches_solve_ivp():
 
 def _solve_text(text):
     result = solve(parse_spec(textwrap.dedent(text)))
-    assert result.converged, result.message
+    assert_solved(result)
     return result.codebook
 
 
@@ -296,8 +297,10 @@ def test_solver_report_fields(solved, name):
     h = np.asarray(result.residuals)
     assert h[0] == 1.0
     assert np.all(np.diff(h) <= 0.0), h
-    assert h[-1] <= tol and result.residual == h[-1]
-    assert np.all(h[:-1] > tol)  # stops at the first mode reaching the tolerance
+    rt = result.codebook.report["residual_tolerance"]  # the residual asked by the last enrichment
+    assert rt <= tol and result.codebook.report["check_error"] <= tol
+    assert h[-1] <= rt and result.residual == h[-1]
+    assert np.all(h[:-1] > rt)  # stops at the first mode reaching the residual asked
     assert result.iterations.shape == (h.size - 1,) == (result.n_modes,)
     assert np.all(result.iterations >= 1)
     assert np.all(result.iterations <= problem.solver.max_fixed_point_iterations)
@@ -388,7 +391,7 @@ def test_update_fallback_reports_the_residual_of_what_it_keeps(monkeypatch):
 
     monkeypatch.setattr(solver, "_update_all", lambda state, previous: one_pass(state, 0.0))
     monkeypatch.setattr(solver, "_update_sweep", checked_sweep)
-    result = solve(load_spec(PROBLEMS / "relaxation.yaml"))
+    result = solver._enrich(load_spec(PROBLEMS / "relaxation.yaml"), 1e-10, 100, None)  # one enrichment
     assert result.converged, result.message
     assert len(checked) == result.n_modes
     for reported, full_sweep, f_norm in checked:
@@ -408,7 +411,7 @@ def test_not_converged_when_max_modes_too_small():
 
 def test_callback_sees_every_mode():
     seen = []
-    result = solve(load_spec(PROBLEMS / "relaxation.yaml"), tolerance=1e-4, callback=seen.append)
+    result = solver._enrich(load_spec(PROBLEMS / "relaxation.yaml"), 1e-4, 100, seen.append)  # one enrichment
     assert [s["mode"] for s in seen] == list(range(1, result.n_modes + 1))
     np.testing.assert_array_equal([s["residual"] for s in seen], result.residuals[1:])
     np.testing.assert_array_equal([s["iterations"] for s in seen], result.iterations)

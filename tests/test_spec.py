@@ -82,7 +82,8 @@ def test_full_spec():
     assert problem.time == "t"
     assert problem.constants == pytest.approx({"g": 9.81, "half_g": 4.905, "eps": 1e-8, "two_pi": 2 * np.pi})
     assert problem.unknown_names == ("u", "v")
-    assert problem.solver == SolverOptions(1e-6, 40, "galerkin", 1e-7, 12, False)
+    assert problem.solver == SolverOptions(1e-6, max_modes=40, formulation="galerkin", fixed_point_tolerance=1e-7,
+                                           max_fixed_point_iterations=12, update=False)
     assert problem.output == pathlib.Path("out/relax.h5")
     assert problem.source == SOURCE and problem.source_text == FULL
     assert problem.coordinate_names == ("t", "k", "a")
@@ -266,12 +267,11 @@ C2 = "\n  t: {domain: [0, 1], nodes: 4}\n  k: "
         (dict(coordinates=C2 + "{domain: [0, abc], nodes: 4}"), "coordinates.k.domain: unknown name 'abc'"),
         (dict(coordinates=C2 + "{domain: [0, true], nodes: 4}"), "coordinates.k.domain: expected a number, got true"),
         (dict(coordinates=C2 + "{nodes: 4}"), "coordinates.k: missing required key 'domain'"),
-        (dict(coordinates=C2 + "{domain: [0, 1]}"), "coordinates.k: missing required key 'nodes'"),
-        (dict(coordinates=C2 + "{domain: [0, 1], nodes: 3.5}"), "coordinates.k.nodes: expected an integer from 2 to 2000, got 3.5"),
-        (dict(coordinates=C2 + "{domain: [0, 1], nodes: true}"), "coordinates.k.nodes: expected an integer from 2 to 2000, got true"),
-        (dict(coordinates=C2 + "{domain: [0, 1], nodes: 1}"), "coordinates.k.nodes: expected an integer from 2 to 2000, got 1"),
-        (dict(coordinates=C2 + "{domain: [0, 1], nodes: 2001}"), "coordinates.k.nodes: expected an integer from 2 to 2000"),
-        (dict(coordinates=C2 + "{domain: [0, 1], nodes: many}"), "coordinates.k.nodes: expected an integer"),
+        (dict(coordinates=C2 + "{domain: [0, 1], nodes: 3.5}"), "coordinates.k.nodes: expected 'auto' or an integer in [2, 2000], got 3.5"),
+        (dict(coordinates=C2 + "{domain: [0, 1], nodes: true}"), "coordinates.k.nodes: expected 'auto' or an integer in [2, 2000], got true"),
+        (dict(coordinates=C2 + "{domain: [0, 1], nodes: 1}"), "coordinates.k.nodes: expected 'auto' or an integer in [2, 2000], got 1"),
+        (dict(coordinates=C2 + "{domain: [0, 1], nodes: 2001}"), "coordinates.k.nodes: expected 'auto' or an integer in [2, 2000]"),
+        (dict(coordinates=C2 + "{domain: [0, 1], nodes: many}"), "coordinates.k.nodes: expected 'auto' or an integer"),
         (dict(coordinates=C2 + "{domain: [0, 1], nodes: 4, discretization: spline}"),
          "coordinates.k.discretization: expected one of chebyshev, linear, got 'spline'"),
         (dict(coordinates=C2 + "{domain: [0, 1], nodes: 4, size: 3}"),
@@ -326,7 +326,7 @@ C2 = "\n  t: {domain: [0, 1], nodes: 4}\n  k: "
         (dict(solver=" {max_fixed_point_iterations: 2.5}"), "solver.max_fixed_point_iterations: expected an integer >= 1, got 2.5"),
         (dict(solver=" {formulation: ritz}"), "solver.formulation: expected one of minres, galerkin, got 'ritz'"),
         (dict(solver=" {update: maybe}"), "solver.update: expected true or false, got 'maybe'"),
-        (dict(solver=" {restarts: 3}"), "solver: unknown key 'restarts' (allowed: tolerance, max_modes, formulation,"),
+        (dict(solver=" {restarts: 3}"), "solver: unknown key 'restarts' (allowed: tolerance, relative_tolerance, max_nodes, max_modes,"),
         (dict(solver=" 3"), "solver: expected a mapping, got 3"),
         # output
         (dict(output=" ''"), "output: expected a non-empty file path, got ''"),

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-from conftest import codebook_points
+from conftest import codebook_points, assert_solved
 from pgdcli.cli import cli
 from pgdcli.errors import SolverError, SpecError
 from pgdcli.reference import solve_reference, solve_reference_pde
@@ -29,7 +29,7 @@ def poisson():
 
 def _solve(text, source="steady.yaml"):
     result = pgdcli.solve(pgdcli.parse_spec(text, source=source))
-    assert result.converged, result.message
+    assert_solved(result)
     return result
 
 

@@ -30,11 +30,15 @@ from .errors import CodebookError, QueryError
 
 # pathlib and tempfile are imported by save() only: pgd query never writes
 
-__all__ = ["Codebook", "CoordinateInfo", "FieldModes", "FieldTT", "FORMAT_NAME", "FORMAT_VERSION"]
+__all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "FieldModes", "FieldTT", "FORMAT_NAME", "FORMAT_VERSION"]
 
 FORMAT_NAME = "pgdcli-codebook"
 FORMAT_VERSION = "1.0"
 _SUPPORTED_MAJOR = 1
+
+
+class InaccurateCodebookWarning(UserWarning):
+    """A codebook loaded from a file marked as missing its tolerance (``pgd solve --keep-inaccurate``)."""
 
 
 @dataclass(frozen=True)
@@ -850,6 +854,15 @@ class Codebook:
         out += np.einsum(expr, *fm.modes, fm.alphas)
         return out
 
+    @property
+    def accurate(self) -> bool | None:
+        """True: the measured error met the tolerance; False: written anyway (``--keep-inaccurate``);
+        None: not measured (an older codebook, or a reference that could not run)."""
+        value = self.report.get("accurate")
+        if value is None or int(value) < 0:
+            return None
+        return bool(int(value))
+
     # ------------------------------------------------------------------ summary
     def info(self, path: str | os.PathLike | None = None) -> dict:
         """Summary as plain Python data (what ``pgd info`` prints)."""
@@ -867,6 +880,8 @@ class Codebook:
             "unknowns": {u: _field_summary(fm) for u, fm in self.fields.items()},
             "method": str(rep.get("method", "pgd")),
             "converged": bool(rep.get("converged", False)),
+            "accurate": self.accurate,
+            "relative_tolerance": float(rep.get("relative_tolerance", 0.0)),
             "residual": float(rep.get("residual", np.nan)),
             "tolerance": float(rep.get("tolerance", np.nan)),
             "solve_time": float(rep.get("wall_time", np.nan)),
@@ -881,8 +896,19 @@ class Codebook:
 
             out["check"] = {"error": finite("check_error"), "node_error": finite("check_node_error"),
                             "between_error": finite("check_between_error"), "points": int(rep["check_points"]),
-                            "failed": int(rep["check_failed"]), "where": str(rep["check_where"]),
-                            "march_tolerance": float(rep["march_tolerance"])}
+                            "failed": int(rep["check_failed"]), "where": str(rep["check_where"])}
+            for key, name in (("check_ratio", "ratio"), ("march_tolerance", "march_tolerance")):
+                if key in rep:
+                    out["check"][name] = finite(key)
+            if "check_method" in rep:
+                out["check"]["method"] = str(rep["check_method"])
+        if "resolution_rounds" in rep:
+            rounds = np.asarray(rep["resolution_rounds"], dtype=float)
+            auto = [n for n in str(rep.get("resolution_auto", "")).split(",") if n]
+            out["nodes_chosen"] = {"automatic": auto, "reason": str(rep.get("resolution_reason", "")),
+                                   "rounds": [{"nodes": {c: int(n) for c, n in zip(self.coordinate_names, row[:-1])},
+                                               "ratio": float(row[-1]) if np.isfinite(row[-1]) else None}
+                                              for row in rounds]}
         if "resolution" in rep and "resolution_coordinates" in rep:
             names = str(rep["resolution_coordinates"]).split(",")
             table = np.asarray(rep["resolution"], dtype=float)
@@ -997,11 +1023,17 @@ class Codebook:
             raise CodebookError(f"{p}: not a readable HDF5 file (truncated or not a codebook)") from None
         try:
             with f:
-                return cls._read(f, p)
+                cb = cls._read(f, p)
         except CodebookError:
             raise
         except (KeyError, OSError, ValueError, TypeError) as exc:
             raise CodebookError(f"{p}: corrupt codebook ({_one_line(exc)})") from None
+        if cb.accurate is False:
+            import warnings
+
+            warnings.warn(f"{p}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was written "
+                          f"with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
+        return cb
 
     @classmethod
     def _read(cls, f, p: str) -> "Codebook":

@@ -989,9 +989,10 @@ class SolveResult:
     ----------
     codebook : pgdcli.codebook.Codebook
     converged : bool
-        True when the relative residual reached the tolerance.
+        True when the solver converged and the measured error meets the tolerance.
     status : int
-        0 converged, 1 ``max_modes`` reached, 2 stagnated.
+        0 converged, 1 ``max_modes`` reached, 2 stagnated, 3 the march failed,
+        4 the measured error exceeds the tolerance (:data:`pgdcli.adapt.INACCURATE`).
     message : str
     residuals : ndarray, shape (n_modes + 1,)
         Relative residual before the first mode and after each enrichment.
@@ -1000,8 +1001,13 @@ class SolveResult:
     wall_time : float
         Seconds.
     warnings : list of str
-        Findings that do not stop the solve, e.g. a coordinate whose
-        Chebyshev tail suggests too few nodes.
+        Findings that do not stop the solve, e.g. a reference that could not
+        check the codebook.
+    check : pgdcli.check.CheckResult or None
+        The error measured against the independent reference (None when the
+        solver did not converge).
+    accurate : bool or None
+        The measured error meets the tolerance (None: it could not be measured).
     """
 
     codebook: object
@@ -1012,6 +1018,8 @@ class SolveResult:
     iterations: np.ndarray
     wall_time: float
     warnings: list = field(default_factory=list)
+    check: "CheckResult | None" = None
+    accurate: bool | None = None
 
     @property
     def residual(self) -> float:
@@ -1036,50 +1044,71 @@ def _blas_single_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def solve(problem, *, tolerance: float | None = None, max_modes: int | None = None,
-          callback: Callable[[dict], None] | None = None) -> SolveResult:
-    """Compute the PGD codebook of a problem.
+def solve(problem, *, tolerance: float | None = None, relative_tolerance: float | None = None,
+          max_modes: int | None = None, callback: Callable[[dict], None] | None = None) -> SolveResult:
+    """Compute the PGD codebook of a problem, its error measured against an independent reference.
 
     Parameters
     ----------
     problem : pgdcli.spec.Problem or str or path
         A validated problem, or the path of a YAML spec.
-    tolerance, max_modes : optional
-        Override ``problem.solver``.
+    tolerance, relative_tolerance, max_modes : optional
+        Override ``problem.solver``: the codebook must satisfy
+        ``|u - u_exact| <= tolerance + relative_tolerance * |u_exact|`` everywhere.
     callback : callable, optional
-        Called after each enrichment with a dict ``{"mode", "residual", "iterations"}``.
+        Called after each enrichment with a dict ``{"mode", "residual", "iterations"}``
+        (march: after each step, ``{"time", "end", "steps", "ranks"}``).
 
     Returns
     -------
     SolveResult
+        ``converged`` is True only when the solver converged *and* the measured
+        error meets the tolerance (or could not be measured: ``accurate`` None,
+        with a warning); a codebook that misses its tolerance has ``status``
+        :data:`pgdcli.adapt.INACCURATE` and a message saying where and why.
     """
+    from .adapt import solve_to_tolerance
     from .spec import Problem, load_spec
 
     if not isinstance(problem, Problem):
         problem = load_spec(problem)
     opts = problem.solver
     tol = opts.tolerance if tolerance is None else float(tolerance)
+    rtol = opts.relative_tolerance if relative_tolerance is None else float(relative_tolerance)
     nmax = opts.max_modes if max_modes is None else int(max_modes)
     if not (0.0 < tol < 1.0):
         raise SolverError(f"tolerance must be in (0, 1), got {tol}")
+    if not (0.0 <= rtol < 1.0):
+        raise SolverError(f"relative_tolerance must be in [0, 1), got {rtol}")
     if nmax < 1:
         raise SolverError(f"max_modes must be at least 1, got {nmax}")
-    if _use_march(problem):
-        with _blas_single_thread():
-            return _with_resolution(_checked_march(problem, tol, callback), tol)
-    started = _time.perf_counter()
+    march = _use_march(problem)
+    if march:
+        once = partial(_checked_march, tolerance=tol, relative_tolerance=rtol, callback=callback)
+    else:
+        once = partial(_checked_enrichment, tolerance=tol, relative_tolerance=rtol, max_modes=nmax,
+                       callback=callback)
     with _blas_single_thread():
-        disc = discretize(problem)
-        state, history, iterations, status = _run(disc, opts, tol, nmax, callback)
+        return solve_to_tolerance(problem, once, march=march)
+
+
+def _enrich(problem, residual_tolerance: float, nmax: int, callback) -> SolveResult:
+    """One enrichment solve to a relative residual (the solver's internal stopping signal)."""
+    opts = problem.solver
+    tol = residual_tolerance
+    started = _time.perf_counter()
+    disc = discretize(problem)
+    state, history, iterations, status = _run(disc, opts, tol, nmax, callback)
     wall = _time.perf_counter() - started
     converged = status == 0
     residual = history[-1]
     if converged:
-        message = f"converged: relative residual {residual:.3g} <= tolerance {tol:.3g} with {state.rank} modes"
+        message = f"converged: relative residual {residual:.3g} with {state.rank} modes"
     elif status == 1:
-        message = f"not converged: relative residual {residual:.3g} > tolerance {tol:.3g} after max_modes={nmax} modes"
+        message = (f"not converged: relative residual {residual:.3g} > {tol:.3g} after max_modes={nmax} modes "
+                   f"(raise solver.max_modes)")
     else:
-        message = (f"not converged: relative residual stagnated at {residual:.3g} (tolerance {tol:.3g}) "
+        message = (f"not converged: relative residual stagnated at {residual:.3g} (asked {tol:.3g}) "
                    f"after {state.rank} modes")
     from .codebook import codebook_from_solution
 
@@ -1089,20 +1118,77 @@ def solve(problem, *, tolerance: float | None = None, max_modes: int | None = No
         "message": message,
         "modes": state.rank,
         "residual": residual,
+        "residual_tolerance": tol,
         "residual_history": np.array(history),
         "iterations": np.array(iterations, dtype=int),
         "wall_time": wall,
-        "tolerance": tol,
         "max_modes": nmax,
         "formulation": opts.formulation,
         "update": bool(opts.update),
     }
     codebook = codebook_from_solution(problem, disc, state.alphas, state.factors, report)
-    result = SolveResult(codebook, converged, status, message, np.array(history), np.array(iterations, dtype=int), wall)
-    return _with_resolution(result, None)
+    return SolveResult(codebook, converged, status, message, np.array(history), np.array(iterations, dtype=int), wall)
 
 
-# The march's tolerance is checked (pgdcli.check): if the measured max error at grid nodes exceeds
+# The enrichment's residual is relative; the tolerance is an absolute error. The first solve asks
+# for a relative residual equal to the tolerance (right for solutions of size ~1, as the shipped
+# ones); when the error measured at the nodes is larger, the residual asked is scaled down by
+# CHECK_SAFETY * tolerance / error and the enrichment runs again, at most CHECK_ATTEMPTS times. An
+# error that does not fall with the residual is discretization error: more nodes (pgdcli.adapt).
+RESIDUAL_FLOOR = 1e-13
+
+
+def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float, max_modes: int,
+                        callback=None) -> SolveResult:
+    """Enrich, measure the error against the reference, tighten the residual if the nodes need it."""
+    target = tolerance
+    kept = None
+    attempts = []
+    for _ in range(CHECK_ATTEMPTS):
+        result = _enrich(problem, target, max_modes, callback)
+        if not result.converged:
+            if kept is None:
+                result.codebook.report["tolerance"] = float(tolerance)
+                return result
+            break
+        result.check = _measure(problem, result, tolerance, relative_tolerance)
+        previous = kept
+        kept = result
+        attempts.append((target, result.check.node_ratio))
+        ratio = result.check.node_ratio
+        if not np.isfinite(ratio) or ratio <= 1.0 or target <= RESIDUAL_FLOOR:
+            break
+        if previous is not None and ratio > 0.5 * attempts[-2][1]:
+            break  # a smaller residual did not help: discretization error
+        # a residual is cheap to lower and the error follows it only roughly: at least a decade
+        target = max(RESIDUAL_FLOOR, target * min(0.1, CHECK_SAFETY / ratio))
+    rep = kept.codebook.report
+    if kept.check.node_ratio > 1.0:  # the residual cannot (or did not) bring it down: more time or space nodes
+        rep["discretization_limited"] = 1
+    rep["tolerance"] = float(tolerance)
+    rep["enrichment_attempts"] = np.array(attempts, dtype=float)  # (solves, 2): residual asked, node ratio
+    rep["solver_message"] = (f"relative residual {kept.residual:.3g} with {kept.n_modes} modes"
+                             + (f", {len(attempts)} enrichments" if len(attempts) > 1 else ""))
+    return _with_resolution(kept, tolerance)
+
+
+def _measure(problem, result, tolerance: float, relative_tolerance: float):
+    """The codebook's error against the independent reference; unchecked (with a warning) if it cannot run."""
+    from .check import check_codebook, check_codebook_pde, unchecked
+
+    space = any(c.role == "space" for c in problem.coordinates)
+    try:
+        if space or problem.time is None:
+            return check_codebook_pde(problem, result.codebook, tolerance=tolerance,
+                                      relative_tolerance=relative_tolerance)
+        return check_codebook(problem, result.codebook, tolerance=tolerance, relative_tolerance=relative_tolerance)
+    except PgdError as exc:  # the reference cannot integrate this problem: say so, keep the solve
+        reason = " ".join(str(exc).split())
+        result.warnings.append(f"the codebook's error could not be checked against scipy: {reason}")
+        return unchecked(reason, tolerance, relative_tolerance)
+
+
+# The march's tolerance is checked (pgdcli.check): if the measured error at grid nodes exceeds
 # it, the march is repeated with its RMS target scaled by CHECK_SAFETY * tolerance / error, at most
 # CHECK_ATTEMPTS marches in all. DOP853 is of order 8, so a tighter target costs few more steps;
 # mostly it raises the ranks.
@@ -1114,22 +1200,18 @@ CHECK_ATTEMPTS = 3
 CHECK_SAFETY = 0.5
 
 
-def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
-    """March, measure the max error against scipy at the check sample, tighten the march if needed.
+def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0, callback=None) -> "SolveResult":
+    """March, measure the error against scipy at the check sample, tighten the march if the nodes need it.
 
     The march controls an RMS over the parameter grid; the user's tolerance is read
     as a bound on the max abs error, and this is where it is made one (see
-    :mod:`pgdcli.check`). Errors between the nodes (interpolation) do not fall with
-    a tighter march: they give a warning to add nodes instead.
+    :mod:`pgdcli.check`). Errors between the parameter nodes (interpolation) do not
+    fall with a tighter march: they are for :mod:`pgdcli.adapt` (more nodes).
     """
-    from dataclasses import replace
-
-    from .check import check_codebook, points_text
     from .march import solve_march
 
-    started = _time.perf_counter()
     target = CHECK_FIRST * tolerance
-    kept = check = None
+    kept = None
     attempts = []
     notes = []
     for _ in range(CHECK_ATTEMPTS):
@@ -1142,70 +1224,39 @@ def _checked_march(problem, tolerance: float, callback=None) -> "SolveResult":
             notes.append(f"the march with the tighter target {target:.2g} failed ({result.message}); "
                          f"kept the one with target {attempts[-1][0]:.2g}")
             break
-        try:
-            measured = check_codebook(problem, result.codebook)
-        except PgdError as exc:  # the reference cannot integrate this problem: say so, keep the march
-            measured = _unchecked(result, exc)
-        kept, check = result, measured
+        result.check = _measure(problem, result, tolerance, relative_tolerance)
+        kept = result
+        check = result.check
         attempts.append((target, check.error))
-        if not np.isfinite(check.node_error) or check.node_error <= tolerance:
+        if not np.isfinite(check.node_ratio) or check.node_ratio <= 1.0:
             break
-        target *= CHECK_SAFETY * tolerance / check.node_error
+        target *= CHECK_SAFETY / check.node_ratio
     rep = kept.codebook.report
-    wall = _time.perf_counter() - started
-    rep["wall_time"] = wall
     rep["tolerance"] = float(tolerance)
     rep["march_tolerance"] = float(attempts[-1][0])
     rep["march_attempts"] = np.array(attempts, dtype=float)  # (marches, 2): RMS target, measured max error
-    rep["check_error"] = float(check.error)
-    rep["check_node_error"] = float(check.node_error)
-    rep["check_between_error"] = float(check.between_error)
-    rep["check_points"] = int(check.points)
-    rep["check_failed"] = int(check.failed)
-    rep["check_where"] = ", ".join(f"{k}={v!r}" for k, v in check.where.items())
-    where = ", ".join(f"{k}={v:.6g}" for k, v in check.where.items())
     end = kept.codebook.coordinate(problem.time).domain[1]
     steps = f"reached {problem.time} = {end:.6g} in {rep['steps']} steps ({rep['rejected_steps']} rejected)"
     if len(attempts) > 1:
         steps += f", {len(attempts)} marches"
-    if np.isfinite(check.error):
-        measured = (f"max abs error {check.error:.3g} at {points_text(check.points)} against scipy "
-                    f"(tolerance {tolerance:.3g})")
-    else:
-        measured = f"not checked against scipy (tolerance {tolerance:.3g}; see the warnings)"
-    message = f"converged: {steps}, {measured}"
-    rep["message"] = message
-    warns = list(kept.warnings) + notes
+    rep["solver_message"] = steps
+    kept.warnings.extend(notes)
+    check = kept.check
     if check.failed and not check.points:
-        warns.append(f"the reference integration failed at all {check.failed} check points: the error is not measured")
+        kept.warnings.append(f"the reference integration failed at all {check.failed} check points: "
+                             f"the error is not measured")
     elif check.failed:
-        warns.append(f"the reference integration failed at {check.failed} of {check.failed + check.points} "
-                     f"check points; they are not in the measured error")
-    if np.isfinite(check.error) and check.error > tolerance:
-        if check.node_error <= tolerance:
-            warns.append(f"the error between the nodes, {check.between_error:.2g} (at {where}), "
-                         f"exceeds the tolerance {tolerance:.2g}: add nodes to the parameter coordinates")
-        else:
-            warns.append(f"the measured error {check.error:.2g} (at {where}) exceeds the tolerance "
-                         f"{tolerance:.2g} after {len(attempts)} marches")
-    return replace(kept, message=message, wall_time=wall, warnings=warns)
-
-
-def _unchecked(result, exc) -> "CheckResult":
-    from .check import CheckResult
-
-    result.warnings.append(f"the march's error could not be checked against scipy: {' '.join(str(exc).split())}")
-    nan = float("nan")
-    return CheckResult(nan, nan, nan, 0, 0)
+        kept.warnings.append(f"the reference integration failed at {check.failed} of {check.failed + check.points} "
+                             f"check points; they are not in the measured error")
+    return _with_resolution(kept, tolerance)
 
 
 def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveResult":
-    """Add the Chebyshev-tail resolution check to the report and to ``result.warnings``.
+    """Add the Chebyshev tails per unknown and coordinate to the report.
 
-    The tails estimate the interpolation error between nodes, which no residual
-    sees. The warning threshold is the tolerance for the march (an error
-    target) and 1e-6 of the largest nodal value for the enrichment (whose
-    tolerance is a relative residual).
+    The tails estimate the interpolation error between nodes. The measured error
+    decides (:mod:`pgdcli.adapt`); the tails are reported, and they give warnings
+    only when the error could not be measured.
     """
     from .resolution import resolution_tails
 
@@ -1216,24 +1267,16 @@ def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveRe
     names = cb.coordinate_names
     cb.report["resolution"] = np.array([[tails[u][c] for c in names] for u in cb.unknown_names])
     cb.report["resolution_coordinates"] = ",".join(names)
+    if result.check is not None and result.check.checked:
+        return result
     for u in cb.unknown_names:
-        limit = tolerance
-        if limit is None:
-            limit = result.codebook.report.get("tolerance", 1e-8) * max(1.0, _nodal_scale(cb, u))
         for c in names:
             tail = tails[u][c]
-            if np.isfinite(tail) and tail > limit:
+            if np.isfinite(tail) and tail > tolerance:
                 result.warnings.append(
-                    f"coordinate {c!r} may be under-resolved for {u!r}: Chebyshev tail {tail:.2g} > {limit:.2g}; "
+                    f"coordinate {c!r} may be under-resolved for {u!r}: Chebyshev tail {tail:.2g} > {tolerance:.2g}; "
                     f"add nodes to {c!r}")
     return result
-
-
-def _nodal_scale(cb, unknown: str) -> float:
-    fm = cb.fields[unknown]
-    if hasattr(fm, "alphas"):
-        return float(np.sum(np.abs(fm.alphas) * np.prod([np.abs(m).max(axis=0) for m in fm.modes], axis=0)))
-    return 1.0
 
 
 def _use_march(problem) -> bool:

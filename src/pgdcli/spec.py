@@ -59,6 +59,9 @@ DISCRETIZATIONS = ("chebyshev", "linear")
 FORMULATIONS = ("minres", "galerkin")
 METHODS = ("auto", "pgd", "march")
 MAX_NODES = 2000
+#: First node count of a coordinate whose nodes are chosen by the solver (``nodes: auto`` or none);
+#: 2**k + 1 so that refinement (n -> 2n - 1) keeps the Chebyshev-Lobatto nodes nested.
+AUTO_NODES = {"chebyshev": 9, "linear": 17}
 
 #: Names that may not be used for coordinates, constants or unknowns: built-ins of
 #: expressions, and command-line option names (``pgd eval --k 1`` must not clash).
@@ -84,7 +87,7 @@ class Coordinate:
     domain : (float, float)
         ``low < high``.
     nodes : int
-        Number of discretization nodes, 2 to 2000.
+        Number of discretization nodes, 2 to 2000 (with ``auto``: the first count tried).
     discretization : str
         ``'chebyshev'`` or ``'linear'``.
     role : str
@@ -96,6 +99,7 @@ class Coordinate:
     nodes: int
     discretization: str = "chebyshev"
     role: str = "parameter"
+    auto: bool = False  # nodes omitted or 'auto': the solver chooses them (pgdcli.adapt)
 
 
 @dataclass(frozen=True)
@@ -142,7 +146,9 @@ class Equation:
 class SolverOptions:
     """Solver settings; the defaults here are the only defaults."""
 
-    tolerance: float = 1e-8
+    tolerance: float = 1e-8  # bound on the codebook's error: |u - u_exact| <= tolerance + relative_tolerance |u|
+    relative_tolerance: float = 0.0
+    max_nodes: int = 65  # automatic resolution: cap on the nodes of a coordinate
     max_modes: int = 100
     formulation: str = "minres"
     fixed_point_tolerance: float = 1e-4
@@ -454,9 +460,16 @@ def _parse_coordinate(check: _Checker, name: str, body: dict, time: str, constan
     high = _parse_bound(check, domain[1], f"{path}.domain", constants)
     if not low < high:
         raise check.error(f"{path}.domain", f"expected [low, high] with low < high, got {_show(domain)}")
-    nodes = check.integer(check.require(body, "nodes", path), f"{path}.nodes", 2, MAX_NODES)
     discretization = check.choice(body.get("discretization", "chebyshev"), f"{path}.discretization", DISCRETIZATIONS)
     role = "time" if name == time else "parameter"  # 'space' is decided from the equations
+    value = body.get("nodes", "auto")
+    if value == "auto" or value is None:
+        return Coordinate(name, (low, high), AUTO_NODES[discretization], discretization, role, auto=True)
+    try:
+        nodes = check.integer(value, f"{path}.nodes", 2, MAX_NODES)
+    except SpecError:
+        raise check.error(f"{path}.nodes", f"expected 'auto' or an integer in [2, {MAX_NODES}], "
+                                           f"got {_show(value)}") from None
     return Coordinate(name, (low, high), nodes, discretization, role)
 
 
@@ -664,6 +677,14 @@ def _parse_solver(check: _Checker, value: Any) -> SolverOptions:
             if not 0 < number < 1:
                 raise check.error(f"solver.{key}", f"expected a number in (0, 1), got {_show(section[key])}")
             options[key] = number
+    if "relative_tolerance" in section:
+        number = check.number(section["relative_tolerance"], "solver.relative_tolerance")
+        if not 0 <= number < 1:
+            raise check.error("solver.relative_tolerance",
+                              f"expected a number in [0, 1), got {_show(section['relative_tolerance'])}")
+        options["relative_tolerance"] = number
+    if "max_nodes" in section:
+        options["max_nodes"] = check.integer(section["max_nodes"], "solver.max_nodes", 3, MAX_NODES)
     for key in ("max_modes", "max_fixed_point_iterations"):
         if key in section:
             options[key] = check.integer(section[key], f"solver.{key}", 1)

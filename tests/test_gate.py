@@ -1,0 +1,201 @@
+"""The error gate and automatic resolution (pgdcli.adapt), on problems written as a new user would.
+
+Every accuracy claim is checked against an independent reference: scipy's solve_ivp
+(DOP853, rtol = atol = 1e-12), integrated here point by point at 300 random points,
+never against the solver's own check.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import pgdcli
+from pgdcli import parse_spec
+from pgdcli.adapt import INACCURATE
+from pgdcli.cli import cli
+from pgdcli.codebook import Codebook, InaccurateCodebookWarning
+
+OSCILLATOR = """
+name: oscillator
+coordinates:
+  t: {domain: [0, 5]}
+  k: {domain: [1, 4]}
+  c: {domain: [0.1, 0.5]}
+  x0: {domain: [-1, 1]}
+unknowns:
+  x: {initial: x0}
+  v: {initial: 0}
+equations:
+  - "der(x) = v"
+  - "der(v) = -k*x - c*v"
+solver:
+  tolerance: 1e-6
+"""
+
+SIR = """
+name: sir
+coordinates:
+  t: {domain: [0, 20]}
+  b: {domain: [0.8, 1.2]}
+  g: {domain: [0.2, 0.4]}
+unknowns:
+  S: {initial: 0.99}
+  I: {initial: 0.01}
+  R: {initial: 0}
+equations:
+  - "der(S) = -b*S*I"
+  - "der(I) = b*S*I - g*I"
+  - "der(R) = g*I"
+solver:
+  tolerance: 1e-6
+"""
+
+COARSE = """
+name: coarse
+coordinates:
+  t: {domain: [0, 5], nodes: 12}
+  k: {domain: [1, 4], nodes: 5}
+unknowns:
+  x: {initial: 1}
+  v: {initial: 0}
+equations:
+  - "der(x) = v"
+  - "der(v) = -k*x"
+solver:
+  tolerance: 1e-6
+"""
+
+
+def _max_error_vs_solve_ivp(cb, rhs, initial, n=300, seed=5):
+    """Max abs error of the codebook at n random points against solve_ivp trajectories."""
+    from scipy.integrate import solve_ivp
+
+    rng = np.random.default_rng(seed)
+    params = [c for c in cb.coordinates if c.role != "time"]
+    time = next(c for c in cb.coordinates if c.role == "time")
+    worst = 0.0
+    for _ in range(n):
+        p = {c.name: rng.uniform(*c.domain) for c in params}
+        t = rng.uniform(*time.domain)
+        sol = solve_ivp(lambda s, y: rhs(s, y, p), time.domain, initial(p), method="DOP853", rtol=1e-12,
+                        atol=1e-12, t_eval=[t])
+        values = cb(**{time.name: t}, **p)
+        ref = sol.y[:, 0]
+        worst = max(worst, max(abs(float(values[u]) - r) for u, r in zip(cb.unknown_names, ref)))
+    return worst
+
+
+def test_oscillator_without_nodes_meets_its_tolerance():
+    result = pgdcli.solve(parse_spec(OSCILLATOR, source="oscillator.yaml"))
+    assert result.converged and result.accurate is True, result.message
+    cb = result.codebook
+    assert cb.report["resolution_auto"] == "t,k,c,x0"
+    err = _max_error_vs_solve_ivp(cb, lambda s, y, p: [y[1], -p["k"] * y[0] - p["c"] * y[1]],
+                                  lambda p: [p["x0"], 0.0])
+    assert err <= 1e-6
+    # the measured error in the report agrees with the independent one to within a factor of a few
+    assert cb.report["check_error"] <= 1e-6 and err <= 5 * cb.report["check_error"]
+
+
+def test_sir_without_nodes_meets_its_tolerance():
+    result = pgdcli.solve(parse_spec(SIR, source="sir.yaml"))
+    assert result.converged and result.accurate is True, result.message
+    err = _max_error_vs_solve_ivp(
+        result.codebook,
+        lambda s, y, p: [-p["b"] * y[0] * y[1], p["b"] * y[0] * y[1] - p["g"] * y[1], p["g"] * y[1]],
+        lambda p: [0.99, 0.01, 0.0])
+    assert err <= 1e-6
+
+
+def test_automatic_nodes_grow_where_the_error_is():
+    """k moves the oscillation frequency: it is refined; the report says which nodes were tried."""
+    result = pgdcli.solve(parse_spec(OSCILLATOR, source="oscillator.yaml"))
+    rep = result.codebook.report
+    rounds = np.asarray(rep["resolution_rounds"])
+    names = result.codebook.coordinate_names
+    assert rounds.shape[0] >= 2 and rounds[-1, -1] <= 1.0 < rounds[0, -1]
+    assert rounds[-1, names.index("k")] > rounds[0, names.index("k")]
+    assert rep["resolution_reason"] == "the measured error meets the tolerance"
+
+
+def test_under_resolved_explicit_nodes_exit_1_and_write_nothing(tmp_path):
+    spec = tmp_path / "coarse.yaml"
+    spec.write_text(COARSE)
+    out = tmp_path / "coarse.h5"
+    res = CliRunner().invoke(cli, ["solve", str(spec), "-o", str(out), "-q"])
+    assert res.exit_code == 1
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["coarse.yaml"]
+    last = res.stderr.strip().splitlines()[-1]
+    assert last.startswith("Error: ") and "tolerance not met: max abs error" in last
+    assert "lacks resolution" in last and "no codebook written" in last and "Traceback" not in res.stderr
+
+
+def test_keep_inaccurate_writes_a_marked_codebook(tmp_path):
+    spec = tmp_path / "coarse.yaml"
+    spec.write_text(COARSE)
+    out = tmp_path / "coarse.h5"
+    runner = CliRunner()
+    res = runner.invoke(cli, ["solve", str(spec), "-o", str(out), "--keep-inaccurate", "--format", "json", "-q"])
+    assert res.exit_code == 1 and out.exists()
+    summary = json.loads(res.stdout)
+    assert summary["accurate"] is False and summary["converged"] is False and summary["output"] == str(out)
+    assert summary["check_error"] > 1e-6
+    assert "marked inaccurate" in res.stderr.strip().splitlines()[-1]
+    info = json.loads(runner.invoke(cli, ["info", str(out), "--format", "json"]).stdout)
+    assert info["accurate"] is False and info["check"]["error"] == summary["check_error"]
+    assert "INACCURATE" in runner.invoke(cli, ["info", str(out)]).stdout
+    with pytest.warns(InaccurateCodebookWarning, match="misses its tolerance"):
+        Codebook.load(out)
+
+
+def test_an_accurate_codebook_loads_without_warning(tmp_path):
+    result = pgdcli.solve(parse_spec(COARSE.replace("nodes: 12", "nodes: auto").replace("nodes: 5", "nodes: auto"),
+                                     source="fine.yaml"))
+    assert result.accurate is True, result.message
+    path = result.codebook.save(tmp_path / "fine.h5")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cb = Codebook.load(path)
+    assert cb.accurate is True and cb.info()["accurate"] is True
+
+
+DECAY = """
+name: decay
+coordinates:
+  t: {domain: [0, 1], nodes: 8}
+  k: {domain: [0.5, 2], nodes: 5}
+unknowns:
+  u: {initial: 1}
+equations:
+  - "der(u) = -k*u"
+solver:
+  tolerance: 1e-9
+"""
+
+
+def test_relative_tolerance_relaxes_the_bound_where_the_solution_is_large():
+    """error <= atol + rtol |u|: a coarse codebook that fails atol alone passes with a relative part."""
+    from pgdcli import check
+
+    problem = parse_spec(DECAY, source="decay.yaml")
+    strict = pgdcli.solve(problem)
+    assert strict.status == INACCURATE
+    relative = check.check_codebook(problem, strict.codebook, tolerance=1e-300, relative_tolerance=1.0).ratio
+    assert 1e-9 < relative < 0.1  # max |u - u_ref| / |u_ref| over the sample
+    loose = pgdcli.solve(problem, relative_tolerance=2 * relative)
+    assert loose.accurate is True and loose.codebook.report["relative_tolerance"] == 2 * relative
+    assert loose.check.ratio <= 1.0 < loose.check.error / 1e-9
+    tighter = pgdcli.solve(problem, relative_tolerance=0.25 * relative)
+    assert tighter.status == INACCURATE  # the relative part is checked too
+
+
+def test_max_nodes_reached_is_an_honest_refusal():
+    text = OSCILLATOR + "  max_nodes: 9\n"
+    result = pgdcli.solve(parse_spec(text, source="capped.yaml"))
+    assert result.status == INACCURATE and result.accurate is False
+    assert "solver.max_nodes = 9" in result.message and "lacks resolution" in result.message
