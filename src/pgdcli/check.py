@@ -321,7 +321,8 @@ def check_codebook_pde(problem, codebook, *, tolerance: float | None = None, rel
     from .verification import verify
 
     tol = problem.solver.tolerance if tolerance is None else float(tolerance)
-    report = verify(codebook, samples=PDE_SAMPLES, seed=seed, times=PDE_TIMES, max_corners=PDE_CORNERS, jobs=1)
+    report = verify(codebook, samples=PDE_SAMPLES, seed=seed, times=PDE_TIMES, max_corners=PDE_CORNERS, jobs=1,
+                    rtol=1e-12, atol=1e-12)
     ok = np.array([np.isfinite(report.reference[u]).all(axis=tuple(range(1, report.reference[u].ndim)))
                    for u in report.reference]).all(axis=0)
     err = ratio = None
