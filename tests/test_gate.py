@@ -199,3 +199,101 @@ def test_max_nodes_reached_is_an_honest_refusal():
     result = pgdcli.solve(parse_spec(text, source="capped.yaml"))
     assert result.status == INACCURATE and result.accurate is False
     assert "solver.max_nodes = 9" in result.message and "lacks resolution" in result.message
+
+
+RUNGE = """
+name: runge
+coordinates:
+  t: {domain: [0, 1]}
+  p: {domain: [0, 1]}
+unknowns:
+  u: {initial: "1/(1 + 400*(p - 0.3)**2)"}
+equations:
+  - "der(u) = -u"
+solver:
+  tolerance: 1e-6
+"""
+
+
+def test_a_sharp_feature_in_a_parameter_gets_elements_where_it_is():
+    """Runge's function in p: doubling the nodes converges slowly, so p is split into elements near 0.3."""
+    result = pgdcli.solve(parse_spec(RUNGE, source="runge.yaml"))
+    assert result.accurate is True, result.message
+    cb = result.codebook
+    bp = np.asarray(cb.coordinate("p").breakpoints)
+    assert bp.size > 3 and cb.report["resolution_elements"] == f"p:{bp.size - 1}"
+    widths = np.diff(bp)
+    middle = 0.5 * (bp[1:] + bp[:-1])
+    assert widths[np.argmin(np.abs(middle - 0.3))] < widths.max() / 2  # smaller elements at the feature
+    rng = np.random.default_rng(1)
+    t, p = rng.uniform(0, 1, 3000), rng.uniform(0, 1, 3000)
+    assert np.abs(cb(t=t, p=p)["u"] - np.exp(-t) / (1 + 400 * (p - 0.3) ** 2)).max() <= 1e-6
+
+
+def test_explicit_elements_are_kept_and_saved(tmp_path):
+    text = RUNGE.replace("p: {domain: [0, 1]}", "p: {domain: [0, 1], nodes: 17, elements: 16}").replace(
+        "t: {domain: [0, 1]}", "t: {domain: [0, 1], nodes: 33}")
+    result = pgdcli.solve(parse_spec(text, source="runge16.yaml"))
+    assert result.accurate is True, result.message
+    assert result.codebook.report["resolution_rounds"].shape[0] == 1  # explicit nodes: checked, not changed
+    cb = Codebook.load(result.codebook.save(tmp_path / "runge16.h5"))
+    assert cb.coordinate("p").breakpoints == tuple(np.linspace(0, 1, 17)) and cb.coordinate("p").nodes == 16 * 16 + 1
+    t, p = np.random.default_rng(2).uniform(0, 1, (2, 500))
+    assert np.abs(cb(t=t, p=p)["u"] - np.exp(-t) / (1 + 400 * (p - 0.3) ** 2)).max() <= 1e-6
+
+
+def test_elements_only_for_chebyshev_parameters():
+    from pgdcli.errors import SpecError
+
+    with pytest.raises(SpecError, match=r"coordinates\.t\.elements: elements are for chebyshev parameter"):
+        parse_spec(RUNGE.replace("t: {domain: [0, 1]}", "t: {domain: [0, 1], elements: 2}"), source="x.yaml")
+    with pytest.raises(SpecError, match=r"coordinates\.p\.elements: elements are for chebyshev parameter"):
+        parse_spec(RUNGE.replace("p: {domain: [0, 1]}", "p: {domain: [0, 1], elements: 2, discretization: linear}"),
+                   source="x.yaml")
+
+
+def _without_nodes(name: str) -> str:
+    import yaml
+
+    from conftest import PROBLEMS
+
+    data = yaml.safe_load((PROBLEMS / f"{name}.yaml").read_text())
+    for body in data["coordinates"].values():
+        body.pop("nodes", None)
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def _exact(name):
+    from conftest import EXACT
+
+    if name in EXACT:
+        return EXACT[name]
+    if name == "logistic":
+        return lambda p: {"u": p["u0"] * np.exp(p["r"] * p["t"]) / (1 - p["u0"] + p["u0"] * np.exp(p["r"] * p["t"]))}
+    return lambda p: {"u": np.exp(-p["kappa"] * np.pi**2 * p["t"]) * np.sin(np.pi * p["x"])}  # heat1d
+
+
+@pytest.mark.parametrize("name", ["parametric", "spring", "relaxation", "logistic", "heat1d"])
+def test_shipped_problems_solve_without_nodes_at_their_tolerance(name):
+    from conftest import codebook_points, max_abs_error
+
+    problem = parse_spec(_without_nodes(name), source=f"{name}-auto.yaml")
+    result = pgdcli.solve(problem)
+    assert result.accurate is True, result.message
+    errors = max_abs_error(result.codebook, _exact(name), codebook_points(result.codebook, 300, 3))
+    assert max(errors.values()) <= problem.solver.tolerance
+
+
+def test_coupled_without_nodes_against_solve_ivp():
+    result = pgdcli.solve(parse_spec(_without_nodes("coupled"), source="coupled-auto.yaml"))
+    assert result.accurate is True, result.message
+    err = _max_error_vs_solve_ivp(result.codebook, lambda s, y, p: [1 - y[1] * y[2], 2 - y[0] * y[2], 3 - y[0] * y[1]],
+                                  lambda p: [p["a"], p["b"], p["c"]], n=100)
+    assert err <= 1e-9
+
+
+@pytest.mark.slow
+def test_poisson_without_nodes_meets_its_tolerance():
+    result = pgdcli.solve(parse_spec(_without_nodes("poisson"), source="poisson-auto.yaml"))
+    assert result.accurate is True, result.message
+    assert result.check.error <= 1e-9

@@ -275,7 +275,7 @@ C2 = "\n  t: {domain: [0, 1], nodes: 4}\n  k: "
         (dict(coordinates=C2 + "{domain: [0, 1], nodes: 4, discretization: spline}"),
          "coordinates.k.discretization: expected one of chebyshev, linear, got 'spline'"),
         (dict(coordinates=C2 + "{domain: [0, 1], nodes: 4, size: 3}"),
-         "coordinates.k: unknown key 'size' (allowed: domain, nodes, discretization)"),
+         "coordinates.k: unknown key 'size' (allowed: domain, nodes, discretization, elements)"),
         (dict(coordinates=C2 + "5"), "coordinates.k: expected a mapping, got 5"),
         # names
         (dict(coordinates="\n  t: {domain: [0, 1], nodes: 4}\n  sin: {domain: [0, 1], nodes: 4}"), "coordinates.sin: 'sin' is reserved"),

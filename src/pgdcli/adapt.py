@@ -8,8 +8,10 @@ decisions:
 * the error within the tolerance (``ratio <= 1``): done;
 * too large at points off the nodes of a coordinate whose nodes the solver chooses
   (``nodes: auto`` or no ``nodes:``): that coordinate gets more nodes (n -> 2n - 1,
-  which keeps Chebyshev-Lobatto nodes nested) and the problem is solved again, up to
-  ``solver.max_nodes``; the solver's own error at the nodes is the business of the
+  which keeps Chebyshev-Lobatto nodes nested) or, for a parameter whose error does
+  not fall geometrically with its nodes, more elements where the error is
+  (hp-refinement), and the problem is solved again, up to ``solver.max_nodes`` nodes
+  in all per coordinate; the solver's own error at the nodes is the business of the
   method's driver (a tighter march, a smaller residual), which ran before this;
 * otherwise a refusal: the result is marked inaccurate (``converged`` False,
   ``status`` :data:`INACCURATE`) with one line saying how large the error is, where,
@@ -32,7 +34,12 @@ __all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "solve_to_tolerance", "refin
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
 INACCURATE = 4
 #: Most solves of one problem by the automatic resolution.
-MAX_ROUNDS = 5
+MAX_ROUNDS = 8
+#: Nodes per element beyond which a parameter coordinate is split into elements instead.
+MAX_ELEMENT_NODES = 17
+#: A doubling of a coordinate's nodes that cuts its off-node error less than this does not converge
+#: geometrically (a sharp feature): the coordinate is split into elements where the error is instead.
+P_GAIN = 8.0
 #: A coordinate is refined when its off-node error ratio exceeds this share of the tolerance: the
 #: other parts of the error (the solver's, the other coordinates') need room too.
 REFINE_AT = 0.5
@@ -53,12 +60,67 @@ def initial_nodes(problem, march: bool):
     return dataclasses.replace(problem, coordinates=tuple(coords))
 
 
+def total_nodes(c) -> int:
+    """Nodes of a spec coordinate in all (``nodes`` is per element when it has elements)."""
+    elements = max(1, len(c.breakpoints) - 1)
+    return elements * (c.nodes - 1) + 1
+
+
 def refined_nodes(problem, names):
-    """The problem with ``n -> min(2n - 1, max_nodes)`` nodes on the named coordinates."""
+    """The problem with ``n -> 2n - 1`` nodes (per element) on the named coordinates, within ``max_nodes``."""
     cap = problem.solver.max_nodes
-    coords = tuple(dataclasses.replace(c, nodes=min(2 * c.nodes - 1, cap)) if c.name in names else c
-                   for c in problem.coordinates)
+    coords = []
+    for c in problem.coordinates:
+        if c.name in names:
+            elements = max(1, len(c.breakpoints) - 1)
+            most = (cap - 1) // elements + 1  # nodes per element that keep the total within the cap
+            c = dataclasses.replace(c, nodes=max(c.nodes, min(2 * c.nodes - 1, most)))
+        coords.append(c)
+    return dataclasses.replace(problem, coordinates=tuple(coords))
+
+
+def split_elements(problem, name: str, where: np.ndarray):
+    """The problem with every element of ``name`` that holds a point of ``where`` cut in two."""
+    c = problem.coordinate(name)
+    bp = np.asarray(c.breakpoints or c.domain, dtype=float)
+    hit = np.unique(np.clip(np.searchsorted(bp, where, side="right") - 1, 0, bp.size - 2))
+    mids = 0.5 * (bp[hit] + bp[hit + 1])
+    new = tuple(float(v) for v in np.sort(np.concatenate([bp, mids])))
+    coords = tuple(dataclasses.replace(c, breakpoints=new) if c.name == name else c for c in problem.coordinates)
     return dataclasses.replace(problem, coordinates=coords)
+
+
+def _refine(problem, check, names, history):
+    """More nodes (p) or more elements where the error is (h) for each named coordinate.
+
+    A Chebyshev parameter goes on doubling its nodes while a doubling cuts its
+    off-node error :data:`P_GAIN`-fold or more (geometric convergence) and it has
+    fewer than :data:`MAX_ELEMENT_NODES` per element; otherwise the feature is
+    sharp, and the elements holding off-node points with too large an error are
+    cut in two (chebfun's splitting, by the measured error instead of the tail).
+    Returns the refined problem and the coordinates that could not be refined.
+    """
+    cap = problem.solver.max_nodes
+    stuck = []
+    for name in names:
+        c = problem.coordinate(name)
+        ratio = check.coordinate_ratio.get(name, 0.0)
+        past = history.setdefault(name, [])
+        slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN * ratio
+        h_able = c.role == "parameter" and c.discretization == "chebyshev" and name in check.line_points
+        if h_able and (c.nodes >= MAX_ELEMENT_NODES or slow):
+            x, r = check.line_points[name]
+            candidate = split_elements(problem, name, x[r > REFINE_AT])
+            if total_nodes(candidate.coordinate(name)) <= cap:
+                problem = candidate
+                past.append(("h", ratio))
+                continue
+        if total_nodes(c) < cap and not (h_able and slow and c.nodes >= MAX_ELEMENT_NODES):
+            problem = refined_nodes(problem, [name])
+            past.append(("p", ratio))
+            continue
+        stuck.append(name)
+    return problem, stuck
 
 
 def _lacks_nodes(check, name: str) -> bool:
@@ -85,7 +147,7 @@ def _to_refine(problem, check, march: bool, discretization_limited=False) -> tup
             continue  # the march's time nodes follow its steps
         if not (_lacks_nodes(check, c.name) or (limited and c.role in ("time", "space"))):
             continue
-        if c.auto and c.nodes < problem.solver.max_nodes:
+        if c.auto and total_nodes(c) < problem.solver.max_nodes:
             refine.append(c.name)
         else:
             stuck.append(c.name)
@@ -114,12 +176,13 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
     problem = initial_nodes(problem, march)
     auto = [c.name for c in problem.coordinates if c.auto]
     rounds = []
+    history: dict = {}
     for _ in range(MAX_ROUNDS if auto else 1):
         result = solve_once(problem)
         if not result.converged:
             return result
         check = result.check
-        rounds.append([c.nodes for c in problem.coordinates] + [check.ratio])
+        rounds.append([total_nodes(c) for c in problem.coordinates] + [check.ratio])
         if not check.checked:
             return _finish(result, problem, rounds, None, "not checked", started)
         if check.passed:
@@ -128,7 +191,9 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
         refine, stuck = _to_refine(problem, check, march, limited)
         if not refine:
             break
-        problem = refined_nodes(problem, refine)
+        problem, stuck = _refine(problem, check, refine, history)
+        if stuck == refine:
+            break
     reason = _refusal(problem, check, march, result.codebook.report.get("discretization_limited", 0))
     return _finish(result, problem, rounds, False, reason, started)
 
@@ -174,6 +239,8 @@ def _finish(result, problem, rounds, accurate, reason, started):
     rep["accurate"] = -1 if accurate is None else int(accurate)
     rep["resolution_rounds"] = np.array(rounds, dtype=float)  # (rounds, coordinates + 1): nodes, ratio
     rep["resolution_auto"] = ",".join(c.name for c in problem.coordinates if c.auto)
+    rep["resolution_elements"] = ",".join(f"{c.name}:{len(c.breakpoints) - 1}" for c in problem.coordinates
+                                          if len(c.breakpoints) > 2)
     rep["resolution_reason"] = reason
     rep["wall_time"] = _time.perf_counter() - started
     where = ", ".join(f"{k}={v:.6g}" for k, v in check.where.items())

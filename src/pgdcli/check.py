@@ -68,6 +68,9 @@ class CheckResult:
         The same at grid nodes and time nodes, and at uniform points of the box.
     coordinate_ratio : dict of str to float
         Per coordinate, the ratio on points off the nodes in that coordinate only.
+    line_points : dict of str to (ndarray, ndarray)
+        Per parameter coordinate, the values of its off-node points and the error
+        ratio at each (max over times): where along it the error is.
     tail_ratio : dict of str to float
         Per coordinate, the largest Chebyshev tail over the unknowns
         (:func:`pgdcli.resolution.resolution_tails`) over the tolerance: an
@@ -90,6 +93,7 @@ class CheckResult:
     between_ratio: float = float("nan")
     coordinate_ratio: dict = field(default_factory=dict)
     tail_ratio: dict = field(default_factory=dict)
+    line_points: dict = field(default_factory=dict)
     tolerance: float = float("nan")
     relative_tolerance: float = 0.0
     method: str = ""
@@ -176,16 +180,35 @@ def line_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray]
         return {}, np.zeros(0, dtype=int)
     rng = np.random.default_rng([seed, 13])
     cols = {n: [] for n in names}
+    counts = []
     for j, (n, x) in enumerate(zip(names, nodes)):
-        k = rng.integers(0, len(x) - 1, LINE)
-        cols[n].append(x[k] + (x[k + 1] - x[k]) * (0.5 + rng.uniform(-0.25, 0.25, LINE)))
+        k = _line_intervals(codebook.coordinate(n), x, rng)
+        size = k.size
+        counts.append(size)
+        cols[n].append(x[k] + (x[k + 1] - x[k]) * (0.5 + rng.uniform(-0.25, 0.25, size)))
         for n2, x2 in zip(names, nodes):
             if n2 != n:
-                idx = rng.integers(0, len(x2), LINE)
-                ends = rng.random(LINE) < 0.5
-                cols[n2].append(np.where(ends, x2[np.where(rng.random(LINE) < 0.5, 0, len(x2) - 1)], x2[idx]))
+                idx = rng.integers(0, len(x2), size)
+                ends = rng.random(size) < 0.5
+                cols[n2].append(np.where(ends, x2[np.where(rng.random(size) < 0.5, 0, len(x2) - 1)], x2[idx]))
     points = {n: np.concatenate(c) for n, c in cols.items()}
-    return points, np.repeat(np.arange(len(names)), LINE)
+    return points, np.repeat(np.arange(len(names)), counts)
+
+
+def _line_intervals(info, x: np.ndarray, rng) -> np.ndarray:
+    """Node intervals to sample off the nodes: :data:`LINE` random ones, and 2 in every element.
+
+    Elements are refined where their own points show the error (:mod:`pgdcli.adapt`), so
+    each needs points of its own however small it is.
+    """
+    k = rng.integers(0, len(x) - 1, LINE)
+    bp = getattr(info, "breakpoints", ())
+    if len(bp) <= 2:
+        return k
+    per = (len(x) - 1) // (len(bp) - 1)  # node intervals per element
+    first = np.arange(len(bp) - 1) * per
+    extra = first[:, None] + rng.integers(0, per, (first.size, 2))
+    return np.concatenate([k, extra.ravel()])
 
 
 def _check_times(codebook, time: str) -> tuple[np.ndarray, np.ndarray]:
@@ -277,14 +300,17 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     at_node = node_rows[:, None] & time_node[None, :]
     params = [c.name for c in problem.parameter_coordinates]
     coordinate_ratio = {time: float(ratio[node_rows][:, ~time_node].max()) if (~time_node).any() else 0.0}
+    line_points = {}
     for k, n in enumerate(params):
         rows = group == k
         coordinate_ratio[n] = float(ratio[rows][:, time_node].max()) if rows.any() else 0.0
+        line_points[n] = (points[n][rows], ratio[rows][:, time_node].max(axis=1))
     return CheckResult(float(err.max()), float(err[at_node].max()), float(err[~at_node].max(initial=0.0)),
                        int(ok.sum()), int((~ok).sum()), where, per_unknown, ratio=float(ratio.max()),
                        node_ratio=float(ratio[at_node].max()),
                        between_ratio=float(ratio[group == -2].max(initial=0.0)),
-                       coordinate_ratio=coordinate_ratio, tail_ratio=tail_ratios(codebook, tol), tolerance=tol,
+                       coordinate_ratio=coordinate_ratio, line_points=line_points,
+                       tail_ratio=tail_ratios(codebook, tol), tolerance=tol,
                        relative_tolerance=relative_tolerance, method=method)
 
 

@@ -26,6 +26,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
+import numpy as np
 import yaml
 
 from .errors import SpecError
@@ -52,7 +53,7 @@ __all__ = [
 ]
 
 TOP_LEVEL_KEYS = ("name", "description", "coordinates", "time", "constants", "unknowns", "equations", "solver", "output")
-COORDINATE_KEYS = ("domain", "nodes", "discretization")
+COORDINATE_KEYS = ("domain", "nodes", "discretization", "elements")
 UNKNOWN_KEYS = ("initial", "boundary")
 BOUNDARY_SIDES = ("low", "high")
 DISCRETIZATIONS = ("chebyshev", "linear")
@@ -87,7 +88,8 @@ class Coordinate:
     domain : (float, float)
         ``low < high``.
     nodes : int
-        Number of discretization nodes, 2 to 2000 (with ``auto``: the first count tried).
+        Number of discretization nodes, 2 to 2000 (with ``auto``: the first count tried);
+        with ``breakpoints``, per element.
     discretization : str
         ``'chebyshev'`` or ``'linear'``.
     role : str
@@ -100,6 +102,7 @@ class Coordinate:
     discretization: str = "chebyshev"
     role: str = "parameter"
     auto: bool = False  # nodes omitted or 'auto': the solver chooses them (pgdcli.adapt)
+    breakpoints: tuple = ()  # elements of a Chebyshev parameter coordinate (ends included); () = one element
 
 
 @dataclass(frozen=True)
@@ -148,7 +151,7 @@ class SolverOptions:
 
     tolerance: float = 1e-8  # bound on the codebook's error: |u - u_exact| <= tolerance + relative_tolerance |u|
     relative_tolerance: float = 0.0
-    max_nodes: int = 65  # automatic resolution: cap on the nodes of a coordinate
+    max_nodes: int = 129  # automatic resolution: cap on the nodes of a coordinate (all its elements)
     max_modes: int = 100
     formulation: str = "minres"
     fixed_point_tolerance: float = 1e-4
@@ -462,15 +465,28 @@ def _parse_coordinate(check: _Checker, name: str, body: dict, time: str, constan
         raise check.error(f"{path}.domain", f"expected [low, high] with low < high, got {_show(domain)}")
     discretization = check.choice(body.get("discretization", "chebyshev"), f"{path}.discretization", DISCRETIZATIONS)
     role = "time" if name == time else "parameter"  # 'space' is decided from the equations
+    breakpoints = _parse_elements(check, body, path, (low, high), discretization, role)
     value = body.get("nodes", "auto")
     if value == "auto" or value is None:
-        return Coordinate(name, (low, high), AUTO_NODES[discretization], discretization, role, auto=True)
+        return Coordinate(name, (low, high), AUTO_NODES[discretization], discretization, role, auto=True,
+                          breakpoints=breakpoints)
     try:
         nodes = check.integer(value, f"{path}.nodes", 2, MAX_NODES)
     except SpecError:
         raise check.error(f"{path}.nodes", f"expected 'auto' or an integer in [2, {MAX_NODES}], "
                                            f"got {_show(value)}") from None
-    return Coordinate(name, (low, high), nodes, discretization, role)
+    return Coordinate(name, (low, high), nodes, discretization, role, breakpoints=breakpoints)
+
+
+def _parse_elements(check: _Checker, body: dict, path: str, domain: tuple, discretization: str, role: str) -> tuple:
+    """``elements: N``: N equal elements (Chebyshev parameters only), as breakpoints; () for one."""
+    if "elements" not in body:
+        return ()
+    count = check.integer(body["elements"], f"{path}.elements", 1, MAX_NODES)
+    if count > 1 and (discretization != "chebyshev" or role == "time"):
+        raise check.error(f"{path}.elements", "elements are for chebyshev parameter coordinates (time: "
+                                              "solver.time_slabs; linear: add nodes)")
+    return () if count == 1 else tuple(float(v) for v in np.linspace(domain[0], domain[1], count + 1))
 
 
 def _parse_time(check: _Checker, data: dict, coordinate_names: list[str]) -> str | None:
