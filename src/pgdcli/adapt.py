@@ -110,7 +110,8 @@ def _refine(problem, check, names, history):
         h_able = c.role == "parameter" and c.discretization == "chebyshev" and name in check.line_points
         if h_able and (c.nodes >= MAX_ELEMENT_NODES or slow):
             x, r = check.line_points[name]
-            candidate = split_elements(problem, name, x[r > REFINE_AT])
+            # the elements where the error is; at least the worst one (a coordinate flagged by its tail)
+            candidate = split_elements(problem, name, x[r >= min(REFINE_AT, r.max(initial=0.0))])
             if total_nodes(candidate.coordinate(name)) <= cap:
                 problem = candidate
                 past.append(("h", ratio))
@@ -177,7 +178,8 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
     auto = [c.name for c in problem.coordinates if c.auto]
     rounds = []
     history: dict = {}
-    for _ in range(MAX_ROUNDS if auto else 1):
+    pending = False  # a refinement was chosen that the rounds left no solve for
+    for round_ in range(MAX_ROUNDS if auto else 1):
         result = solve_once(problem)
         if not result.converged:
             return result
@@ -191,10 +193,16 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
         refine, stuck = _to_refine(problem, check, march, limited)
         if not refine:
             break
-        problem, stuck = _refine(problem, check, refine, history)
+        refined, stuck = _refine(problem, check, refine, history)
         if stuck == refine:
             break
+        if round_ == MAX_ROUNDS - 1:
+            pending = True
+            break
+        problem = refined
     reason = _refusal(problem, check, march, result.codebook.report.get("discretization_limited", 0))
+    if pending:
+        reason = f"still refining after {MAX_ROUNDS} solves: {reason}"
     return _finish(result, problem, rounds, False, reason, started)
 
 
@@ -209,8 +217,10 @@ def _refusal(problem, check, march: bool, limited) -> str:
         worst = max(names, key=share)
         c = problem.coordinate(worst)
         ratio = share(worst)
-        if c.auto:
+        if c.auto and total_nodes(c) >= problem.solver.max_nodes:
             need = f"it reached solver.max_nodes = {problem.solver.max_nodes}"
+        elif c.auto:
+            need = f"it has {total_nodes(c)} nodes"
         else:
             need = f"it has nodes: {c.nodes}; add nodes or write 'nodes: auto'"
         if ratio > REFINE_AT:

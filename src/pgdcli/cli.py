@@ -394,8 +394,8 @@ def info(codebook, fmt):
     for col in ("name", "role", "domain", "nodes", "discretization"):
         coords.add_column(col)
     for c in summary["coordinates"]:
-        coords.add_row(c["name"], c["role"], f"[{c['domain'][0]:g}, {c['domain'][1]:g}]", str(c["nodes"]),
-                       c["discretization"])
+        nodes = str(c["nodes"]) + (f" ({c['elements']} elements)" if c.get("elements") else "")
+        coords.add_row(c["name"], c["role"], f"[{c['domain'][0]:g}, {c['domain'][1]:g}]", nodes, c["discretization"])
     console.print(coords)
     console.print("modes: " + ", ".join(
         f"{u} {v['modes']}" if v.get("representation") != "tensor-train" else f"{u} tensor train, ranks {tuple(v['ranks'])}"
@@ -408,6 +408,13 @@ def info(codebook, fmt):
         chk = summary["check"]
         console.print(f"max error: {chk['error']:.3e} at {points_text(chk['points'])} vs scipy, at {_short_where(chk['where'])} "
                       f"(tolerance {summary['tolerance']:.1e})")
+        if chk.get("method"):
+            console.print(f"measured: {chk['method']}")
+    if summary.get("nodes_chosen") and summary["nodes_chosen"]["automatic"]:
+        chosen = summary["nodes_chosen"]
+        steps = "; ".join(f"{c}: " + " -> ".join(str(r["nodes"][c]) for r in chosen["rounds"])
+                          for c in chosen["automatic"])
+        console.print(f"nodes chosen: {steps} ({chosen['reason']})")
     console.print(f"{label}: {summary['residual']:.3e} ({state})")
     if summary.get("roundings") is not None:
         r = summary["roundings"]

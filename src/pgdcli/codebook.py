@@ -874,7 +874,8 @@ class Codebook:
             "created": self.created,
             "coordinates": [
                 {"name": c.name, "role": c.role, "domain": [c.domain[0], c.domain[1]], "nodes": c.nodes,
-                 "discretization": c.discretization}
+                 "discretization": c.discretization,
+                 **({"elements": len(c.breakpoints) - 1} if c.breakpoints and c.role != "time" else {})}
                 for c in self.coordinates
             ],
             "unknowns": {u: _field_summary(fm) for u, fm in self.fields.items()},

@@ -1,0 +1,117 @@
+"""Codebooks at a checked tolerance on problems written as a new user would (issue 12), in one run.
+
+    python benchmarks/gate_build.py                 # every problem in tests/user_problems (~5-10 min)
+    python benchmarks/gate_build.py sir damped4     # some of them
+
+For each problem (``tests/user_problems/<name>.yaml``: no node counts, tolerance 1e-6 or 1e-8), the
+build of the codebook, ``pgdcli.solve`` (automatic resolution and the error gate included), beside
+the brute-force alternatives that reach the same accuracy with the same interpolation: the grid of
+the codebook's own nodes (every parameter node, every time node), filled by
+
+- a Python loop of ``solve_ivp`` (DOP853, rtol = atol = 1e-10), one call per grid point with
+  ``t_eval`` = the time nodes; a random subset of at most 200 points is timed and the time scaled;
+- ONE vectorized ``solve_ivp`` call over all grid points (``pgdcli.reference``'s vectorized
+  right-hand side), at the same tolerances (problems with space coordinates: a method-of-lines
+  sweep, timed on a subset of at most 8 parameter points and scaled; no vectorized call).
+
+Interpolated with the codebook's own bases, such a grid is as accurate as the codebook (its nodal
+values are the exact solution to the reference's accuracy), so the times compare like with like.
+Sizes: the codebook file beside the grid's values (points x unknowns x time nodes x 8 bytes).
+A refused problem (exit 1 of ``pgd solve``) shows its one-line reason and no grid.
+
+The scipy runs use one BLAS thread, as the solver does. The machine is shared: every comparison is
+made within this run; the printed table is what benchmarks/README.md quotes.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+import pgdcli
+from pgdcli.reference import solve_reference, solve_reference_vectorized
+
+from _machine import machine_facts
+
+ROOT = Path(__file__).resolve().parents[1]
+PROBLEMS = ROOT / "tests" / "user_problems"
+LOOP_SAMPLE = 200
+RTOL = ATOL = 1e-10
+
+
+def grid_points(cb, problem):
+    """The codebook's parameter nodes as a flat grid (dict of (S,) arrays) and the time nodes."""
+    params = [c.name for c in problem.parameter_coordinates if c.role != "space"]
+    axes = [cb.coordinate(n).basis().nodes for n in params]
+    mesh = np.meshgrid(*axes, indexing="ij") if axes else []
+    points = {n: m.reshape(-1) for n, m in zip(params, mesh)}
+    times = cb.coordinate(problem.time).basis().nodes
+    return points, times
+
+
+def time_loop(problem, points, times, space: bool):
+    """Seconds for a loop of solve_ivp over all points (timed on a subset, scaled)."""
+    size = len(next(iter(points.values()))) if points else 1
+    rng = np.random.default_rng(0)
+    subset = rng.choice(size, min(size, 8 if space else LOOP_SAMPLE), replace=False)
+    started = time.perf_counter()
+    for i in subset:
+        one = {n: v[i:i + 1] for n, v in points.items()}
+        if space:
+            solve_reference(problem, one, times, rtol=RTOL, atol=ATOL, jobs=1)
+        else:
+            solve_reference_vectorized(problem, one, 1, times, rtol=RTOL, atol=ATOL)
+    return (time.perf_counter() - started) * size / subset.size
+
+
+def time_vectorized(problem, points, times):
+    size = len(next(iter(points.values()))) if points else 1
+    started = time.perf_counter()
+    values = solve_reference_vectorized(problem, points, size, times, rtol=RTOL, atol=ATOL)
+    wall = time.perf_counter() - started
+    return wall if values is not None else float("nan")
+
+
+def row(name: str) -> str:
+    problem = pgdcli.load_spec(PROBLEMS / f"{name}.yaml")
+    started = time.perf_counter()
+    result = pgdcli.solve(problem)
+    build = time.perf_counter() - started
+    cb = result.codebook
+    if not result.converged:
+        return f"| {name} | {build:.2f} s, refused: {result.message} | | | | |"
+    with tempfile.TemporaryDirectory() as tmp:
+        size = cb.save(Path(tmp) / "cb.h5").stat().st_size
+    space = any(c.role == "space" for c in cb.coordinates)
+    points, times = grid_points(cb, problem)
+    count = len(next(iter(points.values()))) if points else 1
+    with threadpool_limits(1, "blas"):
+        loop = time_loop(problem, points, times, space)
+        vector = float("nan") if space else time_vectorized(problem, points, times)
+    grid_bytes = count * len(cb.unknown_names) * times.size * 8
+    if space:
+        grid_bytes *= int(np.prod([c.nodes for c in cb.coordinates if c.role == "space"]))
+    nodes = ", ".join(f"{c.name} {c.nodes}" + (f" ({len(c.breakpoints) - 1} el.)" if c.breakpoints and
+                                               c.role != "time" else "") for c in cb.coordinates)
+    vec = "n/a (PDE)" if space else f"{vector:.2f} s ({vector / build:.2g}x the build)"
+    return (f"| {name} | {build:.2f} s, error {cb.report['check_error']:.2g} (tolerance "
+            f"{cb.report['tolerance']:.0e}); nodes {nodes} | {loop:.2f} s ({loop / build:.2g}x the build) | {vec} | "
+            f"{size / 1024:.0f} KiB | {grid_bytes / 1024:.0f} KiB ({count} grid points) |")
+
+
+def main(names):
+    print(f"machine: {machine_facts()}", file=sys.stderr)
+    print("| problem | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
+          "codebook's grid | one vectorized solve_ivp over it | codebook file | grid values |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for name in names:
+        print(row(name), flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:] or sorted(p.stem for p in PROBLEMS.glob("*.yaml")))

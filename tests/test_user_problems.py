@@ -1,0 +1,74 @@
+"""Problems written as a new user would (issue 12), without node counts: accurate or honestly refused.
+
+Each codebook is either within its tolerance at 300 random points against solve_ivp (DOP853,
+rtol = atol = 1e-12, integrated here, sharing nothing with the solver), or refused (exit status 1 of
+``pgd solve``, ``status`` INACCURATE) with a message whose error is the true error at the place it
+names. Never written silently wrong. Slow (each is one to a few minutes): marked, and run in CI.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import pgdcli
+from pgdcli.adapt import INACCURATE
+
+HERE = Path(__file__).resolve().parent / "user_problems"
+GRAV = 9.81
+
+RHS = {
+    "sir": (lambda t, y, p: [-p["b"] * y[0] * y[1], p["b"] * y[0] * y[1] - p["g"] * y[1], p["g"] * y[1]],
+            lambda p: [1 - p["I0"], p["I0"], 0.0]),
+    "vanderpol": (lambda t, y, p: [y[1], p["mu"] * (1 - y[0] ** 2) * y[1] - y[0]], lambda p: [p["x0"], 0.0]),
+    "pendulum_sc": (lambda t, y, p: [y[1], -GRAV / p["L"] * np.sin(y[0]), np.cos(y[0]) * y[1],
+                                     -np.sin(y[0]) * y[1]],
+                    lambda p: [p["th0"], 0.0, np.sin(p["th0"]), np.cos(p["th0"])]),
+    "forced_aux": (lambda t, y, p: [y[1], -y[0] - 0.2 * y[1] + np.sin(p["w"] * t), 0.0, 0.0],
+                   lambda p: [0.0, 0.0, 0.0, 1.0]),
+    "damped4": (lambda t, y, p: [y[1], -p["k"] * y[0] - p["c"] * y[1]], lambda p: [p["x0"], p["v0"]]),
+}
+
+
+def _reference(name, cb, t, p):
+    rhs, initial = RHS[name]
+    t0, t1 = cb.coordinate("t").domain
+    sol = solve_ivp(lambda s, y: rhs(s, y, p), (t0, t1), initial(p), method="DOP853", rtol=1e-12, atol=1e-12,
+                    t_eval=[t], dense_output=False)
+    values = dict(zip(cb.unknown_names, sol.y[:, 0]))
+    if name == "forced_aux":  # p, q are sin(w t), cos(w t)
+        values["p"], values["q"] = np.sin(p["w"] * t), np.cos(p["w"] * t)
+    return values
+
+
+def _error_at(name, cb, t, p):
+    ref = _reference(name, cb, t, p)
+    got = cb(t=t, **p)
+    return max(abs(float(got[u]) - ref[u]) for u in cb.unknown_names)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(RHS))
+def test_accurate_or_honestly_refused(name):
+    problem = pgdcli.load_spec(HERE / f"{name}.yaml")
+    assert all(c.auto for c in problem.coordinates)  # written without node counts
+    result = pgdcli.solve(problem)
+    cb = result.codebook
+    tol = problem.solver.tolerance
+    if result.accurate:
+        rng = np.random.default_rng(11)
+        params = [c for c in cb.coordinates if c.role != "time"]
+        worst = max(_error_at(name, cb, rng.uniform(*cb.coordinate("t").domain),
+                              {c.name: rng.uniform(*c.domain) for c in params}) for _ in range(300))
+        assert worst <= tol, (name, worst)
+        return
+    assert result.status == INACCURATE and result.message.startswith("tolerance not met"), result.message
+    rep = cb.report
+    where = {k: float(v) for k, v in (kv.split("=") for kv in rep["check_where"].split(", "))}
+    t = where.pop("t")
+    true = _error_at(name, cb, t, where)
+    assert true == pytest.approx(rep["check_error"], rel=1e-3)  # the message's error is the true one
+    assert true > tol
