@@ -297,3 +297,13 @@ def test_poisson_without_nodes_meets_its_tolerance():
     result = pgdcli.solve(parse_spec(_without_nodes("poisson"), source="poisson-auto.yaml"))
     assert result.accurate is True, result.message
     assert result.check.error <= 1e-9
+
+
+def test_measured_error_agrees_with_an_independent_verify():
+    """The report's measured error and pgd verify's (another sample: Sobol points, random times) agree."""
+    result = pgdcli.solve(parse_spec(OSCILLATOR, source="oscillator.yaml"))
+    measured = result.codebook.report["check_error"]
+    report = pgdcli.verify(result.codebook, samples=64, seed=3)
+    verified = max(e.max_abs_error for e in report.unknowns.values())
+    assert verified <= 1e-6 and measured <= 1e-6
+    assert measured / 4 <= verified <= 4 * measured
