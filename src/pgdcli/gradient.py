@@ -190,9 +190,8 @@ def _tt_grid(fm, mats: list[np.ndarray]) -> np.ndarray:
     for core, j in zip(cores[:k:-1], order[:k:-1]):
         r0, n, r1 = core.shape
         partial = (core.reshape(r0 * n, r1) @ right).reshape(r0, n, -1)  # (r0, n, points so far)
-        right = np.einsum("pn,anq->apq", mats[j], partial).reshape(r0, -1)
-    core = cores[k]
-    middle = np.einsum("pn,anb->pab", mats[order[k]], core)  # (P_k, r0, r1)
-    block = np.einsum("la,pab,bq->lpq", left, middle, right, optimize=True)
-    block = block.reshape([sizes[i] for i in range(len(order))])
+        right = np.matmul(mats[j], partial).reshape(r0, -1)  # (r0, P_j x points so far)
+    middle = np.tensordot(mats[order[k]], cores[k], axes=(1, 1))  # (P_k, r0, r1)
+    block = np.matmul(np.matmul(left, middle), right)  # (P_k, left points, right points)
+    block = np.moveaxis(block, 0, 1).reshape(sizes)
     return np.transpose(block, np.argsort(order))

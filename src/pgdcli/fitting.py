@@ -1,0 +1,416 @@
+"""Parameter identification from data with a codebook as the model (``pgd fit``).
+
+The free coordinates (parameters, initial conditions) are estimated by
+nonlinear least squares, ``scipy.optimize.least_squares`` (trust-region
+reflective, bounds = the coordinates' domains), with the residual
+
+    r = (codebook(data coordinates, free, fixed)[u] - data[u]) / sigma[u]
+
+over the observed unknowns ``u`` and the data rows, and its Jacobian from
+:meth:`Codebook.gradient` (exact derivatives of the interpolants). Several
+starts (the box centre, then scrambled Sobol points) guard against local
+minima; the best is kept. Standard errors are ``sqrt(diag(s^2 (J^T J)^-1))``,
+``s^2 = sum r^2 / (m - n)``. The estimate is then checked: the problem is
+re-solved at it by the independent reference (:mod:`pgdcli.reference`) and
+the codebook-vs-reference misfit at the data points is reported.
+
+Data columns: one per known coordinate (the time coordinate is required when
+the problem has one), one per observed unknown (a subset is fine), and
+optional ``sigma_<unknown>`` columns (per-row standard deviations).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import time as _time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .errors import PgdError
+
+__all__ = ["FitError", "FitResult", "fit", "read_data"]
+
+
+class FitError(PgdError):
+    """Invalid fit request: data, fixed coordinates or bounds (one-line message)."""
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit`.
+
+    Attributes
+    ----------
+    estimate, stderr : dict of str to float
+        Free coordinate -> estimate and its standard error (inf when not identifiable).
+    fixed : dict of str to float
+        Coordinates held by ``fix``.
+    cost : float
+        ``0.5 * sum r^2`` at the estimate; ``rms`` = ``sqrt(sum r^2 / m)``.
+    residuals : ndarray, shape (m,)
+        Weighted residuals, observed unknown by unknown (rows inner).
+    fitted : dict of str to ndarray, shape (rows,)
+        The data's coordinate columns (names in ``coordinates``) and every unknown of the
+        codebook at the estimate; ``data`` holds the observed columns.
+    reference_error : float or None
+        Max abs difference codebook - reference at the data points (all unknowns), at the estimate.
+    reference_rms : float or None
+        ``rms`` with the reference solution in place of the codebook.
+    elapsed, check_elapsed : float
+        Seconds spent fitting (loading excluded) and in the reference check.
+    """
+
+    estimate: dict
+    stderr: dict
+    fixed: dict
+    cost: float
+    rms: float
+    residuals: np.ndarray
+    success: bool
+    message: str
+    nfev: int
+    starts: int
+    fitted: dict
+    observed: list
+    reference_error: float | None = None
+    reference_rms: float | None = None
+    elapsed: float = 0.0
+    check_elapsed: float = 0.0
+    reference_message: str = ""
+    data: dict = field(default_factory=dict, repr=False)
+    coordinates: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        """Plain Python data (what ``pgd fit --format json`` prints)."""
+        def num(v):
+            return None if v is None or not math.isfinite(v) else float(v)
+
+        return {"estimate": {k: float(v) for k, v in self.estimate.items()},
+                "stderr": {k: num(v) for k, v in self.stderr.items()},
+                "fixed": dict(self.fixed), "cost": float(self.cost), "rms": float(self.rms),
+                "residuals": int(self.residuals.size), "success": bool(self.success), "message": self.message,
+                "evaluations": int(self.nfev), "starts": int(self.starts), "observed": list(self.observed),
+                "reference_error": num(self.reference_error), "reference_rms": num(self.reference_rms),
+                "reference_message": self.reference_message, "elapsed": float(self.elapsed),
+                "check_elapsed": float(self.check_elapsed),
+                "fitted": {k: [float(x) for x in v] for k, v in self.fitted.items()}}
+
+
+# ----------------------------------------------------------------------------------------------
+# data
+# ----------------------------------------------------------------------------------------------
+def read_data(source, label: str | None = None) -> dict[str, np.ndarray]:
+    """Read a CSV with a header row into column name -> float array.
+
+    Parameters
+    ----------
+    source : str, path or file-like
+        ``'-'`` is not interpreted here (the CLI passes stdin as a file).
+    label : str, optional
+        Name used in error messages (default: the path).
+
+    Raises
+    ------
+    FitError
+        Empty file, no data rows, a duplicate or empty column name, a row of the wrong
+        length, a value that is not a number, or a NaN.
+    """
+    if hasattr(source, "read"):
+        label = label or getattr(source, "name", "DATA")
+        text = source.read()
+    else:
+        label = label or str(source)
+        try:
+            text = Path(source).read_text()
+        except OSError as exc:
+            raise FitError(f"{label}: cannot read ({exc.strerror or exc})") from None
+    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(x.strip() for x in r)]
+    if not rows:
+        raise FitError(f"{label}: empty file (expected a CSV header naming the columns)")
+    header = [h.strip() for h in rows[0]]
+    if any(not h for h in header) or len(set(header)) != len(header):
+        raise FitError(f"{label}: the header must name every column once, got {','.join(header)}")
+    if len(rows) == 1:
+        raise FitError(f"{label}: no data rows after the header")
+    values = np.empty((len(rows) - 1, len(header)))
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise FitError(f"{label}: line {i} has {len(row)} values for {len(header)} columns")
+        for j, x in enumerate(row):
+            try:
+                values[i - 2, j] = float(x)
+            except ValueError:
+                raise FitError(f"{label}: line {i}, column {header[j]!r}: {x.strip()!r} is not a number") from None
+    data = {h: values[:, j] for j, h in enumerate(header)}
+    _check_finite(data, label, first_line=2)
+    return data
+
+
+def _check_finite(data: Mapping[str, np.ndarray], label: str, first_line: int = 1) -> None:
+    for name, col in data.items():
+        bad = ~np.isfinite(col)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            where = f"line {i + first_line}" if first_line == 2 else f"row {i + 1}"
+            raise FitError(f"{label}: {where}, column {name!r} is {float(col[i])!r} (NaN or infinite values "
+                           f"are not data; drop the row)")
+
+
+def _columns(cb, data: Mapping[str, np.ndarray], label: str) -> tuple[dict, list, dict]:
+    """Split data into known coordinates, observed unknowns and sigma columns (checked)."""
+    coords, observed, sigma = {}, [], {}
+    lengths = {len(np.atleast_1d(v)) for v in data.values()}
+    if len(lengths) > 1:
+        raise FitError(f"{label}: columns of different lengths {sorted(lengths)}")
+    for name, col in data.items():
+        col = np.atleast_1d(np.asarray(col, dtype=float))
+        if name in cb.coordinate_names:
+            coords[name] = col
+        elif name in cb.unknown_names:
+            observed.append(name)
+        elif name.startswith("sigma_") and name[6:] in cb.unknown_names:
+            sigma[name[6:]] = col
+        else:
+            raise FitError(f"{label}: column {name!r} is neither a coordinate ({', '.join(cb.coordinate_names)}), "
+                           f"an unknown ({', '.join(cb.unknown_names)}) nor sigma_<unknown>")
+    time = next((c.name for c in cb.coordinates if c.role == "time"), None)
+    if time is not None and time not in coords:
+        raise FitError(f"{label}: no column for the time coordinate {time!r}")
+    if not observed:
+        raise FitError(f"{label}: no observed unknown; add a column named one of {', '.join(cb.unknown_names)}")
+    for u in sigma:
+        if u not in observed:
+            raise FitError(f"{label}: sigma_{u} given but {u!r} is not observed")
+        if np.any(sigma[u] <= 0):
+            raise FitError(f"{label}: sigma_{u} must be positive")
+    for name, col in coords.items():
+        c = cb.coordinate(name)
+        lo, hi = c.domain
+        out = (col < lo) | (col > hi)
+        if out.any():
+            raise FitError(f"{label}: column {name!r}: value {float(col[out][0])!r} is outside the domain [{lo:g}, {hi:g}]")
+    return coords, observed, sigma
+
+
+def _fixed(cb, fix: Mapping[str, float] | None, coords: Mapping) -> dict[str, float]:
+    fixed = {}
+    for name, value in (fix or {}).items():
+        if name not in cb.coordinate_names:
+            raise FitError(f"--fix {name}: unknown coordinate; this codebook has {', '.join(cb.coordinate_names)}")
+        if name in coords:
+            raise FitError(f"--fix {name}: {name!r} is already a data column")
+        lo, hi = cb.coordinate(name).domain
+        value = float(value)
+        if not lo <= value <= hi:
+            raise FitError(f"--fix {name}={value:g}: outside the domain [{lo:g}, {hi:g}]")
+        fixed[name] = value
+    return fixed
+
+
+# ----------------------------------------------------------------------------------------------
+# the model: values and Jacobian of the weighted residual
+# ----------------------------------------------------------------------------------------------
+class _Model:
+    """Weighted residuals and their Jacobian in the free coordinates, for one data set."""
+
+    def __init__(self, cb, coords, observed, sigma, fixed, free):
+        self.cb, self.observed, self.free = cb, observed, free
+        rows = len(next(iter(coords.values()))) if coords else 1
+        self.rows = rows
+        self.weight = np.concatenate([1.0 / np.broadcast_to(sigma.get(u, 1.0), (rows,)) for u in observed])
+        varying = [n for n, v in coords.items() if np.ptp(v) > 0]
+        # one varying coordinate (a trajectory): a grid with one long axis, contracted toward it
+        self.grid = len(varying) <= 1
+        self.base = {n: (v if n in varying else v[:1]) for n, v in coords.items()}
+        self.base.update({n: np.array([v]) for n, v in fixed.items()})
+        self.varying = varying[0] if varying else None
+
+    def _coords(self, x: np.ndarray) -> dict:
+        out = dict(self.base)
+        out.update({n: np.array([v]) for n, v in zip(self.free, x)})
+        return out
+
+    def values(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """Every unknown at the data rows for the free coordinates ``x``: shape (rows,) each."""
+        coords = self._coords(x)
+        if self.grid:
+            return {u: np.broadcast_to(v.reshape(-1), (self.rows,)).copy()
+                    for u, v in self.cb.evaluate_grid(coords).items()}
+        return {u: np.broadcast_to(v, (self.rows,)).copy() for u, v in self.cb.evaluate(coords).items()}
+
+    def residual(self, x: np.ndarray, data: Mapping[str, np.ndarray]) -> np.ndarray:
+        vals = self.values(x)
+        return np.concatenate([vals[u] - data[u] for u in self.observed]) * self.weight
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        g = self.cb.gradient(self._coords(x), wrt=self.free, fields=self.observed, grid=self.grid)
+        cols = [np.concatenate([np.broadcast_to(g[u][c].reshape(-1), (self.rows,)) for u in self.observed])
+                for c in self.free]
+        return np.stack(cols, axis=1) * self.weight[:, None]
+
+
+
+def _starts(bounds: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """The box centre, then scrambled Sobol points in the box: shape (count, n)."""
+    lo, hi = bounds
+    points = [0.5 * (lo + hi)]
+    if count > 1:
+        from scipy.stats import qmc  # ~0.2 s to import: only when asked for
+
+        m = max(0, math.ceil(math.log2(count - 1)))
+        unit = qmc.Sobol(lo.size, scramble=True, seed=seed).random_base2(m)[: count - 1]
+        points.extend(lo + unit * (hi - lo))
+    return np.array(points)
+
+
+def _stderr(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    m, n = jac.shape
+    s2 = float(residuals @ residuals) / (m - n)
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    if sv[-1] <= sv[0] * max(m, n) * np.finfo(float).eps:
+        return np.full(n, np.inf)
+    cov = (vt.T / sv**2) @ vt * s2
+    return np.sqrt(np.diag(cov))
+
+
+# ----------------------------------------------------------------------------------------------
+# the fit
+# ----------------------------------------------------------------------------------------------
+def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mapping[str, float] | None = None,
+        starts: int = 8, seed: int = 0, tolerance: float = 1e-12, check: bool = True,
+        label: str | None = None) -> FitResult:
+    """Estimate the free coordinates that best explain observed data.
+
+    Parameters
+    ----------
+    codebook : Codebook or path
+    data : mapping of str to array_like (rows,), or a CSV path / file-like (see :func:`read_data`)
+        Known coordinates (the time coordinate at least), observed unknowns, optional
+        ``sigma_<unknown>`` columns.
+    fix : mapping, optional
+        Coordinates held at given values (not estimated).
+    sigma : mapping, optional
+        Unknown -> standard deviation of its data (a constant; a ``sigma_<unknown>`` column
+        gives one per row). Default 1.
+    starts : int
+        Local solves: the box centre, then ``starts - 1`` scrambled Sobol points.
+    seed : int
+        Seed of the Sobol scrambling.
+    tolerance : float
+        ``ftol``, ``xtol`` and ``gtol`` of ``least_squares``.
+    check : bool
+        Re-solve at the estimate with the independent reference and report the misfit.
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    FitError
+        Unreadable or invalid data, unknown or out-of-domain fixed coordinates, nothing free,
+        fewer residuals than free coordinates.
+    """
+    from scipy.optimize import least_squares
+
+    from .codebook import Codebook
+
+    began = _time.perf_counter()
+    cb = codebook if isinstance(codebook, Codebook) else Codebook.load(codebook)
+    if not isinstance(data, Mapping):
+        data = read_data(data, label)
+    label = label or "DATA"
+    data = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in data.items()}
+    _check_finite(data, label)
+    coords, observed, sig = _columns(cb, data, label)
+    for u, s in (sigma or {}).items():
+        if u not in observed:
+            raise FitError(f"--sigma {u}: not an observed unknown (observed: {', '.join(observed)})")
+        if not float(s) > 0:
+            raise FitError(f"--sigma {u}={s}: must be positive")
+        sig.setdefault(u, np.full(len(data[u]), float(s)))
+    fixed = _fixed(cb, fix, coords)
+    free = [n for n in cb.coordinate_names if n not in coords and n not in fixed]
+    if not free:
+        raise FitError("nothing to fit: every coordinate is a data column or fixed")
+    model = _Model(cb, coords, observed, sig, fixed, free)
+    m = model.rows * len(observed)
+    if m <= len(free):
+        raise FitError(f"{label}: {m} data values for {len(free)} free coordinates; need more values than unknowns")
+    if int(starts) < 1:
+        raise FitError(f"starts must be at least 1, got {starts}")
+    bounds = np.array([[cb.coordinate(n).domain[0] for n in free], [cb.coordinate(n).domain[1] for n in free]])
+    best, nfev = None, 0
+    for x0 in _starts(bounds, int(starts), seed):
+        res = least_squares(model.residual, x0, jac=lambda x, *_: model.jacobian(x), bounds=bounds, method="trf",
+                            x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, args=(data,))
+        nfev += res.nfev
+        if best is None or res.cost < best.cost:
+            best = res
+    jac = model.jacobian(best.x)
+    errors = _stderr(jac, best.fun)
+    fitted = {n: v.copy() for n, v in coords.items()}
+    fitted.update(model.values(best.x))
+    result = FitResult(
+        estimate=dict(zip(free, map(float, best.x))), stderr=dict(zip(free, map(float, errors))), fixed=fixed,
+        cost=float(best.cost), rms=float(np.sqrt(2 * best.cost / m)), residuals=best.fun, success=bool(best.success),
+        message=_message(best, free, bounds), nfev=nfev, starts=int(starts), fitted=fitted, observed=observed,
+        data={u: data[u] for u in observed}, coordinates=list(coords))
+    result.elapsed = _time.perf_counter() - began
+    if check:
+        began = _time.perf_counter()
+        _reference_check(cb, result, coords, model, label)
+        result.check_elapsed = _time.perf_counter() - began
+    return result
+
+
+def _message(res, free: Sequence[str], bounds: np.ndarray) -> str:
+    text = " ".join(str(res.message).split())
+    span = bounds[1] - bounds[0]
+    at = [n for n, x, lo, hi, s in zip(free, res.x, *bounds, span) if min(x - lo, hi - x) <= 1e-9 * s]
+    if at:
+        text += f"; at the domain bound: {', '.join(at)} (the best fit may lie outside the codebook)"
+    return text
+
+
+def _reference_check(cb, result: FitResult, coords: Mapping, model: _Model, label: str) -> None:
+    """Re-solve at the estimate with the independent reference; store the misfits."""
+    from .reference import solve_reference
+    from .spec import parse_spec
+
+    try:
+        problem = parse_spec(cb.spec_text, source=f"{cb.name} (embedded spec)", allow_nonlinear=True)
+    except PgdError as exc:
+        result.reference_message = f"not checked: {exc}"
+        return
+    time = problem.time
+    values = {**coords, **{n: np.array([v]) for n, v in result.fixed.items()},
+              **{n: np.array([v]) for n, v in result.estimate.items()}}
+    rows = model.rows
+    others = [c.name for c in cb.coordinates if c.name != time]
+    params = {n: np.broadcast_to(values[n], (rows,)) for n in others}
+    if model.grid:  # one parameter point: one sample
+        params = {n: p[:1] for n, p in params.items()}
+    times = None if time is None else np.asarray(values[time])
+    ref = solve_reference(problem, params, times)
+    if not ref.success.all():
+        result.reference_message = f"reference failed: {next(m for m in ref.messages if m)}"
+        return
+    refvals = {}
+    for u, v in ref.values.items():
+        v = np.asarray(v)
+        if time is None:
+            refvals[u] = np.broadcast_to(v, (rows,))
+        elif model.grid:
+            refvals[u] = v[0]
+        else:
+            refvals[u] = v[np.arange(rows), np.arange(rows)]
+    result.reference_error = float(max(np.max(np.abs(result.fitted[u] - refvals[u])) for u in refvals))
+    r = np.concatenate([refvals[u] - result.data[u] for u in result.observed]) * model.weight
+    result.reference_rms = float(np.sqrt(np.mean(r * r)))
+    result.reference_message = f"reference: solve_ivp {ref.method} rtol {ref.rtol:g} atol {ref.atol:g}"
