@@ -628,6 +628,40 @@ def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_pa
         click.echo(summary(result), err=True)
 
 
+@cli.command("export")
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--to", "target", type=click.Choice(["c", "glsl", "json"]), required=True,
+              help="c: one C99 header (double and float32 evaluators); glsl: a shader function; json: the numbers.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE",
+              help="Write to FILE [default: stdout].")
+@click.option("--force", is_flag=True, help="Export even past the size limit (16 MiB of float64 numbers).")
+@click.option("-q", "--quiet", is_flag=True, help="No size line on stderr.")
+def export_command(codebook, target, output, force, quiet):
+    """Write a self-contained evaluator of CODEBOOK for engines and other languages.
+
+    \b
+      pgd export codebooks/rigid_body.h5 --to c -o pgd_rigid_body.h
+      pgd export codebooks/coupled.h5 --to json > coupled.json
+    """
+    from .codebook import Codebook
+    from .export import export
+
+    cb = Codebook.load(codebook)
+    files, size = export(cb, target, force=force)
+    ((name, text),) = files.items()
+    if output is None:
+        sys.stdout.write(text)
+    else:
+        try:
+            output.write_text(text)
+        except OSError as exc:
+            raise click.BadParameter(f"cannot write {output} ({exc.strerror or exc})", param_hint="'-o'") from None
+    if not quiet:
+        where = output if output is not None else f"stdout ({name})"
+        click.echo(f"exported {cb.name} to {target}: {size // 8} numbers, {size / 2**20:.2f} MiB as float64; "
+                   f"{len(text.encode()) / 2**20:.2f} MiB of text to {where}", err=True)
+
+
 def main(argv=None) -> None:
     """Console-script entry point.
 
