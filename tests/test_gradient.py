@@ -128,3 +128,27 @@ def test_gradient_errors_are_query_errors(solved):
         cb.gradient(dict(p, k=99.0))
     with pytest.raises(QueryError, match="missing coordinate 'u0'"):
         cb.gradient({"t": 1.0, "k": 1.0, "a": 0.0})
+
+
+@pytest.mark.parametrize("name, axis", [("relaxation", "t"), ("relaxation", "a"), ("coupled", "t"), ("coupled", "b"),
+                                        ("coupled", "c")])
+def test_trajectory_model_equals_evaluate_and_gradient(solved, name, axis):
+    """Along one coordinate (first, middle or last core of the train) at a point of the others."""
+    from pgdcli.gradient import TrajectoryModel
+
+    cb = solved(name).codebook
+    rng = np.random.default_rng(8)
+    values = rng.uniform(*cb.coordinate(axis).domain, 17)
+    model = TrajectoryModel(cb, axis, values, cb.unknown_names)
+    point = [rng.uniform(*c.domain) for c in cb.coordinates]
+    others = [j for j, c in enumerate(cb.coordinates) if c.name != axis]
+    got = model.evaluate(point, others)
+    coords = {c.name: (values if c.name == axis else point[j]) for j, c in enumerate(cb.coordinates)}
+    expected_values = cb(**coords)
+    expected = cb.gradient(coords, wrt=[cb.coordinate_names[j] for j in others])
+    for i, u in enumerate(cb.unknown_names):
+        assert np.allclose(got[i, :, 0], expected_values[u], rtol=1e-12, atol=1e-12)
+        for s, j in enumerate(others):
+            assert np.allclose(got[i, :, 1 + s], expected[u][cb.coordinate_names[j]], rtol=1e-11, atol=1e-11)
+    with pytest.raises(ValueError):
+        model.evaluate(point, [cb.coordinate_names.index(axis)])

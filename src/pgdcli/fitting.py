@@ -33,7 +33,7 @@ import numpy as np
 
 from .errors import PgdError
 
-__all__ = ["FitError", "FitResult", "fit", "read_data"]
+__all__ = ["FitError", "FitResult", "fit", "read_data", "sobol_starts"]
 
 
 class FitError(PgdError):
@@ -216,19 +216,32 @@ def _fixed(cb, fix: Mapping[str, float] | None, coords: Mapping) -> dict[str, fl
 # the model: values and Jacobian of the weighted residual
 # ----------------------------------------------------------------------------------------------
 class _Model:
-    """Weighted residuals and their Jacobian in the free coordinates, for one data set."""
+    """Weighted residuals and their Jacobian in the free coordinates, for one data set.
+
+    When at most one data coordinate varies (a trajectory), a :class:`~pgdcli.gradient.TrajectoryModel`
+    along it gives values and Jacobian in one sweep per call (cached for the Jacobian call at the same
+    point); otherwise :meth:`Codebook.evaluate` and :meth:`Codebook.gradient` at every row.
+    """
 
     def __init__(self, cb, coords, observed, sigma, fixed, free):
+        from .gradient import TrajectoryModel
+
         self.cb, self.observed, self.free = cb, observed, free
         rows = len(next(iter(coords.values()))) if coords else 1
         self.rows = rows
         self.weight = np.concatenate([1.0 / np.broadcast_to(sigma.get(u, 1.0), (rows,)) for u in observed])
         varying = [n for n, v in coords.items() if np.ptp(v) > 0]
-        # one varying coordinate (a trajectory): a grid with one long axis, contracted toward it
         self.grid = len(varying) <= 1
         self.base = {n: (v if n in varying else v[:1]) for n, v in coords.items()}
         self.base.update({n: np.array([v]) for n, v in fixed.items()})
-        self.varying = varying[0] if varying else None
+        self.trajectory = None
+        if self.grid and coords:
+            axis = varying[0] if varying else next(iter(coords))
+            self.trajectory = TrajectoryModel(cb, axis, coords[axis], observed)
+            names = cb.coordinate_names
+            self.point = np.array([float(self.base[n][0]) if n in self.base else np.nan for n in names])
+            self.slots = [names.index(n) for n in free]
+        self._cache = (None, None)
 
     def _coords(self, x: np.ndarray) -> dict:
         out = dict(self.base)
@@ -243,20 +256,48 @@ class _Model:
                     for u, v in self.cb.evaluate_grid(coords).items()}
         return {u: np.broadcast_to(v, (self.rows,)).copy() for u, v in self.cb.evaluate(coords).items()}
 
+    def _sweep(self, x: np.ndarray) -> np.ndarray:
+        """(observed, rows, 1 + free): values and derivatives along the trajectory, cached for the last x."""
+        key, out = self._cache
+        if key is None or not np.array_equal(key, x):
+            point = self.point.copy()
+            point[self.slots] = x
+            out = self.trajectory.evaluate(point, self.slots)
+            self._cache = (np.array(x, copy=True), out)
+        return out
+
     def residual(self, x: np.ndarray, data: Mapping[str, np.ndarray]) -> np.ndarray:
-        vals = self.values(x)
+        if self.trajectory is not None:
+            vals = dict(zip(self.observed, self._sweep(x)[:, :, 0]))
+        else:
+            vals = self.values(x)
         return np.concatenate([vals[u] - data[u] for u in self.observed]) * self.weight
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        g = self.cb.gradient(self._coords(x), wrt=self.free, fields=self.observed, grid=self.grid)
+        if self.trajectory is not None:
+            sweep = self._sweep(x)[:, :, 1:]  # (observed, rows, free)
+            return sweep.reshape(-1, len(self.free)) * self.weight[:, None]
+        g = self.cb.gradient(self._coords(x), wrt=self.free, fields=self.observed)
         cols = [np.concatenate([np.broadcast_to(g[u][c].reshape(-1), (self.rows,)) for u in self.observed])
                 for c in self.free]
         return np.stack(cols, axis=1) * self.weight[:, None]
 
 
+def sobol_starts(bounds, count: int, seed: int) -> np.ndarray:
+    """The starts :func:`fit` uses: the box centre, then scrambled Sobol points in the box.
 
-def _starts(bounds: np.ndarray, count: int, seed: int) -> np.ndarray:
-    """The box centre, then scrambled Sobol points in the box: shape (count, n)."""
+    Parameters
+    ----------
+    bounds : array_like, shape (2, n)
+        Lower and upper bounds.
+    count : int
+    seed : int
+
+    Returns
+    -------
+    ndarray, shape (count, n)
+    """
+    bounds = np.asarray(bounds, dtype=float)
     lo, hi = bounds
     points = [0.5 * (lo + hi)]
     if count > 1:
@@ -346,7 +387,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
         raise FitError(f"starts must be at least 1, got {starts}")
     bounds = np.array([[cb.coordinate(n).domain[0] for n in free], [cb.coordinate(n).domain[1] for n in free]])
     best, nfev = None, 0
-    for x0 in _starts(bounds, int(starts), seed):
+    for x0 in sobol_starts(bounds, int(starts), seed):
         res = least_squares(model.residual, x0, jac=lambda x, *_: model.jacobian(x), bounds=bounds, method="trf",
                             x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, args=(data,))
         nfev += res.nfev

@@ -17,13 +17,14 @@ This module imports numpy only.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
 
 from .basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis
 
-__all__ = ["derivative_matrix", "gradient_points", "gradient_grid"]
+__all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
 
 
 def derivative_matrix(basis, x) -> np.ndarray:
@@ -65,18 +66,16 @@ def _slab_rows(basis: PiecewiseChebyshevBasis, x: np.ndarray) -> np.ndarray:
     out = np.zeros((x.size, basis.nodes.size))
     bp = basis.breakpoints
     for s in np.unique(slabs):
-        local = ChebyshevBasis((bp[s], bp[s + 1]), m)
+        local = _slab_basis(bp[s], bp[s + 1], m)  # the slab's nodes, as the composite basis has them
         first = s * (m - 1)
-        # the slab's own nodes (as the composite basis stores them) and its differentiation matrix
-        local_nodes = basis.nodes[first:first + m]
-        assert np.array_equal(local.nodes, local_nodes)
         rows = slabs == s
         out[np.ix_(rows, np.arange(first, first + m))] = local.interpolation_matrix(x[rows]) @ local.derivative
     return out
 
 
-def _wrt_indices(names: Sequence[str], wrt: Sequence[str]) -> list[int]:
-    return [list(names).index(w) for w in wrt]
+@lru_cache(maxsize=1024)
+def _slab_basis(low: float, high: float, m: int) -> ChebyshevBasis:
+    return ChebyshevBasis((low, high), m)
 
 
 def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[str]) -> dict:
@@ -195,3 +194,93 @@ def _tt_grid(fm, mats: list[np.ndarray]) -> np.ndarray:
     block = np.matmul(np.matmul(left, middle), right)  # (P_k, left points, right points)
     block = np.moveaxis(block, 0, 1).reshape(sizes)
     return np.transpose(block, np.argsort(order))
+
+
+class TrajectoryModel:
+    """Unknowns along one coordinate ("the axis", e.g. time at the data times) at varying points of the others.
+
+    The axis's interpolation is done once; each call then costs one sweep over the other
+    coordinates' cores (tensor trains) or modes (CP) at a single point, carrying the values
+    and all requested derivatives together: what a least-squares fit needs per iteration.
+
+    Parameters
+    ----------
+    codebook : Codebook
+    axis : str
+        The coordinate that takes many values.
+    values : array_like, shape (P,)
+        Its values (checked by the caller).
+    fields : sequence of str
+        Unknowns.
+    """
+
+    def __init__(self, codebook, axis: str, values, fields: Sequence[str]):
+        names = codebook.coordinate_names
+        self.axis = names.index(axis)
+        self.bases = [c.basis() for c in codebook.coordinates]
+        self.fields = [codebook.fields[u] for u in fields]
+        rows = self.bases[self.axis].interpolation_matrix(np.asarray(values, dtype=float))
+        # per unknown: the axis's modes (P, R) or its core contracted with the rows (P, r0, r1)
+        self.axis_blocks = [rows @ fm.modes[self.axis] if not hasattr(fm, "cores") else
+                            np.tensordot(rows, fm.cores[list(fm.mode_order).index(self.axis)], axes=(1, 1))
+                            for fm in self.fields]
+        # tensor trains: each other core as (nodes, r0 * r1) (left of the axis) or (nodes, r1 * r0)
+        # (right of it, transposed), so that weights times it is one matrix-vector product
+        self.unfolded = []
+        for fm in self.fields:
+            if not hasattr(fm, "cores"):
+                self.unfolded.append(None)
+                continue
+            k = list(fm.mode_order).index(self.axis)
+            left = [(np.ascontiguousarray(c.transpose(1, 0, 2)).reshape(c.shape[1], -1), c.shape[0], c.shape[2], j)
+                    for c, j in zip(fm.cores[:k], fm.mode_order[:k])]
+            right = [(np.ascontiguousarray(c.transpose(1, 2, 0)).reshape(c.shape[1], -1), c.shape[2], c.shape[0], j)
+                     for c, j in zip(fm.cores[:k:-1], fm.mode_order[:k:-1])]
+            self.unfolded.append((left, right))
+
+    def evaluate(self, point: Sequence[float], wrt: Sequence[int] = ()) -> np.ndarray:
+        """Values and derivatives at ``point`` (a value per coordinate; the axis's entry is ignored).
+
+        Returns
+        -------
+        ndarray, shape (fields, P, 1 + len(wrt))
+            ``[..., 0]`` the values, ``[..., 1 + i]`` the derivatives with respect to coordinate ``wrt[i]``.
+        """
+        if self.axis in wrt:
+            raise ValueError("a TrajectoryModel differentiates with respect to the other coordinates only")
+        weights, dweights = {}, {}
+        for j, (b, x) in enumerate(zip(self.bases, point)):
+            if j != self.axis:
+                weights[j] = b.interpolation_matrix(np.array([float(x)]))[0]
+        for j in wrt:
+            dweights[j] = derivative_matrix(self.bases[j], np.array([float(point[j])]))[0]
+        slot = {j: 1 + i for i, j in enumerate(wrt)}
+        return np.stack([self._cp(fm, blk, weights, dweights, wrt) if unf is None else
+                         self._tt(unf, blk, weights, dweights, slot)
+                         for fm, blk, unf in zip(self.fields, self.axis_blocks, self.unfolded)])
+
+    def _cp(self, fm, block, weights, dweights, wrt) -> np.ndarray:
+        v = {j: w @ fm.modes[j] for j, w in weights.items()}
+        cols = [fm.alphas.copy()] + [fm.alphas * (dweights[j] @ fm.modes[j]) for j in wrt]
+        for j, vj in v.items():
+            for i, col in enumerate(cols):
+                if i == 0 or wrt[i - 1] != j:
+                    col *= vj
+        return block @ np.stack(cols, axis=1)
+
+    def _tt(self, unfolded, block, weights, dweights, slot) -> np.ndarray:
+        variants = 1 + len(slot)
+        ends = []
+        for cores in unfolded:  # the cores left of the axis, then those right of it (transposed)
+            vec = np.ones((variants, 1))
+            for mat, r0, r1, j in cores:
+                out = vec @ (weights[j] @ mat).reshape(r0, r1)
+                if j in slot:  # the variant differentiating this core's coordinate
+                    i = slot[j]
+                    out[i] = vec[i] @ (dweights[j] @ mat).reshape(r0, r1)
+                vec = out
+            ends.append(vec)
+        left, right = ends  # (variants, r0), (variants, r1)
+        p, r0, r1 = block.shape
+        tmp = (block.reshape(p * r0, r1) @ right.T).reshape(p, r0, variants)  # (P, r0, variants)
+        return np.einsum("pav,va->pv", tmp, left)
