@@ -62,7 +62,7 @@ class FitResult:
     reference_rms : float or None
         ``rms`` with the reference solution in place of the codebook.
     elapsed, check_elapsed : float
-        Seconds spent fitting (loading excluded) and in the reference check.
+        Seconds spent fitting (loading the codebook and reading the data excluded) and in the reference check.
     """
 
     estimate: dict
@@ -361,10 +361,10 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
 
     from .codebook import Codebook
 
-    began = _time.perf_counter()
     cb = codebook if isinstance(codebook, Codebook) else Codebook.load(codebook)
     if not isinstance(data, Mapping):
         data = read_data(data, label)
+    began = _time.perf_counter()
     label = label or "DATA"
     data = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in data.items()}
     _check_finite(data, label)
@@ -411,7 +411,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
 
 
 def _message(res, free: Sequence[str], bounds: np.ndarray) -> str:
-    text = " ".join(str(res.message).split())
+    text = " ".join(str(res.message).split()).rstrip(".")
     span = bounds[1] - bounds[0]
     at = [n for n, x, lo, hi, s in zip(free, res.x, *bounds, span) if min(x - lo, hi - x) <= 1e-9 * s]
     if at:

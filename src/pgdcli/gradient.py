@@ -270,14 +270,18 @@ class TrajectoryModel:
 
     def _tt(self, unfolded, block, weights, dweights, slot) -> np.ndarray:
         variants = 1 + len(slot)
+        stacked = {j: np.stack([weights[j], dweights[j]]) for j in slot}
         ends = []
         for cores in unfolded:  # the cores left of the axis, then those right of it (transposed)
             vec = np.ones((variants, 1))
             for mat, r0, r1, j in cores:
-                out = vec @ (weights[j] @ mat).reshape(r0, r1)
-                if j in slot:  # the variant differentiating this core's coordinate
+                if j in slot:  # the variant differentiating this core's coordinate: both rows in one pass
+                    both = (stacked[j] @ mat).reshape(2, r0, r1)
+                    out = vec @ both[0]
                     i = slot[j]
-                    out[i] = vec[i] @ (dweights[j] @ mat).reshape(r0, r1)
+                    out[i] = vec[i] @ both[1]
+                else:
+                    out = vec @ (weights[j] @ mat).reshape(r0, r1)
                 vec = out
             ends.append(vec)
         left, right = ends  # (variants, r0), (variants, r1)
