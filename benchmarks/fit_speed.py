@@ -12,7 +12,8 @@ fits the same data with two models:
   data times, a hand-written numpy right-hand side), Jacobian by least_squares' finite
   differences (n extra solves per Jacobian).
 
-Both keep the best of their starts. Reported: medians of the wall times, ratio, both estimates,
+Both keep the best of their starts. Reported: medians of the wall times (the two fits interleaved,
+so that both see the same load of the shared machine), ratio, both estimates,
 their largest difference in units of pgdcli's standard errors, and the truth.
 
 Part 2, C export. The codebook is exported (``pgd export --to c``), compiled with the system cc
@@ -136,10 +137,17 @@ def fit_rows(names, repeats, starts):
         books[name] = cb
         data = _data(name, problem)
         pgdcli.fit(cb, data, starts=starts, check=False)  # warm-up: imports
-        t_pgd, res = _median_time(lambda: pgdcli.fit(cb, data, starts=starts, check=False), repeats)
         checked = pgdcli.fit(cb, data, starts=starts)
-        free = list(res.estimate)
-        t_sci, (sci, sci_nfev) = _median_time(lambda: _scipy_fit(name, cb, data, starts, free), max(1, repeats // 3))
+        free = list(checked.estimate)
+        # interleaved: pgd, scipy, pgd, scipy, ... (scipy fewer times), so that both see the same load
+        pgd_times, sci_times = [], []
+        for r in range(repeats):
+            t, res = _median_time(lambda: pgdcli.fit(cb, data, starts=starts, check=False), 1)
+            pgd_times.append(t)
+            if r < max(1, repeats // 2):
+                t, (sci, sci_nfev) = _median_time(lambda: _scipy_fit(name, cb, data, starts, free), 1)
+                sci_times.append(t)
+        t_pgd, t_sci = statistics.median(pgd_times), statistics.median(sci_times)
         diff = max(abs(res.estimate[n] - s) / res.stderr[n] for n, s in zip(free, sci.x))
         truth = CASES[name][0]
         rows.append({"problem": name, "build": build, "pgd": t_pgd, "pgd_nfev": res.nfev, "scipy": t_sci,

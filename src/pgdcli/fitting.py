@@ -238,6 +238,7 @@ class _Model:
         if self.grid and coords:
             axis = varying[0] if varying else next(iter(coords))
             self.trajectory = TrajectoryModel(cb, axis, coords[axis], observed)
+            self.axis_values = coords[axis]
             names = cb.coordinate_names
             self.point = np.array([float(self.base[n][0]) if n in self.base else np.nan for n in names])
             self.slots = [names.index(n) for n in free]
@@ -250,6 +251,15 @@ class _Model:
 
     def values(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """Every unknown at the data rows for the free coordinates ``x``: shape (rows,) each."""
+        if self.trajectory is not None:
+            from .gradient import TrajectoryModel
+
+            names = self.cb.unknown_names
+            axis = self.cb.coordinate_names[self.trajectory.axis]
+            point = self.point.copy()
+            point[self.slots] = x
+            every = TrajectoryModel(self.cb, axis, self.axis_values, names).evaluate(point)
+            return dict(zip(names, every[:, :, 0]))
         coords = self._coords(x)
         if self.grid:
             return {u: np.broadcast_to(v.reshape(-1), (self.rows,)).copy()

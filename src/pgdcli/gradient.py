@@ -255,8 +255,9 @@ class TrajectoryModel:
         for j in wrt:
             dweights[j] = derivative_matrix(self.bases[j], np.array([float(point[j])]))[0]
         slot = {j: 1 + i for i, j in enumerate(wrt)}
+        stacked = {j: np.array([weights[j], dweights[j]]) for j in wrt}
         return np.stack([self._cp(fm, blk, weights, dweights, wrt) if unf is None else
-                         self._tt(unf, blk, weights, dweights, slot)
+                         self._tt(unf, blk, weights, stacked, slot)
                          for fm, blk, unf in zip(self.fields, self.axis_blocks, self.unfolded)])
 
     def _cp(self, fm, block, weights, dweights, wrt) -> np.ndarray:
@@ -268,9 +269,8 @@ class TrajectoryModel:
                     col *= vj
         return block @ np.stack(cols, axis=1)
 
-    def _tt(self, unfolded, block, weights, dweights, slot) -> np.ndarray:
+    def _tt(self, unfolded, block, weights, stacked, slot) -> np.ndarray:
         variants = 1 + len(slot)
-        stacked = {j: np.stack([weights[j], dweights[j]]) for j in slot}
         ends = []
         for cores in unfolded:  # the cores left of the axis, then those right of it (transposed)
             vec = np.ones((variants, 1))
