@@ -54,6 +54,8 @@ class FitResult:
         ``0.5 * sum r^2`` at the estimate; ``rms`` = ``sqrt(sum r^2 / m)``.
     residuals : ndarray, shape (m,)
         Weighted residuals, observed unknown by unknown (rows inner).
+    jacobian : ndarray, shape (m, n)
+        Their Jacobian with respect to the free coordinates at the estimate.
     fitted : dict of str to ndarray, shape (rows,)
         The data's coordinate columns (names in ``coordinates``) and every unknown of the
         codebook at the estimate; ``data`` holds the observed columns.
@@ -84,6 +86,7 @@ class FitResult:
     reference_message: str = ""
     data: dict = field(default_factory=dict, repr=False)
     coordinates: list = field(default_factory=list)
+    jacobian: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         """Plain Python data (what ``pgd fit --format json`` prints)."""
@@ -411,7 +414,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
         estimate=dict(zip(free, map(float, best.x))), stderr=dict(zip(free, map(float, errors))), fixed=fixed,
         cost=float(best.cost), rms=float(np.sqrt(2 * best.cost / m)), residuals=best.fun, success=bool(best.success),
         message=_message(best, free, bounds), nfev=nfev, starts=int(starts), fitted=fitted, observed=observed,
-        data={u: data[u] for u in observed}, coordinates=list(coords))
+        data={u: data[u] for u in observed}, coordinates=list(coords), jacobian=jac)
     result.elapsed = _time.perf_counter() - began
     if check:
         began = _time.perf_counter()
