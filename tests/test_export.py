@@ -183,3 +183,24 @@ def test_size_limit_and_force(tmp_path):
     assert (tmp_path / "m.h").read_text().startswith("/* pgd_mixed_1.h")
     result = CliRunner().invoke(cli, ["export", str(path), "--to", "fortran"], prog_name="pgd")
     assert result.exit_code == 2 and result.stderr.startswith("Error: ")
+
+
+@needs_cc
+def test_the_readme_timing_program_runs_on_the_exported_rigid_body(solved, tmp_path):
+    """docs/examples/rigid_body_timing.c (the README's worked example) against Codebook."""
+    from conftest import ROOT
+
+    cb = solved("rigid_body").codebook
+    ((name, text),) = export(cb, "c")[0].items()
+    assert name == "pgd_rigid_body.h"
+    (tmp_path / name).write_text(text)
+    program = tmp_path / "timing"
+    proc = subprocess.run([CC, "-O0", "-std=c99", "-Wall", "-Wextra", "-Werror", "-DPGD_CALLS=50", f"-I{tmp_path}",
+                           str(ROOT / "docs" / "examples" / "rigid_body_timing.c"), "-o", str(program)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[:2000]
+    out = subprocess.run([str(program)], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert out[0].startswith("status 0 at t = 0.5") and "us per call" in out[1] and "us per call" in out[2]
+    printed = [float(v) for v in re.findall(r"-?\d+\.\d{9}", out[0])]
+    values = cb(t=0.5, u10=0.8, u20=1.3, u30=0.6, w10=1.1, w20=0.7, w30=1.4)
+    assert np.allclose(printed, [values[u] for u in cb.unknown_names], rtol=0, atol=6e-10)

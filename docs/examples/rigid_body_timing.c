@@ -7,9 +7,13 @@
 #include <time.h>
 #include "pgd_rigid_body.h"
 
+#ifndef PGD_CALLS
+#define PGD_CALLS 200000 /* calls per timing loop (-DPGD_CALLS=N to change) */
+#endif
+
 int main(void)
 {
-    enum { CALLS = 200000 };
+    enum { CALLS = PGD_CALLS };
     double x[PGD_RIGID_BODY_NCOORDS] = {0.5, 0.8, 1.3, 0.6, 1.1, 0.7, 1.4};  /* t, u10..w30 */
     double out[PGD_RIGID_BODY_NOUT], sum = 0.0;
     float xf[PGD_RIGID_BODY_NCOORDS], outf[PGD_RIGID_BODY_NOUT];

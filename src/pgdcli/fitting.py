@@ -21,23 +21,17 @@ optional ``sigma_<unknown>`` columns (per-row standard deviations).
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import time as _time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from .errors import PgdError
+from .fit_data import FitError, check_finite, fixed_values, read_data, split_columns
 
 __all__ = ["FitError", "FitResult", "fit", "read_data", "sobol_starts"]
-
-
-class FitError(PgdError):
-    """Invalid fit request: data, fixed coordinates or bounds (one-line message)."""
 
 
 @dataclass
@@ -102,117 +96,6 @@ class FitResult:
                 "reference_message": self.reference_message, "elapsed": float(self.elapsed),
                 "check_elapsed": float(self.check_elapsed),
                 "fitted": {k: [float(x) for x in v] for k, v in self.fitted.items()}}
-
-
-# ----------------------------------------------------------------------------------------------
-# data
-# ----------------------------------------------------------------------------------------------
-def read_data(source, label: str | None = None) -> dict[str, np.ndarray]:
-    """Read a CSV with a header row into column name -> float array.
-
-    Parameters
-    ----------
-    source : str, path or file-like
-        ``'-'`` is not interpreted here (the CLI passes stdin as a file).
-    label : str, optional
-        Name used in error messages (default: the path).
-
-    Raises
-    ------
-    FitError
-        Empty file, no data rows, a duplicate or empty column name, a row of the wrong
-        length, a value that is not a number, or a NaN.
-    """
-    if hasattr(source, "read"):
-        label = label or getattr(source, "name", "DATA")
-        text = source.read()
-    else:
-        label = label or str(source)
-        try:
-            text = Path(source).read_text()
-        except OSError as exc:
-            raise FitError(f"{label}: cannot read ({exc.strerror or exc})") from None
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(x.strip() for x in r)]
-    if not rows:
-        raise FitError(f"{label}: empty file (expected a CSV header naming the columns)")
-    header = [h.strip() for h in rows[0]]
-    if any(not h for h in header) or len(set(header)) != len(header):
-        raise FitError(f"{label}: the header must name every column once, got {','.join(header)}")
-    if len(rows) == 1:
-        raise FitError(f"{label}: no data rows after the header")
-    values = np.empty((len(rows) - 1, len(header)))
-    for i, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise FitError(f"{label}: line {i} has {len(row)} values for {len(header)} columns")
-        for j, x in enumerate(row):
-            try:
-                values[i - 2, j] = float(x)
-            except ValueError:
-                raise FitError(f"{label}: line {i}, column {header[j]!r}: {x.strip()!r} is not a number") from None
-    data = {h: values[:, j] for j, h in enumerate(header)}
-    _check_finite(data, label, first_line=2)
-    return data
-
-
-def _check_finite(data: Mapping[str, np.ndarray], label: str, first_line: int = 1) -> None:
-    for name, col in data.items():
-        bad = ~np.isfinite(col)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            where = f"line {i + first_line}" if first_line == 2 else f"row {i + 1}"
-            raise FitError(f"{label}: {where}, column {name!r} is {float(col[i])!r} (NaN or infinite values "
-                           f"are not data; drop the row)")
-
-
-def _columns(cb, data: Mapping[str, np.ndarray], label: str) -> tuple[dict, list, dict]:
-    """Split data into known coordinates, observed unknowns and sigma columns (checked)."""
-    coords, observed, sigma = {}, [], {}
-    lengths = {len(np.atleast_1d(v)) for v in data.values()}
-    if len(lengths) > 1:
-        raise FitError(f"{label}: columns of different lengths {sorted(lengths)}")
-    for name, col in data.items():
-        col = np.atleast_1d(np.asarray(col, dtype=float))
-        if name in cb.coordinate_names:
-            coords[name] = col
-        elif name in cb.unknown_names:
-            observed.append(name)
-        elif name.startswith("sigma_") and name[6:] in cb.unknown_names:
-            sigma[name[6:]] = col
-        else:
-            raise FitError(f"{label}: column {name!r} is neither a coordinate ({', '.join(cb.coordinate_names)}), "
-                           f"an unknown ({', '.join(cb.unknown_names)}) nor sigma_<unknown>")
-    time = next((c.name for c in cb.coordinates if c.role == "time"), None)
-    if time is not None and time not in coords:
-        raise FitError(f"{label}: no column for the time coordinate {time!r}")
-    if not observed:
-        raise FitError(f"{label}: no observed unknown; add a column named one of {', '.join(cb.unknown_names)}")
-    for u in sigma:
-        if u not in observed:
-            raise FitError(f"{label}: sigma_{u} given but {u!r} is not observed")
-        if np.any(sigma[u] <= 0):
-            raise FitError(f"{label}: sigma_{u} must be positive")
-    for name, col in coords.items():
-        c = cb.coordinate(name)
-        lo, hi = c.domain
-        out = (col < lo) | (col > hi)
-        if out.any():
-            raise FitError(f"{label}: column {name!r}: value {float(col[out][0])!r} is outside the domain [{lo:g}, {hi:g}]")
-    return coords, observed, sigma
-
-
-def _fixed(cb, fix: Mapping[str, float] | None, coords: Mapping) -> dict[str, float]:
-    fixed = {}
-    for name, value in (fix or {}).items():
-        if name not in cb.coordinate_names:
-            raise FitError(f"--fix {name}: unknown coordinate; this codebook has {', '.join(cb.coordinate_names)}")
-        if name in coords:
-            raise FitError(f"--fix {name}: {name!r} is already a data column")
-        lo, hi = cb.coordinate(name).domain
-        value = float(value)
-        if not lo <= value <= hi:
-            raise FitError(f"--fix {name}={value:g}: outside the domain [{lo:g}, {hi:g}]")
-        fixed[name] = value
-    return fixed
 
 
 # ----------------------------------------------------------------------------------------------
@@ -382,15 +265,15 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
     began = _time.perf_counter()
     label = label or "DATA"
     data = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in data.items()}
-    _check_finite(data, label)
-    coords, observed, sig = _columns(cb, data, label)
+    check_finite(data, label)
+    coords, observed, sig = split_columns(cb, data, label)
     for u, s in (sigma or {}).items():
         if u not in observed:
             raise FitError(f"--sigma {u}: not an observed unknown (observed: {', '.join(observed)})")
         if not float(s) > 0:
             raise FitError(f"--sigma {u}={s}: must be positive")
         sig.setdefault(u, np.full(len(data[u]), float(s)))
-    fixed = _fixed(cb, fix, coords)
+    fixed = fixed_values(cb, fix, coords)
     free = [n for n in cb.coordinate_names if n not in coords and n not in fixed]
     if not free:
         raise FitError("nothing to fit: every coordinate is a data column or fixed")
