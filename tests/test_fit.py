@@ -167,3 +167,26 @@ def test_cli_formats_and_plot(coupled_file, tmp_path):
     assert len(report["fitted"]["u2"]) == 21 and report["reference_error"] < 1e-7
     table = _run(["fit", coupled_file, path, "--starts", "1", "--format", "csv", "-q", "--no-check"]).stdout
     assert table.splitlines()[0] == "t,u1,u1_data,u2,u3,u3_data" and len(table.splitlines()) == 22
+
+
+def test_unidentifiable_coordinates_get_infinite_standard_errors(solved):
+    """Data at t = 0 only see u0: k and a are not determined, and the fit says so."""
+    cb = solved("relaxation").codebook
+    data = {"t": np.zeros(5), "u": np.full(5, 0.3) + np.random.default_rng(9).normal(0, 1e-3, 5)}
+    result = pgdcli.fit(cb, data, starts=1)
+    assert np.isinf(result.stderr["k"]) and np.isinf(result.stderr["a"])
+    assert 0 < result.stderr["u0"] < 1e-3  # u0 is what t = 0 measures
+    assert result.to_dict()["stderr"]["k"] is None and result.to_dict()["stderr"]["a"] is None
+    assert abs(result.estimate["u0"] - 0.3) < 2e-3 and result.reference_error < 1e-7
+
+
+def test_reference_check_with_a_varying_parameter_column(solved):
+    """Rows at one time and several known k (the varying data coordinate is not time)."""
+    cb = solved("relaxation").codebook
+    k = np.linspace(0.5, 5, 12)
+    parts = [synthetic("relaxation", {"a": 0.5, "u0": 0.8}, np.array([1.0]), ["u"], 1e-4, seed=i, extra={"k": kk})
+             for i, kk in enumerate(k)]
+    data = {"t": np.ones(k.size), "k": k, "u": np.concatenate([p["u"] for p in parts])}
+    result = pgdcli.fit(cb, data, starts=2)
+    assert_recovered(result, {"a": 0.5, "u0": 0.8}, max_stderr=5e-3)
+    assert result.reference_error < 1e-7 and abs(result.reference_rms - result.rms) < 1e-6

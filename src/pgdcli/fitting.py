@@ -206,13 +206,16 @@ def sobol_starts(bounds, count: int, seed: int) -> np.ndarray:
 
 
 def _stderr(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """``sqrt(diag(s^2 (J^T J)^-1))``; inf for a coordinate the data cannot determine (it has a component
+    in the null space of ``J``)."""
     m, n = jac.shape
     s2 = float(residuals @ residuals) / (m - n)
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-    if sv[-1] <= sv[0] * max(m, n) * np.finfo(float).eps:
-        return np.full(n, np.inf)
-    cov = (vt.T / sv**2) @ vt * s2
-    return np.sqrt(np.diag(cov))
+    keep = sv > sv[0] * max(m, n) * np.finfo(float).eps if sv[0] > 0 else np.zeros(n, dtype=bool)
+    cov = (vt[keep].T / sv[keep] ** 2) @ vt[keep] * s2
+    out = np.sqrt(np.diag(cov))
+    out[np.any(np.abs(vt[~keep]) > 1e-8, axis=0)] = np.inf
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -331,24 +334,23 @@ def _reference_check(cb, result: FitResult, coords: Mapping, model: _Model, labe
     values = {**coords, **{n: np.array([v]) for n, v in result.fixed.items()},
               **{n: np.array([v]) for n, v in result.estimate.items()}}
     rows = model.rows
+    # one reference sample per distinct point of the other coordinates, one time column per distinct time
     others = [c.name for c in cb.coordinates if c.name != time]
-    params = {n: np.broadcast_to(values[n], (rows,)) for n in others}
-    if model.grid:  # one parameter point: one sample
-        params = {n: p[:1] for n, p in params.items()}
-    times = None if time is None else np.asarray(values[time])
+    inverse, params = np.zeros(rows, dtype=int), {}
+    if others:
+        table = np.column_stack([np.broadcast_to(values[n], (rows,)) for n in others])
+        unique, inverse = np.unique(table, axis=0, return_inverse=True)
+        params = {n: unique[:, j] for j, n in enumerate(others)}
+    times, columns = None, None
+    if time is not None:
+        times, columns = np.unique(np.broadcast_to(values[time], (rows,)), return_inverse=True)
     ref = solve_reference(problem, params, times)
     if not ref.success.all():
         result.reference_message = f"reference failed: {next(m for m in ref.messages if m)}"
         return
-    refvals = {}
-    for u, v in ref.values.items():
-        v = np.asarray(v)
-        if time is None:
-            refvals[u] = np.broadcast_to(v, (rows,))
-        elif model.grid:
-            refvals[u] = v[0]
-        else:
-            refvals[u] = v[np.arange(rows), np.arange(rows)]
+    inverse = np.asarray(inverse).reshape(-1)
+    refvals = {u: (np.asarray(v)[inverse] if time is None else np.asarray(v)[inverse, np.asarray(columns).reshape(-1)])
+               for u, v in ref.values.items()}
     result.reference_error = float(max(np.max(np.abs(result.fitted[u] - refvals[u])) for u in refvals))
     r = np.concatenate([refvals[u] - result.data[u] for u in result.observed]) * model.weight
     result.reference_rms = float(np.sqrt(np.mean(r * r)))
