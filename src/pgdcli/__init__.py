@@ -15,7 +15,8 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "Codebook", "PgdError", "fit"]
+__all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "Codebook", "PgdError"]
+__all__ += ["fit"]  # parameter identification (pgdcli.fitting)
 
 _LAZY = {
     "load_spec": ("spec", "load_spec"),

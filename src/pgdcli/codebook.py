@@ -702,12 +702,14 @@ class Codebook:
         fields : sequence of str, optional
             Unknowns (default: all).
         grid : bool
+            Whether ``coordinates`` are grid axes (default: points).
 
         Returns
         -------
         dict
             ``out[u][c]``: d u / d c, shaped like :meth:`evaluate`'s (or :meth:`evaluate_grid`'s) values.
-            See :mod:`pgdcli.gradient`.
+            Where the interpolant has a kink (a slab breakpoint, a linear element's node) the derivative
+            is the one from the right (at the upper end: from the left). See :mod:`pgdcli.gradient`.
         """
         from .gradient import gradient_grid, gradient_points
 
