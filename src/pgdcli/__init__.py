@@ -5,6 +5,7 @@ Python API
 - :func:`load_spec` -- YAML spec file -> validated :class:`~pgdcli.spec.Problem`
 - :func:`solve` -- problem -> :class:`~pgdcli.solver.SolveResult` (``.codebook``, ``.converged``, ``.residuals``)
 - :class:`Codebook` -- ``Codebook.load(path)``; ``codebook(t=..., k=...)`` -> {unknown: ndarray}
+- :func:`fit` -- codebook + data -> :class:`~pgdcli.fitting.FitResult` (parameter identification)
 
 Submodules are imported lazily so that evaluating a codebook does not pay for
 scipy or yaml.
@@ -15,6 +16,7 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 __all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "Codebook", "PgdError"]
+__all__ += ["fit"]  # parameter identification (pgdcli.fitting)
 
 _LAZY = {
     "load_spec": ("spec", "load_spec"),
@@ -25,6 +27,8 @@ _LAZY = {
     "Codebook": ("codebook", "Codebook"),
     "verify": ("verification", "verify"),
     "PgdError": ("errors", "PgdError"),
+    "fit": ("fitting", "fit"),
+    "FitResult": ("fitting", "FitResult"),
 }
 
 

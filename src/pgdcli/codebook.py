@@ -692,6 +692,48 @@ class Codebook:
         return {u: _grid_tt(self.fields[u], mats) if isinstance(self.fields[u], FieldTT) else
                 _grid_cp(self.fields[u], mats) for u in selected}
 
+    def gradient(self, coordinates: Mapping[str, object], wrt: Sequence[str] | None = None,
+                 fields: Sequence[str] | None = None, grid: bool = False) -> dict[str, dict[str, np.ndarray]]:
+        """Derivatives of unknowns with respect to coordinates (exact derivatives of the interpolants).
+
+        Parameters
+        ----------
+        coordinates : mapping
+            As in :meth:`evaluate` (broadcast points) or, with ``grid=True``, as in
+            :meth:`evaluate_grid` (1-D axes of a cartesian grid).
+        wrt : sequence of str, optional
+            Coordinates to differentiate with respect to (default: all).
+        fields : sequence of str, optional
+            Unknowns (default: all).
+        grid : bool
+            Whether ``coordinates`` are grid axes (default: points).
+
+        Returns
+        -------
+        dict
+            ``out[u][c]``: d u / d c, shaped like :meth:`evaluate`'s (or :meth:`evaluate_grid`'s) values.
+            Where the interpolant has a kink (a slab breakpoint, a linear element's node) the derivative
+            is the one from the right (at the upper end: from the left). See :mod:`pgdcli.gradient`.
+        """
+        from .gradient import gradient_grid, gradient_points
+
+        self._check_names(coordinates)
+        wrt = list(self._names if wrt is None else wrt)
+        for w in wrt:
+            if w not in self._name_set:
+                raise QueryError(f"unknown coordinate {w!r} in wrt; this codebook has {', '.join(self._names)}")
+        index = [self._names.index(w) for w in wrt]
+        selected = self._select(fields)
+        if grid:
+            axes = [self._checked(c, np.asarray(coordinates[c.name], dtype=float).reshape(-1)) for c in self.coordinates]
+            raw = gradient_grid(self.fields, self._bases, axes, index, selected)
+            return {u: dict(zip(wrt, raw[u])) for u in selected}
+        arrays = np.broadcast_arrays(*[np.asarray(coordinates[n], dtype=float) for n in self._names])
+        shape = arrays[0].shape
+        flat = [self._checked(c, a.reshape(-1)) for c, a in zip(self.coordinates, arrays)]
+        raw = gradient_points(self.fields, self._bases, flat, index, selected)
+        return {u: {w: v.reshape(shape) for w, v in zip(wrt, raw[u])} for u in selected}
+
     def _tensor_train_point(self, coordinates: Mapping[str, object]) -> dict[str, np.ndarray] | None:
         """Every unknown at one point given as Python numbers, when all are in the tensor-train stack.
 
