@@ -148,7 +148,7 @@ def coordinate_infos(problem, *, march: bool):
     out = []
     for c in problem.coordinates:
         info = CoordinateInfo(c.name, tuple(c.domain), c.nodes, c.discretization, c.role)
-        if getattr(c, "breakpoints", ()) and len(c.breakpoints) > 2:  # elements: c.nodes per element
+        if len(c.breakpoints) > 2:  # elements: c.nodes per element
             elements = len(c.breakpoints) - 1
             info = CoordinateInfo(c.name, tuple(c.domain), elements * (c.nodes - 1) + 1, c.discretization, c.role,
                                   tuple(c.breakpoints))
