@@ -307,3 +307,12 @@ def test_measured_error_agrees_with_an_independent_verify():
     verified = max(e.max_abs_error for e in report.unknowns.values())
     assert verified <= 1e-6 and measured <= 1e-6
     assert measured / 4 <= verified <= 4 * measured
+
+
+@pytest.mark.slow
+def test_rigid_body_without_nodes_meets_its_tolerance():
+    """The 7-D shipped problem with every node count left to the solver (~1 min)."""
+    result = pgdcli.solve(parse_spec(_without_nodes("rigid_body"), source="rigid_body-auto.yaml"))
+    assert result.accurate is True, result.message
+    report = pgdcli.verify(result.codebook, samples=64, seed=4, max_corners=32)
+    assert max(e.max_abs_error for e in report.unknowns.values()) <= 1e-5
