@@ -36,7 +36,7 @@ INACCURATE = 4
 #: Most solves of one problem by the automatic resolution.
 MAX_ROUNDS = 8
 #: Nodes per element beyond which a parameter coordinate is split into elements instead.
-MAX_ELEMENT_NODES = 17
+MAX_ELEMENT_NODES = 65
 #: A doubling of a coordinate's nodes that cuts its off-node error less than this does not converge
 #: geometrically (a sharp feature): the coordinate is split into elements where the error is instead.
 P_GAIN = 8.0
@@ -66,17 +66,34 @@ def total_nodes(c) -> int:
     return elements * (c.nodes - 1) + 1
 
 
-def refined_nodes(problem, names):
-    """The problem with ``n -> 2n - 1`` nodes (per element) on the named coordinates, within ``max_nodes``."""
+def refined_nodes(problem, names, at_least: int = 0):
+    """The problem with ``n -> max(2n - 1, at_least)`` nodes (per element) on the named coordinates,
+    within ``max_nodes`` in all."""
     cap = problem.solver.max_nodes
     coords = []
     for c in problem.coordinates:
         if c.name in names:
             elements = max(1, len(c.breakpoints) - 1)
             most = (cap - 1) // elements + 1  # nodes per element that keep the total within the cap
-            c = dataclasses.replace(c, nodes=max(c.nodes, min(2 * c.nodes - 1, most)))
+            c = dataclasses.replace(c, nodes=max(c.nodes, min(max(2 * c.nodes - 1, at_least), most)))
         coords.append(c)
     return dataclasses.replace(problem, coordinates=tuple(coords))
+
+
+def _predicted_nodes(c, ratio: float, past: list) -> int:
+    """Nodes at which the error ratio falls to a quarter, from its geometric decay over the last doubling.
+
+    Chebyshev interpolation of an analytic function converges like rho**-n: two
+    measurements give rho, and the count that reaches the target in one more solve
+    instead of several doublings (0 without a previous doubling to measure it by).
+    """
+    if not past or past[-1][0] != "p" or not ratio > 0.25:
+        return 0
+    _, before, n_before = past[-1]
+    if not before > ratio or c.nodes <= n_before:
+        return 0
+    per_node = np.log(before / ratio) / (c.nodes - n_before)
+    return int(np.ceil(c.nodes + np.log(ratio / 0.25) / per_node))
 
 
 def split_elements(problem, name: str, where: np.ndarray):
@@ -93,11 +110,12 @@ def split_elements(problem, name: str, where: np.ndarray):
 def _refine(problem, check, names, history):
     """More nodes (p) or more elements where the error is (h) for each named coordinate.
 
-    A Chebyshev parameter goes on doubling its nodes while a doubling cuts its
-    off-node error :data:`P_GAIN`-fold or more (geometric convergence) and it has
-    fewer than :data:`MAX_ELEMENT_NODES` per element; otherwise the feature is
-    sharp, and the elements holding off-node points with too large an error are
-    cut in two (chebfun's splitting, by the measured error instead of the tail).
+    A Chebyshev parameter goes on adding nodes while a doubling cuts its off-node
+    error :data:`P_GAIN`-fold or more (geometric convergence: the next count is
+    predicted from that rate, at least double) and the count stays within
+    :data:`MAX_ELEMENT_NODES` per element; otherwise the feature is sharp, and the
+    elements holding off-node points with too large an error are cut in two
+    (chebfun's splitting, by the measured error instead of the tail).
     Returns the refined problem and the coordinates that could not be refined.
     """
     cap = problem.solver.max_nodes
@@ -107,18 +125,19 @@ def _refine(problem, check, names, history):
         ratio = check.coordinate_ratio.get(name, 0.0)
         past = history.setdefault(name, [])
         slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN * ratio
+        predicted = _predicted_nodes(c, ratio, past)
         h_able = c.role == "parameter" and c.discretization == "chebyshev" and name in check.line_points
-        if h_able and (c.nodes >= MAX_ELEMENT_NODES or slow):
+        if h_able and (slow or max(c.nodes, predicted) > MAX_ELEMENT_NODES):
             x, r = check.line_points[name]
             # the elements where the error is; at least the worst one (a coordinate flagged by its tail)
             candidate = split_elements(problem, name, x[r >= min(REFINE_AT, r.max(initial=0.0))])
             if total_nodes(candidate.coordinate(name)) <= cap:
                 problem = candidate
-                past.append(("h", ratio))
+                past.append(("h", ratio, c.nodes))
                 continue
         if total_nodes(c) < cap and not (h_able and slow and c.nodes >= MAX_ELEMENT_NODES):
-            problem = refined_nodes(problem, [name])
-            past.append(("p", ratio))
+            problem = refined_nodes(problem, [name], predicted)
+            past.append(("p", ratio, c.nodes))
             continue
         stuck.append(name)
     return problem, stuck
