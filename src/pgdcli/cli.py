@@ -4,7 +4,8 @@ Each command parses its options, calls one library function and formats the
 result. stdout carries data only; progress, tables and messages go to stderr.
 Exit status: 0 success, 1 a numerical outcome the user asked to be told
 about (solver not converged, verification gate failed), 2 invalid input
-(one ``Error:`` line, no traceback).
+(one ``Error:`` line, no traceback), 70 an internal error (a bug: one line,
+the traceback with ``--debug``); see :mod:`pgdcli.guard`.
 
 This is the only module that imports click and rich; rich is imported only by
 the commands that draw with it, so ``pgd query`` stays lean.
@@ -20,21 +21,28 @@ from pathlib import Path
 import click
 
 from . import __version__
+from . import guard
 from .errors import PgdError
-
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+from .guard import EXIT_FAILED, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 
 # ----------------------------------------------------------------------------------------------
 # one-line errors for every usage problem
 # ----------------------------------------------------------------------------------------------
 class PgdGroup(click.Group):
-    """A click group whose errors are one ``Error:`` line on stderr (exit 2), never a traceback."""
+    """A click group that runs every command inside the guard of :mod:`pgdcli.guard`.
+
+    Usage errors and :class:`PgdError` are one ``Error:`` line on stderr (exit 2);
+    anything unexpected is one ``Error: internal error: ...`` line (exit 70, the
+    traceback with ``--debug`` or ``PGD_DEBUG=1``); a reader gone away ends the
+    command quietly (exit 0) and a full disk is one line (exit 2). Never a traceback.
+    """
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         try:
             code = super().main(args=args, prog_name=prog_name or "pgd", complete_var=complete_var,
                                 standalone_mode=False, **extra)
+            code = _flushed(code)
         except click.exceptions.NoArgsIsHelpError as exc:  # bare `pgd`: show the help
             click.echo(exc.ctx.get_help() if exc.ctx else "")
             code = EXIT_OK
@@ -53,16 +61,48 @@ class PgdGroup(click.Group):
             code = EXIT_FAILED
         except KeyboardInterrupt:
             _error("interrupted")
-            code = 130
+            code = EXIT_INTERRUPTED
+        except _Failed as exc:
+            code = _flushed(EXIT_FAILED)
+            if code == EXIT_FAILED:
+                _error(str(exc))
         except BrokenPipeError:
-            # a pipeline reader went away (e.g. `pgd query ... | head`): not an error
-            sys.stderr.close()
-            code = EXIT_OK
+            code = _flushed(EXIT_OK, broken=True)
+        except Exception as exc:  # noqa: BLE001 - the guard: nothing escapes as a traceback
+            code = _unexpected(exc)
         if not isinstance(code, int):
             code = EXIT_OK
         if standalone_mode:
             sys.exit(code)
         return code
+
+
+def _flushed(code, broken: bool = False):
+    """Flush stdout inside the guard: a reader gone away ends quietly (exit 0), a full disk is one line."""
+    exc = None if broken else guard.flush_stdout()
+    if broken or isinstance(exc, BrokenPipeError):
+        # a pipeline reader went away (e.g. `pgd query ... | head`): not an error
+        guard.silence_stdout()
+        return EXIT_OK
+    if exc is not None:
+        guard.silence_stdout()
+        _error(guard.output_error_message(exc, "to stdout"))
+        return EXIT_USAGE
+    return code
+
+
+def _unexpected(exc: Exception) -> int:
+    """An exception nobody meant to raise: a full disk (exit 2) or a bug (exit 70)."""
+    if guard.is_output_error(exc):
+        guard.silence_stdout()
+        _error(guard.output_error_message(exc, getattr(exc, "filename", None) or "the output"))
+        return EXIT_USAGE
+    if guard.debug_enabled():
+        import traceback
+
+        traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
+    _error(guard.internal_error_message(exc))
+    return EXIT_INTERNAL
 
 
 def _warn(message: str) -> None:
@@ -78,15 +118,15 @@ class _Failed(Exception):
 
 
 def _run(func, *args, **kwargs):
-    try:
-        return func(*args, **kwargs)
-    except _Failed as exc:
-        _error(str(exc))
-        sys.exit(EXIT_FAILED)
+    """``func(*args, **kwargs)``; a :class:`_Failed` it raises ends the command with exit 1 (in the group)."""
+    return func(*args, **kwargs)
 
 
 @click.group(cls=PgdGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, "-V", "--version", prog_name="pgd", message="%(prog)s %(version)s")
+@click.option("--debug", is_flag=True, expose_value=False, is_eager=True,
+              callback=lambda ctx, param, value: guard.set_debug(True) if value else None,
+              help="Show the traceback of an internal error (also PGD_DEBUG=1).")
 def cli():
     """PGD codebooks for parametric dynamical systems.
 
@@ -100,7 +140,8 @@ def cli():
       pgd info codebooks/parametric.h5
 
     Exit status: 0 success, 1 solver not converged or a check failed,
-    2 invalid input or usage. stdout carries data only; progress and
+    2 invalid input or usage (or a full disk), 70 internal error (a bug;
+    --debug shows the traceback). stdout carries data only; progress and
     messages go to stderr.
     """
 
@@ -288,8 +329,9 @@ def _human_size(n: int) -> str:
                    "values; json: a list of objects.")
 @click.option("--field", "fields", multiple=True, metavar="NAME",
               help="Unknown to print (repeatable) [default: all, in declared order].")
-@click.option("--points", type=click.File("r"), metavar="FILE",
-              help="CSV file whose header names the coordinates ('-' for stdin): one output row per input row.")
+@click.option("--points", metavar="FILE",
+              help="CSV file whose header names the coordinates ('-' for stdin): one output row per input row, "
+                   "read and printed in chunks.")
 @click.pass_context
 def query(ctx, codebook, fmt, fields, points):
     """Evaluate CODEBOOK at points given as --NAME VALUE for every coordinate.
@@ -304,10 +346,11 @@ def query(ctx, codebook, fmt, fields, points):
       pgd query codebooks/parametric.h5 --t 5 --k 2
       pgd query codebooks/spring.h5 --t 0:4:41 --k 2 --c 0.3 --field x --format csv
     """
-    # the parsing, checking and printing helpers live in pgdcli._query, where a plain `pgd query`
-    # runs without click (see main): both paths print the same bytes
+    # the parsing, checking and printing helpers live in pgdcli._query and pgdcli.stream, where a
+    # plain `pgd query` runs without click (see main): both paths print the same bytes
     from . import _query
     from .codebook import Codebook
+    from .stream import Writer
 
     cb = Codebook.load(codebook)
     selected = list(fields) if fields else cb.unknown_names
@@ -315,19 +358,19 @@ def query(ctx, codebook, fmt, fields, points):
         if f not in cb.fields:
             raise click.BadParameter(f"unknown field {f!r}; this codebook has {', '.join(cb.unknown_names)}",
                                      param_hint="'--field'")
+    if points is not None and ctx.args:
+        raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
     try:
-        if points is not None:
-            if ctx.args:
-                raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
-            coords = _query.read_points(points, cb)
-        else:
-            coords = _query.grid_from_args(ctx.args, cb)
+        chunks, handle = _query.point_chunks(cb, points, ctx.args)
     except _query.UsageProblem as exc:
         if exc.param_hint is not None:
             raise click.BadParameter(exc.message, param_hint=exc.param_hint) from None
         raise click.UsageError(exc.message) from None
-    values = cb.evaluate(coords, fields=selected)
-    _query.write_rows(sys.stdout, fmt, cb.coordinate_names, coords, selected, values)
+    try:
+        Writer(sys.stdout, fmt, cb, selected).run(chunks)
+    finally:
+        if handle is not None:
+            handle.close()
 
 
 # ----------------------------------------------------------------------------------------------
