@@ -177,6 +177,7 @@ def solve(spec, output, tolerance, max_modes, fmt, quiet):
 
 
 def _solve(spec, output, tolerance, max_modes, fmt, quiet):
+    from .outputs import prepare_output
     from .solver import solve as solve_problem
     from .spec import load_spec
 
@@ -189,6 +190,7 @@ def _solve(spec, output, tolerance, max_modes, fmt, quiet):
         raise click.BadParameter(f"expected a number in (0, 1), got {tolerance}", param_hint="'--tolerance'")
     if max_modes is not None and max_modes < 1:
         raise click.BadParameter(f"expected an integer >= 1, got {max_modes}", param_hint="'--max-modes'")
+    prepare_output(target, "--output" if output is not None else f"{spec}: output")  # before the solve
     if console is None:
         result = solve_problem(problem, tolerance=tolerance, max_modes=max_modes)
     else:
@@ -456,8 +458,11 @@ def plot_command(codebook, kind, output, field, count, at, over, fix, reference,
       pgd plot codebooks/spring.h5 --kind error --over k,c --fix t=4
     """
     from . import plot as plotting
+    from .outputs import prepare_output
 
-    path = plotting.render(codebook, kind, output, field=field, count=count, at=at, over=over, fix=fix,
+    target = Path(output) if output is not None else plotting.default_output(codebook, kind)
+    prepare_output(target, "--output", suffixes=(".png", ".svg"))  # before the plot is computed
+    path = plotting.render(codebook, kind, target, field=field, count=count, at=at, over=over, fix=fix,
                            reference=reference, points=points, dpi=dpi, size=size,
                            warn=lambda message: click.echo(f"Warning: {message}", err=True))
     click.echo(str(path))
