@@ -263,8 +263,9 @@ def _load_yaml(text: str, source: str) -> Any:
     """
     if len(text) > MAX_SPEC_BYTES:
         raise SpecError(f"{source}: the spec has {len(text)} characters, more than the limit of {MAX_SPEC_BYTES}")
-    loader = _StrictLoader(text)
+    loader = None
     try:
+        loader = _StrictLoader(text)  # checks the characters already
         node = loader.get_single_node()
         if node is None:
             return None
@@ -281,7 +282,8 @@ def _load_yaml(text: str, source: str) -> Any:
     except ValueError as exc:  # e.g. an integer of more than 4300 digits (Python's int limit)
         raise SpecError(f"{source}: invalid YAML: {' '.join(str(exc)[:200].split())}") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def _children(node) -> list:
