@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pgdcli.solver
@@ -276,7 +276,6 @@ def test_plot_arguments(codebook_path, tmp_path_factory, options):
         args += ["--dpi", "20"]
     if "--size" not in args:
         args += ["--size", "2x2"]
-    assume(True)
     invoke(["plot", str(codebook_path("parametric")), *args])
     for directory in (work, work / "new"):
         if directory.is_dir():

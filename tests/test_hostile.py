@@ -26,7 +26,7 @@ import pgdcli.cli as cli_module
 from pgdcli import stream
 from pgdcli.cli import cli
 from pgdcli.codebook import Codebook, FieldModes
-from pgdcli.errors import QueryError, SpecError
+from pgdcli.errors import SpecError
 from pgdcli.spec import MAX_SPEC_NODES, load_spec, parse_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -186,19 +186,16 @@ def test_f4_plot_to_proc_is_one_line(codebook_path):
     assert_one_error(invoke("plot", codebook_path("spring"), "-o", "/proc/x.png"), 2, "/proc/x.png")
 
 
-@pytest.mark.parametrize("command", ["solve", "plot"])
-def test_output_to_special_file_or_directory_refused(codebook_path, tmp_path, command):
+@pytest.mark.parametrize("command,suffix", [("solve", ".h5"), ("plot", ".png")])
+def test_output_to_special_file_or_directory_refused(codebook_path, tmp_path, command, suffix):
     source = PROBLEMS / "parametric.yaml" if command == "solve" else codebook_path("parametric")
-    name = "/dev/null" if command == "solve" else "/dev/null"
-    suffix = "" if command == "solve" else ".png"
-    if command == "plot":  # a special file with a .png name
-        fifo = tmp_path / "fifo.png"
-        os.mkfifo(fifo)
-        name = str(fifo)
-    assert_one_error(invoke(command, source, "-o", name + ("" if command == "plot" else suffix)), 2,
-                     "not a regular file")
-    (tmp_path / f"d{suffix or '.h5'}").mkdir()
-    assert_one_error(invoke(command, source, "-o", tmp_path / f"d{suffix or '.h5'}"), 2, "directory")
+    fifo = tmp_path / f"fifo{suffix}"
+    os.mkfifo(fifo)
+    assert_one_error(invoke(command, source, "-o", fifo), 2, str(fifo), "not a regular file")
+    (tmp_path / f"d{suffix}").mkdir()
+    assert_one_error(invoke(command, source, "-o", tmp_path / f"d{suffix}"), 2, "directory")
+    if command == "solve":
+        assert_one_error(invoke(command, source, "-o", "/dev/null"), 2, "not a regular file")
 
 
 @pytest.mark.parametrize("command,name", [("solve", "x.h5"), ("plot", "x.png")])

@@ -1,16 +1,18 @@
-"""``pgd query`` without click: argument parsing, evaluation and output.
+"""``pgd query`` without click: argument parsing and the lean command.
 
 ``pgd query`` is called in loops, so its start-up time is part of its cost.
 This module does what the click command :func:`pgdcli.cli.query` does, with
-the same helpers (defined here, used by both), but imports only numpy and
-:mod:`pgdcli.codebook` (h5py when the codebook is read); json and csv only for
-``--format json`` and ``--points``. No click, no rich, no scipy.
+the same helpers (defined here and in :mod:`pgdcli.stream`, used by both), but
+imports only numpy and :mod:`pgdcli.codebook` (h5py when the codebook is read);
+csv and json only when needed. No click, no rich, no scipy.
 
-:func:`run` handles the plain invocations and returns ``None`` for anything
-else -- ``--help``, a malformed option, any error at all -- so that the click
-command runs instead and does the reporting: what is printed, for success and
-for failure, is byte for byte what the click command prints (checked by
-``tests/test_query_fastpath.py``).
+:func:`run` handles the plain invocations. Anything else -- ``--help``, a
+malformed option, any error found before the first chunk of output -- makes it
+return ``None`` having printed nothing, so that the click command runs instead
+and does the reporting (stdin read so far is handed to click unchanged). What
+is printed, for success and for failure, is byte for byte what the click
+command prints (checked by ``tests/test_query_fastpath.py``); an error after
+output has begun is reported here with the same bytes.
 """
 
 from __future__ import annotations

@@ -64,8 +64,9 @@ class PgdGroup(click.Group):
             code = EXIT_INTERRUPTED
         except _Failed as exc:
             code = _flushed(EXIT_FAILED)
-            if code == EXIT_FAILED:
+            if code != EXIT_USAGE:  # a full disk was reported instead; a reader gone away is no excuse
                 _error(str(exc))
+                code = EXIT_FAILED
         except BrokenPipeError:
             code = _flushed(EXIT_OK, broken=True)
         except Exception as exc:  # noqa: BLE001 - the guard: nothing escapes as a traceback
