@@ -394,7 +394,10 @@ class _Checker:
         if isinstance(value, bool):
             raise self.error(path, f"expected a number, got {_show(value)}")
         if isinstance(value, (int, float)):
-            number = float(value)
+            try:
+                number = float(value)
+            except OverflowError:  # an integer beyond float's range: not finite either
+                number = math.inf
         elif isinstance(value, str):
             try:
                 number = float(value.strip())
