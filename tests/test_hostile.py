@@ -360,3 +360,29 @@ def test_verify_pde_defaults_catch_a_perturbed_codebook(codebook_path, tmp_path)
                    spec_text=cb.spec_text, report=cb.report)
     report = pgdcli.verify(bad)
     assert not report.passed(1e-8) and report.unknowns["u"].max_abs_error > 1e-8
+
+
+def test_verify_pde_defaults_visit_every_element_of_a_linear_parameter(tmp_path):
+    """A wrong nodal value of a linear coordinate changes the codebook on two elements only:
+    the default sample (one Sobol point per element) still finds it."""
+    from pgdcli import solve
+    from pgdcli.verification import default_samples
+
+    text = (PROBLEMS / "heat1d.yaml").read_text()
+    text = text.replace("kappa: {domain: [0.1, 1], nodes: 16}",
+                        "kappa: {domain: [0.1, 1], nodes: 16}\n  a: {domain: [0, 2], nodes: 9, discretization: linear}")
+    text = text.replace('initial: "sin(pi*x)"', 'initial: "a*sin(pi*x)"')  # linear in a: exact on elements
+    assert "discretization: linear" in text and "a*sin" in text
+    problem = parse_spec(text, source="heat1d_linear.yaml")
+    assert default_samples(problem) == 8
+    cb = solve(problem).codebook
+    fm = cb.fields["u"]
+    j = cb.coordinate_names.index("a")
+    assert pgdcli.verify(cb).passed(1e-6)
+    modes = [m.copy() for m in fm.modes]
+    modes[j][4] += 1e-5 * np.abs(modes[j]).max()  # node 4 of 9 (a = 1): elements 3 and 4 only
+    bad = Codebook(cb.coordinates, {"u": FieldModes(fm.alphas, tuple(modes))}, name=cb.name,
+                   spec_text=cb.spec_text, report=cb.report)
+    report = pgdcli.verify(bad)
+    assert report.n_points == 8 + 4 and not report.passed(1e-6)
+    assert 0.75 < report.unknowns["u"].where["a"] < 1.25

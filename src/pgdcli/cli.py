@@ -479,7 +479,8 @@ _VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.referenc
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--samples", type=click.IntRange(min=1), metavar="N",
               help="Random points of the parameter box, checked in addition to all its corners "
-                   "[default: 64; 4 for a time-dependent PDE, whose reference costs ~2 s a point].")
+                   "[default: 64; for a time-dependent PDE, whose reference costs ~2 s a point, 4, or one "
+                   "per element of its finest linear parameter coordinate].")
 @click.option("--sampling", type=click.Choice(["sobol", "lhs"]), default="sobol", show_default=True,
               help="Scrambled Sobol or Latin hypercube sampling.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,

@@ -334,6 +334,24 @@ def _check_points_domain(points: Mapping[str, np.ndarray], problem, source: str)
                               f"domain [{low:g}, {high:g}]")
 
 
+def default_samples(problem) -> int:
+    """Random parameter points checked by default besides the corners.
+
+    :data:`DEFAULT_SAMPLES`, except for a time-dependent problem with space
+    coordinates (a reference of ~2 s per point): :data:`DEFAULT_SAMPLES_PDE`,
+    raised to the power of two at or above the element count of its finest
+    linear parameter coordinate. A scrambled Sobol sample of ``2^m`` points puts
+    one point in each of ``2^m`` equal intervals of every coordinate, so every
+    element of a uniform linear coordinate, where a wrong nodal value stays
+    local, is visited; a Chebyshev coordinate's nodal values act on its whole
+    interval, and the corners and any point see them.
+    """
+    if problem.time is None or not _space(problem):
+        return DEFAULT_SAMPLES
+    elements = max((c.nodes - 1 for c in _sampled(problem) if c.discretization == "linear"), default=1)
+    return min(DEFAULT_SAMPLES, max(DEFAULT_SAMPLES_PDE, 1 << (elements - 1).bit_length()))
+
+
 def _sample_box(problem, n: int, sampling: str, seed: int) -> dict[str, np.ndarray]:
     from scipy.stats import qmc
 
@@ -561,7 +579,7 @@ def verify(
     names = [c.name for c in params]
     space = [c.name for c in _space(problem)]
     if samples is None:
-        samples = DEFAULT_SAMPLES_PDE if space and time is not None else DEFAULT_SAMPLES
+        samples = default_samples(problem)
     if space:
         method = method if method in PDE_METHODS else "BDF"
         rtol = 1e-10 if rtol is None else rtol
