@@ -22,7 +22,7 @@ import os
 from .errors import QueryError
 
 __all__ = ["CHUNK", "DEFAULT_MAX_POINTS", "MAX_LINE_BYTES", "max_points", "check_grid_size", "grid_points",
-           "read_points", "format_chunk", "Writer"]
+           "read_points", "format_chunk", "closing", "Writer"]
 
 CHUNK = 4096  # points evaluated and printed at a time
 DEFAULT_MAX_POINTS = 10_000_000  # a grid query's largest product of axes (PGD_QUERY_MAX_POINTS)
@@ -96,8 +96,8 @@ def _cells(text: str, source: str, number: int) -> list[str]:
         raise QueryError(f"{source}: line {number}: not a CSV row ({exc})") from None
 
 
-def _header(lines, source: str, cb) -> list[int]:
-    """The header's columns -> for each codebook coordinate, its column index."""
+def _header(lines, source: str, cb) -> tuple[list[int], int]:
+    """The header -> (for each codebook coordinate its column index, the number of columns)."""
     for number, text in lines:
         header = [h.strip() for h in _cells(text, source, number)]
         break
