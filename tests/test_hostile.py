@@ -386,3 +386,21 @@ def test_verify_pde_defaults_visit_every_element_of_a_linear_parameter(tmp_path)
     report = pgdcli.verify(bad)
     assert report.n_points == 8 + 4 and not report.passed(1e-6)
     assert 0.75 < report.unknowns["u"].where["a"] < 1.25
+
+
+@pytest.mark.parametrize("source", ["/dev/zero", "big", "nul", "binary"])
+def test_verify_points_file_is_bounded_and_checked(codebook_path, tmp_path, source):
+    """``verify --points /dev/zero`` read 9 GB before; now at most 8 MiB are read, and bad bytes are one line."""
+    if source == "/dev/zero":
+        if not os.path.exists(source):
+            pytest.skip("no /dev/zero")
+        path, needle = source, "larger than"
+    else:
+        path = tmp_path / "p.csv"
+        data = {"big": b"k\n" + b"2\n" * (5 << 20), "nul": b"k\n2\x00\n", "binary": b"\xff\xfek\n"}[source]
+        path.write_bytes(data)
+        needle = {"big": "larger than", "nul": "line 2", "binary": "cannot read"}[source]
+    started = time.perf_counter()
+    assert_one_error(invoke("verify", codebook_path("parametric"), "--points", path, "-j", "1", "-q"), 2,
+                     str(path), needle)
+    assert time.perf_counter() - started < 30

@@ -37,6 +37,7 @@ See ``docs/verify.md`` for the JSON schema.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import time as _time
@@ -57,6 +58,8 @@ MAX_CORNERS = 1024
 #: 64 + 8 corners took 104 s on heat2d, 8 + 8 corners 20 s, with 2 jobs).
 DEFAULT_SAMPLES = 64
 DEFAULT_SAMPLES_PDE = 4
+#: Largest points file (bytes) read by verify: some 1e5 points, far more than anyone can afford.
+MAX_POINTS_FILE_BYTES = 8 << 20
 #: Random points per space coordinate checked besides the codebook's nodes of that coordinate.
 DEFAULT_RANDOM_SPACE_POINTS = 4
 SAMPLINGS = ("sobol", "lhs")
@@ -277,8 +280,14 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
     source = str(path)
     names = [c.name for c in _sampled(problem)]
     try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
+        with open(path, "rb") as handle:  # at most one byte past the limit (/dev/zero is refused, not read)
+            data = handle.read(MAX_POINTS_FILE_BYTES + 1)
+        if len(data) > MAX_POINTS_FILE_BYTES:
+            raise VerifyError(f"{source}: points file larger than {MAX_POINTS_FILE_BYTES} bytes (each point "
+                              f"costs a reference solve)")
+        rows = list(csv.reader(io.StringIO(data.decode("utf-8-sig"), newline="")))
+    except csv.Error as exc:
+        raise VerifyError(f"{source}: not a CSV points file ({' '.join(str(exc)[:200].split())})") from None
     except FileNotFoundError:
         raise VerifyError(f"{source}: no such points file") from None
     except IsADirectoryError:
@@ -296,7 +305,7 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
             raise VerifyError(f"{source}: column {h!r} is a space coordinate; the points give the parameters "
                               f"({', '.join(names)}) and space points are chosen by verify")
         if h not in names:
-            raise VerifyError(f"{source}: unknown column {h!r}; expected the parameter coordinates "
+            raise VerifyError(f"{source}: unknown column {h[:40]!r}; expected the parameter coordinates "
                               f"{', '.join(names) or '(none)'}")
     if len(set(header)) != len(header):
         raise VerifyError(f"{source}: a column is repeated in the header {','.join(header)}")
@@ -312,7 +321,7 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
         try:
             values = [float(cell) for cell in row]
         except ValueError:
-            raise VerifyError(f"{source}: line {line}: not a number in {','.join(row)!r}") from None
+            raise VerifyError(f"{source}: line {line}: not a number in {','.join(row)[:80]!r}") from None
         if not all(math.isfinite(v) for v in values):
             raise VerifyError(f"{source}: line {line}: values must be finite")
         data.append(values)
