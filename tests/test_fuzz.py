@@ -74,7 +74,8 @@ def no_leftovers(directory: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 SHIPPED_TEXTS = [p.read_text() for p in sorted(PROBLEMS.glob("*.yaml"))]
 NASTY_SCALARS = ["1e400", "-1e400", ".nan", ".inf", "nan", "0", "-0", "1e-320", "9" * 400, "0x1F", "0o17",
-                 "!!binary aGVsbG8=", "!!python/object:os.system x", "!!set {a, b}", "!!timestamp 2001-12-14",
+                 "!!binary aGVsbG8=", "!!python/object:os.system x", "!!set {a, b}", "!!timestamp 2001-12-14", "!!timestamp x", "!!bool maybe", "!!int 0x", "!!binary %",
+                 "!!timestamp 2001-99-99", "!!omap [1]", "!!pairs {a: 1}", "!!float",
                  "~", "null", "yes", "on", "'x' * 9", "[", "]", "{", "&a", "*a", "*undefined", "<<: *a",
                  "\"\\x00\"", "\"\\uffff\"", "?", "- - -", "|", ">", "%YAML 1.1", "---", "...", "'", '"', "@", "`",
                  "der(u)", "der(u, x, 2)", "__import__('os')", "exp(1e308)", "1/0", "(" * 200 + ")" * 200,

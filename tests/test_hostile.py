@@ -404,3 +404,11 @@ def test_verify_points_file_is_bounded_and_checked(codebook_path, tmp_path, sour
     assert_one_error(invoke("verify", codebook_path("parametric"), "--points", path, "-j", "1", "-q"), 2,
                      str(path), needle)
     assert time.perf_counter() - started < 30
+
+
+@pytest.mark.parametrize("value", ["!!timestamp x", "!!timestamp 2001-12-14\n  - \"der(u) = 1\"", "!!bool maybe",
+                                   "!!timestamp 2001-99-99"])
+def test_malformed_yaml_tags_are_spec_errors(value):
+    """PyYAML's own constructors raise AttributeError / KeyError / ValueError on these (found by fuzzing)."""
+    with pytest.raises(SpecError, match="invalid YAML"):
+        parse_spec("equations: " + value + "\n", source="tags.yaml")

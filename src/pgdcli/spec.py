@@ -270,7 +270,14 @@ def _load_yaml(text: str, source: str) -> Any:
         if node is None:
             return None
         _check_expansion(node, source)
-        return loader.construct_document(node)
+        try:
+            return loader.construct_document(node)
+        except (AttributeError, TypeError, KeyError, IndexError) as exc:
+            # PyYAML's constructors assume well-formed tagged scalars: `!!timestamp x` raises
+            # AttributeError and `!!bool maybe` KeyError from inside PyYAML
+            raise SpecError(f"{source}: invalid YAML: a tagged value cannot be built "
+                            f"({type(exc).__name__}: {' '.join(str(exc)[:120].split())}); "
+                            f"remove the '!!' tags") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         problem = getattr(exc, "problem", None) or str(exc)
