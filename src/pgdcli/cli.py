@@ -73,6 +73,8 @@ class PgdGroup(click.Group):
             code = _unexpected(exc)
         if not isinstance(code, int):
             code = EXIT_OK
+        if guard.flush_stdout() is not None:  # after an error: no second report, no failing flush at exit
+            guard.silence_stdout()
         if standalone_mode:
             sys.exit(code)
         return code
