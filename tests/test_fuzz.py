@@ -6,11 +6,10 @@ no partial or temporary file left next to an output.
 
 Budget: about a minute in CI (the ``ci`` profile). For a longer local run::
 
-    PGD_FUZZ=long python -m pytest -q tests/test_fuzz.py     # ~10 minutes
-    PGD_FUZZ=long PGD_FUZZ_EXAMPLES=5000 python -m pytest -q tests/test_fuzz.py
+    PGD_FUZZ=long PGD_FUZZ_EXAMPLES=10000 python -m pytest -q tests/test_fuzz.py   # ~10 minutes
 
-The ``long`` profile multiplies every test's examples (``PGD_FUZZ_EXAMPLES``
-examples for the cheap ones, a fifth of them for those that solve or draw).
+The ``long`` profile is randomized (a new seed every run) and runs ``PGD_FUZZ_EXAMPLES``
+(default 2000) examples per cheap test, a fifth of them for those that solve or draw.
 """
 
 from __future__ import annotations
