@@ -43,9 +43,13 @@ def _assert_usage_error(result, *needles):
 
 
 def _expected_rows(cb, points, fields=None):
-    values = cb.evaluate(points, fields=fields)
-    names = list(values)
-    return names, [[float(values[u][i]) for u in names] for i in range(len(next(iter(points.values()))))]
+    """What pgd query prints: each point through Codebook.evaluate on its own (one point, one output)."""
+    names = list(fields) if fields else cb.unknown_names
+    rows = []
+    for i in range(len(next(iter(points.values())))):
+        values = cb.evaluate({c: float(points[c][i]) for c in cb.coordinate_names}, fields=names)
+        rows.append([float(values[u]) for u in names])
+    return names, rows
 
 
 def _product(cb, lists):

@@ -117,12 +117,14 @@ def _options(args):
 
 
 def _expected_text(cb, points, fmt, fields):
-    """The documented output, built from Codebook.evaluate on flat points (repr of float64)."""
-    values = cb.evaluate(points, fields=fields or None)
+    """The documented output: Codebook.evaluate on each point alone (one point, one output; repr of float64)."""
     names = list(fields) if fields else cb.unknown_names
     coords = cb.coordinate_names
     n = len(next(iter(points.values())))
-    rows = [[float(values[u][i]) for u in names] for i in range(n)]
+    rows = []
+    for i in range(n):
+        values = cb.evaluate({c: float(points[c][i]) for c in coords}, fields=names)
+        rows.append([float(values[u]) for u in names])
     pts = [[float(points[c][i]) for c in coords] for i in range(n)]
     if fmt == "plain":
         return "".join(" ".join(repr(v) for v in r) + "\n" for r in rows)

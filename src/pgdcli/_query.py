@@ -1,16 +1,18 @@
-"""``pgd query`` without click: argument parsing, evaluation and output.
+"""``pgd query`` without click: argument parsing and the lean command.
 
 ``pgd query`` is called in loops, so its start-up time is part of its cost.
 This module does what the click command :func:`pgdcli.cli.query` does, with
-the same helpers (defined here, used by both), but imports only numpy and
-:mod:`pgdcli.codebook` (h5py when the codebook is read); json and csv only for
-``--format json`` and ``--points``. No click, no rich, no scipy.
+the same helpers (defined here and in :mod:`pgdcli.stream`, used by both), but
+imports only numpy and :mod:`pgdcli.codebook` (h5py when the codebook is read);
+csv and json only when needed. No click, no rich, no scipy.
 
-:func:`run` handles the plain invocations and returns ``None`` for anything
-else -- ``--help``, a malformed option, any error at all -- so that the click
-command runs instead and does the reporting: what is printed, for success and
-for failure, is byte for byte what the click command prints (checked by
-``tests/test_query_fastpath.py``).
+:func:`run` handles the plain invocations. Anything else -- ``--help``, a
+malformed option, any error found before the first chunk of output -- makes it
+return ``None`` having printed nothing, so that the click command runs instead
+and does the reporting (stdin read so far is handed to click unchanged). What
+is printed, for success and for failure, is byte for byte what the click
+command prints (checked by ``tests/test_query_fastpath.py``); an error after
+output has begun is reported here with the same bytes.
 """
 
 from __future__ import annotations
@@ -74,8 +76,14 @@ def parse_coordinate_args(args: list[str], cb) -> dict[str, str]:
 
 
 def parse_values(name: str, text: str):
-    """A number, a comma list or ``start:stop:count`` -> 1-D float array."""
+    """A number, a comma list or ``start:stop:count`` -> 1-D float array.
+
+    A count is checked against :func:`pgdcli.stream.max_points` before
+    anything is allocated (``0:1:1000000000000`` is refused, not attempted).
+    """
     import numpy as np
+
+    from .stream import check_grid_size
 
     text = text.strip()
     try:
@@ -86,23 +94,25 @@ def parse_values(name: str, text: str):
             start, stop, count = float(parts[0]), float(parts[1]), int(parts[2])
             if count < 1:
                 raise ValueError
+            check_grid_size([(name, count)])
             return np.linspace(start, stop, count)
         return np.array([float(v) for v in text.split(",")], dtype=float)
     except ValueError:
-        raise UsageProblem(f"{text!r} is not a number, a comma list or start:stop:count",
+        shown = text if len(text) <= 60 else text[:57] + "..."
+        raise UsageProblem(f"{shown!r} is not a number, a comma list or start:stop:count",
                            param_hint=f"'--{name}'") from None
 
 
-def grid_from_args(args: list[str], cb) -> dict:
-    """The cartesian product of the coordinates' values, flat (first coordinate slowest)."""
-    import numpy as np
+def grid_axes(args: list[str], cb) -> list:
+    """The coordinates' values (1-D arrays, codebook order), checked: domain, and the grid's size."""
+    from .stream import check_grid_size
 
     given = parse_coordinate_args(args, cb)
     lists = [parse_values(c.name, given[c.name]) for c in cb.coordinates]
     for c, v in zip(cb.coordinates, lists):
         check_domain(c, v)
-    grids = np.meshgrid(*lists, indexing="ij")
-    return {c.name: g.reshape(-1) for c, g in zip(cb.coordinates, grids)}
+    check_grid_size([(c.name, v.size) for c, v in zip(cb.coordinates, lists)])
+    return lists
 
 
 def check_domain(c, values) -> None:
@@ -114,85 +124,114 @@ def check_domain(c, values) -> None:
                          f"[{c.domain[0]:g}, {c.domain[1]:g}]")
 
 
-def read_points(handle, cb) -> dict:
-    """A CSV whose header names the coordinates -> {name: 1-D array}, one entry per data row."""
-    import csv
-
-    import numpy as np
-
-    source = getattr(handle, "name", "points")
-    source = "stdin" if source == "<stdin>" else source
-    reader = csv.reader(handle)
-    header = next(reader, None)
-    if header is None:
-        raise QueryError(f"{source}: empty points file; expected a CSV header naming the coordinates")
-    header = [h.strip() for h in header]
-    names = cb.coordinate_names
-    for h in header:
-        if h not in names:
-            raise QueryError(f"{source}: unknown column {h!r}; expected the coordinates {', '.join(names)}")
-    repeated = sorted({h for h in header if header.count(h) > 1})
-    if repeated:
-        raise QueryError(f"{source}: column(s) {', '.join(repeated)} appear more than once in the header")
-    missing = [n for n in names if n not in header]
-    if missing:
-        raise QueryError(f"{source}: missing column(s) {', '.join(missing)}")
-    rows = []
-    for line, row in enumerate(reader, start=2):
-        if not row or all(not cell.strip() for cell in row):
-            continue
-        if len(row) != len(header):
-            raise QueryError(f"{source}: line {line}: expected {len(header)} values, got {len(row)}")
-        try:
-            rows.append([float(cell) for cell in row])
-        except ValueError:
-            raise QueryError(f"{source}: line {line}: not a number in {','.join(row)!r}") from None
-    data = np.array(rows, dtype=float).reshape(-1, len(header))
-    coords = {h: data[:, i] for i, h in enumerate(header)}
-    for c in cb.coordinates:
-        check_domain(c, coords[c.name])
-    return {n: coords[n] for n in names}
-
-
-def format_rows(fmt, coord_names, coords, selected, values) -> str:
-    """The output text: one line per point (plain, csv) or a JSON list of objects."""
-    import numpy as np
-
-    cols = [np.asarray(values[f]).reshape(-1).tolist() for f in selected]
-    buf = io.StringIO()
-    if fmt == "plain":
-        for row in zip(*cols):
-            buf.write(" ".join(map(repr, row)))
-            buf.write("\n")
-        return buf.getvalue()
-    ccols = [np.asarray(coords[c]).reshape(-1).tolist() for c in coord_names]
-    if fmt == "csv":
-        buf.write(",".join(coord_names + selected) + "\n")
-        for row in zip(*ccols, *cols):
-            buf.write(",".join(map(repr, row)))
-            buf.write("\n")
-    else:
-        import json
-
-        keys = coord_names + selected
-        records = [dict(zip(keys, row)) for row in zip(*ccols, *cols)]
-        buf.write(json.dumps(records))
-        buf.write("\n")
-    return buf.getvalue()
-
-
-def write_rows(out, fmt, coord_names, coords, selected, values) -> None:
-    out.write(format_rows(fmt, coord_names, coords, selected, values))
-    out.flush()
+def open_points(path: str):
+    """``--points`` FILE -> (binary handle, name for messages); ``-`` is stdin."""
+    if path == "-":
+        return getattr(sys.stdin, "buffer", sys.stdin), "stdin"
+    try:
+        return open(path, "rb"), path
+    except FileNotFoundError:
+        raise QueryError(f"--points {path}: no such file") from None
+    except IsADirectoryError:
+        raise QueryError(f"--points {path}: is a directory, expected a CSV file") from None
+    except OSError as exc:
+        raise QueryError(f"--points {path}: cannot read ({exc.strerror or exc})") from None
 
 
 # ----------------------------------------------------------------------------------------------
 # the lean command
 # ----------------------------------------------------------------------------------------------
-class _Replay(io.StringIO):
-    """stdin already read by :func:`run`, handed to click unchanged when it takes over."""
+class _Recorder:
+    """stdin (binary) that keeps what it hands out, until :meth:`stop`: if the lean path gives up
+    before printing anything, click gets the same input again (:meth:`replayed`)."""
 
-    name = "<stdin>"
+    def __init__(self, raw, owner=None):
+        # owner: the text stdin around ``raw``, kept alive (its finalizer would close ``raw``)
+        self.raw, self.owner, self.kept, self.recording = raw, owner, [], True
+
+    def readline(self, size: int = -1) -> bytes:
+        line = self.raw.readline(size)
+        if self.recording:
+            self.kept.append(line)
+        return line
+
+    def stop(self) -> None:
+        self.recording, self.kept = False, []
+
+    def replayed(self):
+        """A text stdin that reads the kept bytes, then the rest of the real stdin."""
+        kept, raw, owner = b"".join(self.kept), self.raw, self.owner
+
+        class Raw(io.RawIOBase):
+            stdin = owner
+            def readable(self):
+                return True
+
+            def readinto(self, buffer):
+                nonlocal kept
+                if kept:
+                    n = min(len(buffer), len(kept))
+                    buffer[:n], kept = kept[:n], kept[n:]
+                    return n
+                data = raw.read1(len(buffer)) if hasattr(raw, "read1") else raw.read(len(buffer))
+                buffer[:len(data)] = data
+                return len(data)
+
+        return io.TextIOWrapper(io.BufferedReader(Raw()), encoding="utf-8")
+
+
+def point_chunks(cb, points: str | None, rest: list[str], stdin=None):
+    """The points of a query, in chunks (:mod:`pgdcli.stream`), and a file handle to close (or None).
+
+    Grid arguments are parsed and checked (domain, size) here, before any output.
+    """
+    from . import stream
+
+    if points is None:
+        return stream.grid_points(grid_axes(rest, cb)), None
+    if points == "-" and stdin is not None:
+        return stream.read_points(stdin, "stdin", cb), None
+    handle, source = open_points(points)
+    return stream.read_points(handle, source, cb), (handle if points != "-" else None)
+
+
+def _one_line_error(message: str) -> None:
+    sys.stderr.write(f"Error: {' '.join(str(message).split())}\n")
+
+
+def _stream_rest(writer, chunks, text: str) -> int:
+    """Print the evaluated first chunk and every other one; errors from here on are reported here,
+    with the bytes the click command would print (the output has begun: no falling back)."""
+    from . import guard
+    from .errors import PgdError
+
+    try:
+        writer.write(text)
+        for chunk in chunks:
+            writer.write(writer.text(chunk))
+        writer.finish()
+    except PgdError as exc:
+        error = guard.flush_stdout()
+        if error is None:
+            _one_line_error(str(exc))
+            return guard.EXIT_USAGE
+        exc = error
+    except BrokenPipeError as exc_:
+        exc = exc_
+    except OSError as exc_:
+        if not guard.is_output_error(exc_):
+            raise
+        exc = exc_
+    else:
+        exc = guard.flush_stdout()
+        if exc is None:
+            return guard.EXIT_OK
+    guard.silence_stdout()
+    if isinstance(exc, BrokenPipeError):
+        # a pipeline reader went away (e.g. `pgd query ... | head`): not an error
+        return guard.EXIT_OK
+    _one_line_error(guard.output_error_message(exc, "to stdout"))
+    return guard.EXIT_USAGE
 
 
 def _split(args: list[str]):
@@ -232,10 +271,11 @@ def _split(args: list[str]):
 
 
 def run(argv: list[str]) -> int | None:
-    """Run ``pgd ARGV`` if it is a plain ``query`` invocation and succeeds; return its exit status.
+    """Run ``pgd ARGV`` if it is a plain ``query`` invocation; return its exit status.
 
     Returns None, having printed nothing, when click should run the command
-    instead: anything but ``query``, help, an unusual option, any error.
+    instead: anything but ``query``, help, an unusual option, any error found
+    before the first chunk of output (click then reports it).
     """
     if len(argv) < 2 or argv[0] != "query" or "_PGD_COMPLETE" in os.environ:
         return None
@@ -243,55 +283,55 @@ def run(argv: list[str]) -> int | None:
     if split is None:
         return None
     codebook, fmt, fields, points, rest = split
-    replay = None
+    recorder = handle = None
     try:
         from .codebook import Codebook
+        from .stream import Writer
 
         if os.path.isdir(codebook):
             return None
         cb = Codebook.load(codebook)
         selected = list(fields) if fields else cb.unknown_names
-        if any(f not in cb.fields for f in selected):
+        if any(f not in cb.fields for f in selected) or (points is not None and rest):
             return None
-        if points is not None:
-            if rest:
-                return None
-            if points == "-":
-                if (getattr(sys.stdin, "encoding", None) or "").lower().replace("-", "") != "utf8":
-                    return None
-                replay = _Replay(sys.stdin.read())
-                coords = read_points(replay, cb)
-            else:
-                with open(points) as handle:
-                    coords = read_points(handle, cb)
-        else:
-            coords = grid_from_args(rest, cb)
-        values = cb.evaluate(coords, fields=selected)
-        text = format_rows(fmt, cb.coordinate_names, coords, selected, values)
+        if points == "-":
+            recorder = _Recorder(getattr(sys.stdin, "buffer", None) or sys.stdin, sys.stdin)
+        chunks, handle = point_chunks(cb, points, rest, stdin=recorder)
+        writer = Writer(sys.stdout, fmt, cb, selected)
+        first = next(chunks, None)
+        text = "" if first is None else writer.text(first)
     except KeyboardInterrupt:
         raise
     except Exception:
-        if replay is not None:  # click reads the same input again
-            replay.seek(0)
-            sys.stdin = replay
+        if handle is not None:
+            handle.close()
+        if recorder is not None:  # click reads the same input again
+            sys.stdin = recorder.replayed()
         return None
+    if recorder is not None:
+        recorder.stop()
     try:
-        sys.stdout.write(text)
-        sys.stdout.flush()
-    except BrokenPipeError:
-        # a pipeline reader went away (e.g. `pgd query ... | head`): not an error (as the click group)
-        sys.stderr.close()
-    return 0
+        return _stream_rest(writer, chunks, text)
+    finally:
+        if handle is not None:
+            handle.close()
 
 
 def main(argv=None) -> None:
     """Console-script entry point: the lean ``pgd query``, else the click command line."""
+    from . import guard
+
     args = sys.argv[1:] if argv is None else list(argv)
     try:
         code = run(args)
     except KeyboardInterrupt:
         sys.stderr.write("Error: interrupted\n")
-        sys.exit(130)
+        sys.exit(guard.EXIT_INTERRUPTED)
+    except Exception as exc:  # noqa: BLE001 - the guard of the lean path (output had begun)
+        if guard.debug_enabled():
+            raise
+        _one_line_error(guard.internal_error_message(exc))
+        sys.exit(guard.EXIT_INTERNAL)
     if code is not None:
         sys.exit(code)
     from .cli import cli

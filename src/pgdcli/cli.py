@@ -4,7 +4,8 @@ Each command parses its options, calls one library function and formats the
 result. stdout carries data only; progress, tables and messages go to stderr.
 Exit status: 0 success, 1 a numerical outcome the user asked to be told
 about (solver not converged, verification gate failed), 2 invalid input
-(one ``Error:`` line, no traceback).
+(one ``Error:`` line, no traceback), 70 an internal error (a bug: one line,
+the traceback with ``--debug``); see :mod:`pgdcli.guard`.
 
 This is the only module that imports click and rich; rich is imported only by
 the commands that draw with it, so ``pgd query`` stays lean.
@@ -20,21 +21,28 @@ from pathlib import Path
 import click
 
 from . import __version__
+from . import guard
 from .errors import PgdError
-
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+from .guard import EXIT_FAILED, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 
 # ----------------------------------------------------------------------------------------------
 # one-line errors for every usage problem
 # ----------------------------------------------------------------------------------------------
 class PgdGroup(click.Group):
-    """A click group whose errors are one ``Error:`` line on stderr (exit 2), never a traceback."""
+    """A click group that runs every command inside the guard of :mod:`pgdcli.guard`.
+
+    Usage errors and :class:`PgdError` are one ``Error:`` line on stderr (exit 2);
+    anything unexpected is one ``Error: internal error: ...`` line (exit 70, the
+    traceback with ``--debug`` or ``PGD_DEBUG=1``); a reader gone away ends the
+    command quietly (exit 0) and a full disk is one line (exit 2). Never a traceback.
+    """
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         try:
             code = super().main(args=args, prog_name=prog_name or "pgd", complete_var=complete_var,
                                 standalone_mode=False, **extra)
+            code = _flushed(code)
         except click.exceptions.NoArgsIsHelpError as exc:  # bare `pgd`: show the help
             click.echo(exc.ctx.get_help() if exc.ctx else "")
             code = EXIT_OK
@@ -53,16 +61,51 @@ class PgdGroup(click.Group):
             code = EXIT_FAILED
         except KeyboardInterrupt:
             _error("interrupted")
-            code = 130
+            code = EXIT_INTERRUPTED
+        except _Failed as exc:
+            code = _flushed(EXIT_FAILED)
+            if code != EXIT_USAGE:  # a full disk was reported instead; a reader gone away is no excuse
+                _error(str(exc))
+                code = EXIT_FAILED
         except BrokenPipeError:
-            # a pipeline reader went away (e.g. `pgd query ... | head`): not an error
-            sys.stderr.close()
-            code = EXIT_OK
+            code = _flushed(EXIT_OK, broken=True)
+        except Exception as exc:  # noqa: BLE001 - the guard: nothing escapes as a traceback
+            code = _unexpected(exc)
         if not isinstance(code, int):
             code = EXIT_OK
+        if guard.flush_stdout() is not None:  # after an error: no second report, no failing flush at exit
+            guard.silence_stdout()
         if standalone_mode:
             sys.exit(code)
         return code
+
+
+def _flushed(code, broken: bool = False):
+    """Flush stdout inside the guard: a reader gone away ends quietly (exit 0), a full disk is one line."""
+    exc = None if broken else guard.flush_stdout()
+    if broken or isinstance(exc, BrokenPipeError):
+        # a pipeline reader went away (e.g. `pgd query ... | head`): not an error
+        guard.silence_stdout()
+        return EXIT_OK
+    if exc is not None:
+        guard.silence_stdout()
+        _error(guard.output_error_message(exc, "to stdout"))
+        return EXIT_USAGE
+    return code
+
+
+def _unexpected(exc: Exception) -> int:
+    """An exception nobody meant to raise: a full disk (exit 2) or a bug (exit 70)."""
+    if guard.is_output_error(exc):
+        guard.silence_stdout()
+        _error(guard.output_error_message(exc, getattr(exc, "filename", None) or "to stdout"))
+        return EXIT_USAGE
+    if guard.debug_enabled():
+        import traceback
+
+        traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
+    _error(guard.internal_error_message(exc))
+    return EXIT_INTERNAL
 
 
 def _warn(message: str) -> None:
@@ -78,15 +121,15 @@ class _Failed(Exception):
 
 
 def _run(func, *args, **kwargs):
-    try:
-        return func(*args, **kwargs)
-    except _Failed as exc:
-        _error(str(exc))
-        sys.exit(EXIT_FAILED)
+    """``func(*args, **kwargs)``; a :class:`_Failed` it raises ends the command with exit 1 (in the group)."""
+    return func(*args, **kwargs)
 
 
 @click.group(cls=PgdGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, "-V", "--version", prog_name="pgd", message="%(prog)s %(version)s")
+@click.option("--debug", is_flag=True, expose_value=False, is_eager=True,
+              callback=lambda ctx, param, value: guard.set_debug(True) if value else None,
+              help="Show the traceback of an internal error (also PGD_DEBUG=1).")
 def cli():
     """PGD codebooks for parametric dynamical systems.
 
@@ -100,7 +143,8 @@ def cli():
       pgd info codebooks/parametric.h5
 
     Exit status: 0 success, 1 solver not converged or a check failed,
-    2 invalid input or usage. stdout carries data only; progress and
+    2 invalid input or usage (or a full disk), 70 internal error (a bug;
+    --debug shows the traceback). stdout carries data only; progress and
     messages go to stderr.
     """
 
@@ -143,6 +187,7 @@ def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurat
 
 
 def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
+    from .outputs import prepare_output
     from .solver import solve as solve_problem
     from .spec import load_spec
 
@@ -159,6 +204,7 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
         raise click.BadParameter(f"expected a number in [0, 1), got {relative_tolerance}",
                                  param_hint="'--relative-tolerance'")
     overrides = {"tolerance": tolerance, "relative_tolerance": relative_tolerance, "max_modes": max_modes}
+    prepare_output(target, "--output" if output is not None else f"{spec}: output")  # before the solve
     if console is None:
         result = solve_problem(problem, **overrides)
     else:
@@ -326,8 +372,9 @@ def _human_size(n: int) -> str:
                    "values; json: a list of objects.")
 @click.option("--field", "fields", multiple=True, metavar="NAME",
               help="Unknown to print (repeatable) [default: all, in declared order].")
-@click.option("--points", type=click.File("r"), metavar="FILE",
-              help="CSV file whose header names the coordinates ('-' for stdin): one output row per input row.")
+@click.option("--points", metavar="FILE",
+              help="CSV file whose header names the coordinates ('-' for stdin): one output row per input row, "
+                   "read and printed in chunks.")
 @click.pass_context
 def query(ctx, codebook, fmt, fields, points):
     """Evaluate CODEBOOK at points given as --NAME VALUE for every coordinate.
@@ -342,10 +389,11 @@ def query(ctx, codebook, fmt, fields, points):
       pgd query codebooks/parametric.h5 --t 5 --k 2
       pgd query codebooks/spring.h5 --t 0:4:41 --k 2 --c 0.3 --field x --format csv
     """
-    # the parsing, checking and printing helpers live in pgdcli._query, where a plain `pgd query`
-    # runs without click (see main): both paths print the same bytes
+    # the parsing, checking and printing helpers live in pgdcli._query and pgdcli.stream, where a
+    # plain `pgd query` runs without click (see main): both paths print the same bytes
     from . import _query
     from .codebook import Codebook
+    from .stream import Writer
 
     cb = Codebook.load(codebook)
     selected = list(fields) if fields else cb.unknown_names
@@ -353,19 +401,19 @@ def query(ctx, codebook, fmt, fields, points):
         if f not in cb.fields:
             raise click.BadParameter(f"unknown field {f!r}; this codebook has {', '.join(cb.unknown_names)}",
                                      param_hint="'--field'")
+    if points is not None and ctx.args:
+        raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
     try:
-        if points is not None:
-            if ctx.args:
-                raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
-            coords = _query.read_points(points, cb)
-        else:
-            coords = _query.grid_from_args(ctx.args, cb)
+        chunks, handle = _query.point_chunks(cb, points, ctx.args)
     except _query.UsageProblem as exc:
         if exc.param_hint is not None:
             raise click.BadParameter(exc.message, param_hint=exc.param_hint) from None
         raise click.UsageError(exc.message) from None
-    values = cb.evaluate(coords, fields=selected)
-    _query.write_rows(sys.stdout, fmt, cb.coordinate_names, coords, selected, values)
+    try:
+        Writer(sys.stdout, fmt, cb, selected).run(chunks)
+    finally:
+        if handle is not None:
+            handle.close()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -460,8 +508,11 @@ def plot_command(codebook, kind, output, field, count, at, over, fix, reference,
       pgd plot codebooks/spring.h5 --kind error --over k,c --fix t=4
     """
     from . import plot as plotting
+    from .outputs import prepare_output
 
-    path = plotting.render(codebook, kind, output, field=field, count=count, at=at, over=over, fix=fix,
+    target = Path(output) if output is not None else plotting.default_output(codebook, kind)
+    prepare_output(target, "--output", suffixes=(".png", ".svg"))  # before the plot is computed
+    path = plotting.render(codebook, kind, target, field=field, count=count, at=at, over=over, fix=fix,
                            reference=reference, points=points, dpi=dpi, size=size,
                            warn=lambda message: click.echo(f"Warning: {message}", err=True))
     click.echo(str(path))
@@ -475,8 +526,10 @@ _VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.referenc
 
 @cli.command("verify")
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--samples", type=click.IntRange(min=1), default=64, show_default=True, metavar="N",
-              help="Random points of the parameter box, checked in addition to all its corners.")
+@click.option("--samples", type=click.IntRange(min=1), metavar="N",
+              help="Random points of the parameter box, checked in addition to all its corners "
+                   "[default: 64; for a time-dependent PDE, whose reference costs ~2 s a point, 4, or one "
+                   "per element of its finest linear parameter coordinate].")
 @click.option("--sampling", type=click.Choice(["sobol", "lhs"]), default="sobol", show_default=True,
               help="Scrambled Sobol or Latin hypercube sampling.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
@@ -488,10 +541,10 @@ _VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.referenc
               help="Random times, checked in addition to every node of the time coordinate.")
 @click.option("--method", type=click.Choice(_VERIFY_METHODS, case_sensitive=False), default="DOP853",
               metavar="[" + "|".join(_VERIFY_METHODS) + "]", show_default=True, help="solve_ivp method of the reference (Radau, BDF or LSODA for stiff problems).")
-@click.option("--rtol", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=1e-12,
-              show_default=True, help="Relative tolerance of the reference.")
-@click.option("--atol", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=1e-12,
-              show_default=True, help="Absolute tolerance of the reference.")
+@click.option("--rtol", type=click.FloatRange(0, 1, min_open=True, max_open=True),
+              help="Relative tolerance of the reference [default: 1e-12; 1e-10 with space coordinates].")
+@click.option("--atol", type=click.FloatRange(0, 1, min_open=True, max_open=True),
+              help="Absolute tolerance of the reference [default: 1e-12].")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), metavar="N",
               help="Worker processes [default: all cores]; 1 runs in this process.")
 @click.option("--max-error", type=click.FloatRange(min=0), metavar="TOL",

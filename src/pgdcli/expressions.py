@@ -1401,9 +1401,13 @@ def evaluate_constant(text_or_number: str | float, *, constants: Mapping[str, fl
     """
     value = text_or_number
     if isinstance(value, numbers.Real) and not isinstance(value, bool):
-        if not math.isfinite(float(value)):
-            raise ExpressionError(f"{_prefix(where)}expected a finite number, got {value!r}")
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond float's range (YAML reads 400 digits as an int)
+            number = math.inf
+        if not math.isfinite(number):
+            raise ExpressionError(f"{_prefix(where)}expected a finite number, got {str(value)[:40]}")
+        return number
     if not isinstance(value, str):
         raise ExpressionError(f"{_prefix(where)}expected a number or an expression string, got {value!r}")
     poly = parse_expression(value, coordinates=(), constants=constants, unknowns=(), time=None, where=where, allow_der=False)

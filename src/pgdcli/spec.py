@@ -23,6 +23,7 @@ import keyword
 import math
 import pathlib
 import re
+import reprlib
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
@@ -63,6 +64,8 @@ MAX_NODES = 2000
 #: First node count of a coordinate whose nodes are chosen by the solver (``nodes: auto`` or none);
 #: 2**k + 1 so that refinement (n -> 2n - 1) keeps the Chebyshev-Lobatto nodes nested.
 AUTO_NODES = {"chebyshev": 9, "linear": 17}
+MAX_SPEC_BYTES = 1 << 20  # a spec file's largest size (shipped specs: < 3 KiB)
+MAX_SPEC_NODES = 100_000  # YAML nodes after expanding aliases (shipped specs: < 300)
 
 #: Names that may not be used for coordinates, constants or unknowns: built-ins of
 #: expressions, and command-line option names (``pgd eval --k 1`` must not clash).
@@ -72,6 +75,10 @@ RESERVED_NAMES = frozenset(
 )
 
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = _REPR.maxlong = 80
+_REPR.maxdict = _REPR.maxlist = _REPR.maxtuple = _REPR.maxset = 6
+_REPR.maxlevel = 3
 _PROBLEM_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 
 
@@ -257,17 +264,101 @@ class _StrictLoader(yaml.SafeLoader):
 
 
 def _load_yaml(text: str, source: str) -> Any:
-    """Parse YAML text; any YAML error becomes one line with its line number."""
+    """Parse YAML text; any YAML error becomes one line with its line number.
+
+    The text is bounded (:data:`MAX_SPEC_BYTES`), and its node graph is checked
+    (:func:`_check_expansion`) *before* any Python value is built: an alias
+    bomb is refused in milliseconds, not expanded.
+    """
+    if len(text) > MAX_SPEC_BYTES:
+        raise SpecError(f"{source}: the spec has {len(text)} characters, more than the limit of {MAX_SPEC_BYTES}")
+    loader = None
     try:
-        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+        loader = _StrictLoader(text)  # checks the characters already
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_expansion(node, source)
+        try:
+            return loader.construct_document(node)
+        except (AttributeError, TypeError, KeyError, IndexError) as exc:
+            # PyYAML's constructors assume well-formed tagged scalars: `!!timestamp x` raises
+            # AttributeError and `!!bool maybe` KeyError from inside PyYAML
+            raise SpecError(f"{source}: invalid YAML: a tagged value cannot be built "
+                            f"({type(exc).__name__}: {' '.join(str(exc)[:120].split())}); "
+                            f"remove the '!!' tags") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         problem = getattr(exc, "problem", None) or str(exc)
-        problem = " ".join(str(problem).split())
+        problem = " ".join(str(problem)[:200].split())
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
         raise SpecError(f"{source}: {where}invalid YAML: {problem}") from None
     except RecursionError:
         raise SpecError(f"{source}: invalid YAML: nested too deeply") from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits (Python's int limit)
+        raise SpecError(f"{source}: invalid YAML: {' '.join(str(exc)[:200].split())}") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def _children(node) -> list:
+    """The child nodes of a YAML node (keys and values of a mapping)."""
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    return []
+
+
+def _expanded_sizes(root) -> dict:
+    """id(node) -> number of nodes below it with every alias expanded (iterative: no recursion limit).
+
+    Raises SpecError for a node that contains itself (a recursive anchor).
+    """
+    sizes: dict = {}
+    open_nodes: set = set()
+    stack = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        key = id(node)
+        if children_done:
+            open_nodes.discard(key)
+            total = 1
+            for child in _children(node):
+                total = min(total + sizes[id(child)], 1 << 62)
+            sizes[key] = total
+            continue
+        if key in sizes:
+            continue
+        if key in open_nodes:
+            raise SpecError(f"line {node.start_mark.line + 1}: a YAML anchor refers to itself")
+        open_nodes.add(key)
+        stack.append((node, True))
+        stack.extend((child, False) for child in _children(node) if id(child) not in sizes)
+    return sizes
+
+
+def _check_expansion(root, source: str) -> None:
+    """Refuse a document whose nodes, aliases expanded, exceed :data:`MAX_SPEC_NODES`, naming the key."""
+    try:
+        sizes = _expanded_sizes(root)
+    except SpecError as exc:
+        raise SpecError(f"{source}: {exc}") from None
+    if sizes[id(root)] <= MAX_SPEC_NODES:
+        return
+    path, node = [], root
+    while True:  # down to the deepest key that is too large by itself
+        items = node.value if isinstance(node, yaml.MappingNode) else list(enumerate(node.value)) \
+            if isinstance(node, yaml.SequenceNode) else []
+        big = [(k, v) for k, v in items if sizes[id(v)] > MAX_SPEC_NODES]
+        if not big:
+            break
+        key, node = big[0]
+        path.append(str(key.value)[:40] if isinstance(key, yaml.Node) else f"[{key}]")
+    where = ".".join(path).replace(".[", "[") or "the document"
+    raise SpecError(f"{source}: {where}: the YAML expands to more than {MAX_SPEC_NODES} values (anchors and "
+                    f"aliases repeat their content); a spec needs far fewer")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -279,7 +370,8 @@ def _show(value: Any) -> str:
         return "true" if value else "false"
     if value is None:
         return "nothing (null)"
-    text = repr(value) if not isinstance(value, dict) else "a mapping " + repr(value)
+    # reprlib stops after a few items and characters: a huge value is never spelled out in full
+    text = _REPR.repr(value) if not isinstance(value, dict) else "a mapping " + _REPR.repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
 
 
@@ -318,7 +410,10 @@ class _Checker:
         if isinstance(value, bool):
             raise self.error(path, f"expected a number, got {_show(value)}")
         if isinstance(value, (int, float)):
-            number = float(value)
+            try:
+                number = float(value)
+            except OverflowError:  # an integer beyond float's range: not finite either
+                number = math.inf
         elif isinstance(value, str):
             try:
                 number = float(value.strip())
@@ -873,7 +968,11 @@ def load_spec(path: str | pathlib.Path, *, allow_nonlinear: bool = True) -> Prob
     """
     path = pathlib.Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with open(path, "rb") as handle:  # at most one byte past the limit (a FIFO or /dev/zero too)
+            data = handle.read(MAX_SPEC_BYTES + 1)
+        if len(data) > MAX_SPEC_BYTES:
+            raise SpecError(f"{path}: cannot read problem file: larger than {MAX_SPEC_BYTES} bytes")
+        text = data.decode("utf-8")
     except FileNotFoundError:
         raise SpecError(f"{path}: cannot read problem file: no such file") from None
     except IsADirectoryError:

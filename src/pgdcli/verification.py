@@ -37,6 +37,7 @@ See ``docs/verify.md`` for the JSON schema.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import time as _time
@@ -52,6 +53,13 @@ __all__ = ["verify", "VerifyReport", "UnknownErrors", "Failure", "VerifyError", 
 
 #: Most corners of the parameter box that are checked (a random subset beyond).
 MAX_CORNERS = 1024
+#: Random (Sobol) parameter points by default, besides the corners: ODE and steady problems, and
+#: time-dependent PDEs, whose method-of-lines reference costs ~2 s per point (BDF on a 40 x 40 grid;
+#: 64 + 8 corners took 104 s on heat2d, 8 + 8 corners 20 s, with 2 jobs).
+DEFAULT_SAMPLES = 64
+DEFAULT_SAMPLES_PDE = 4
+#: Largest points file (bytes) read by verify: some 1e5 points, far more than anyone can afford.
+MAX_POINTS_FILE_BYTES = 8 << 20
 #: Random points per space coordinate checked besides the codebook's nodes of that coordinate.
 DEFAULT_RANDOM_SPACE_POINTS = 4
 SAMPLINGS = ("sobol", "lhs")
@@ -272,8 +280,14 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
     source = str(path)
     names = [c.name for c in _sampled(problem)]
     try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
+        with open(path, "rb") as handle:  # at most one byte past the limit (/dev/zero is refused, not read)
+            data = handle.read(MAX_POINTS_FILE_BYTES + 1)
+        if len(data) > MAX_POINTS_FILE_BYTES:
+            raise VerifyError(f"{source}: points file larger than {MAX_POINTS_FILE_BYTES} bytes (each point "
+                              f"costs a reference solve)")
+        rows = list(csv.reader(io.StringIO(data.decode("utf-8-sig"), newline="")))
+    except csv.Error as exc:
+        raise VerifyError(f"{source}: not a CSV points file ({' '.join(str(exc)[:200].split())})") from None
     except FileNotFoundError:
         raise VerifyError(f"{source}: no such points file") from None
     except IsADirectoryError:
@@ -291,7 +305,7 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
             raise VerifyError(f"{source}: column {h!r} is a space coordinate; the points give the parameters "
                               f"({', '.join(names)}) and space points are chosen by verify")
         if h not in names:
-            raise VerifyError(f"{source}: unknown column {h!r}; expected the parameter coordinates "
+            raise VerifyError(f"{source}: unknown column {h[:40]!r}; expected the parameter coordinates "
                               f"{', '.join(names) or '(none)'}")
     if len(set(header)) != len(header):
         raise VerifyError(f"{source}: a column is repeated in the header {','.join(header)}")
@@ -307,7 +321,7 @@ def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
         try:
             values = [float(cell) for cell in row]
         except ValueError:
-            raise VerifyError(f"{source}: line {line}: not a number in {','.join(row)!r}") from None
+            raise VerifyError(f"{source}: line {line}: not a number in {','.join(row)[:80]!r}") from None
         if not all(math.isfinite(v) for v in values):
             raise VerifyError(f"{source}: line {line}: values must be finite")
         data.append(values)
@@ -327,6 +341,24 @@ def _check_points_domain(points: Mapping[str, np.ndarray], problem, source: str)
         if bad.any():
             raise VerifyError(f"{source}: coordinate {c.name!r}: value {float(values[bad][0])!r} is outside the "
                               f"domain [{low:g}, {high:g}]")
+
+
+def default_samples(problem) -> int:
+    """Random parameter points checked by default besides the corners.
+
+    :data:`DEFAULT_SAMPLES`, except for a time-dependent problem with space
+    coordinates (a reference of ~2 s per point): :data:`DEFAULT_SAMPLES_PDE`,
+    raised to the power of two at or above the element count of its finest
+    linear parameter coordinate. A scrambled Sobol sample of ``2^m`` points puts
+    one point in each of ``2^m`` equal intervals of every coordinate, so every
+    element of a uniform linear coordinate, where a wrong nodal value stays
+    local, is visited; a Chebyshev coordinate's nodal values act on its whole
+    interval, and the corners and any point see them.
+    """
+    if problem.time is None or not _space(problem):
+        return DEFAULT_SAMPLES
+    elements = max((c.nodes - 1 for c in _sampled(problem) if c.discretization == "linear"), default=1)
+    return min(DEFAULT_SAMPLES, max(DEFAULT_SAMPLES_PDE, 1 << (elements - 1).bit_length()))
 
 
 def _sample_box(problem, n: int, sampling: str, seed: int) -> dict[str, np.ndarray]:
@@ -448,7 +480,7 @@ def _evaluate_codebook_space(cb, samples: Mapping[str, np.ndarray], S: int, time
 def verify(
     codebook,
     *,
-    samples: int = 64,
+    samples: int | None = None,
     sampling: str = "sobol",
     seed: int = 0,
     points: str | os.PathLike | Mapping[str, object] | None = None,
@@ -469,8 +501,10 @@ def verify(
     Parameters
     ----------
     codebook : Codebook or path
-    samples : int
-        Random points of the parameter box (>= 1), in addition to its corners.
+    samples : int, optional
+        Random points of the parameter box (>= 1), in addition to its corners
+        [default: :data:`DEFAULT_SAMPLES`; :data:`DEFAULT_SAMPLES_PDE` for a
+        time-dependent problem with space coordinates].
     sampling : {'sobol', 'lhs'}
         Scrambled Sobol or Latin hypercube (``scipy.stats.qmc``).
     seed : int
@@ -521,7 +555,8 @@ def verify(
     from .reference import DEFAULT_SPACE_NODES, METHODS, PDE_METHODS, solve_reference, solve_reference_pde
 
     started = _time.perf_counter()
-    samples = _check_int("samples", samples, 1)
+    if samples is not None:
+        samples = _check_int("samples", samples, 1)
     times_count = _check_int("times", times, 0)
     seed = _check_int("seed", seed, 0)
     max_corners = _check_int("max_corners", max_corners, 0)
@@ -552,6 +587,8 @@ def verify(
     params = _sampled(problem)
     names = [c.name for c in params]
     space = [c.name for c in _space(problem)]
+    if samples is None:
+        samples = default_samples(problem)
     if space:
         method = method if method in PDE_METHODS else "BDF"
         rtol = 1e-10 if rtol is None else rtol
