@@ -316,3 +316,18 @@ def test_rigid_body_without_nodes_meets_its_tolerance():
     assert result.accurate is True, result.message
     report = pgdcli.verify(result.codebook, samples=64, seed=4, max_corners=32)
     assert max(e.max_abs_error for e in report.unknowns.values()) <= 1e-5
+
+
+def test_query_of_an_inaccurate_codebook_warns_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    spec = tmp_path / "coarse.yaml"
+    spec.write_text(COARSE)
+    out = tmp_path / "coarse.h5"
+    CliRunner().invoke(cli, ["solve", str(spec), "-o", str(out), "--keep-inaccurate", "-q"])
+    res = subprocess.run([sys.executable, "-c", "from pgdcli._query import main; main()", "query", str(out),
+                          "--t", "1", "--k", "2"], capture_output=True, text=True)
+    assert res.returncode == 0 and len(res.stdout.split()) == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Warning: ") and "misses its tolerance" in lines[0]

@@ -317,10 +317,22 @@ def run(argv: list[str]) -> int | None:
             handle.close()
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    text = " ".join(str(message).split())
+    try:
+        sys.stderr.write(f"Warning: {text}\n")
+    except OSError:
+        pass
+
+
 def main(argv=None) -> None:
     """Console-script entry point: the lean ``pgd query``, else the click command line."""
+    import warnings
+
     from . import guard
 
+    # a warning (an inaccurate codebook loaded) is one 'Warning:' line, not Python's file:line format
+    warnings.showwarning = _one_line_warning
     args = sys.argv[1:] if argv is None else list(argv)
     try:
         code = run(args)
