@@ -331,3 +331,28 @@ def test_query_of_an_inaccurate_codebook_warns_in_one_line(tmp_path):
     assert res.returncode == 0 and len(res.stdout.split()) == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Warning: ") and "misses its tolerance" in lines[0]
+
+
+def test_pde_check_reuses_its_reference_for_the_same_nodes(monkeypatch):
+    """An enrichment retried on the same nodes is checked against the same reference, computed once;
+    the codebook's values at the report's points are verify's own."""
+    from conftest import PROBLEMS
+
+    from pgdcli import check, verification
+
+    calls = []
+    real = verification.verify
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(verification, "verify", counted)
+    check._PDE_REFERENCES.clear()
+    result = pgdcli.solve(pgdcli.load_spec(PROBLEMS / "heat1d.yaml"))
+    assert result.accurate is True and result.codebook.report["enrichment_attempts"].shape[0] == 2
+    assert len(calls) == 1  # two enrichments, one reference
+    report = real(result.codebook, samples=check.PDE_SAMPLES, times=check.PDE_TIMES, max_corners=check.PDE_CORNERS,
+                  jobs=1, rtol=1e-12, atol=1e-12)
+    values = check.on_report_grid(result.codebook, report)
+    np.testing.assert_array_equal(values["u"], report.codebook_values["u"])
