@@ -270,7 +270,6 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     points, at_nodes = check_sample(problem, codebook, seed)
     lines, line = line_sample(problem, codebook, seed)
     names = list(points)
-    S0 = at_nodes.size
     if names:
         points = {n: np.concatenate([points[n], lines[n]]) for n in names}
     group = np.concatenate([np.where(at_nodes, -1, -2), line])  # -1 nodes, -2 uniform, j: line of coordinate j
