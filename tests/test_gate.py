@@ -356,3 +356,19 @@ def test_pde_check_reuses_its_reference_for_the_same_nodes(monkeypatch):
                   jobs=1, rtol=1e-12, atol=1e-12)
     values = check.on_report_grid(result.codebook, report)
     np.testing.assert_array_equal(values["u"], report.codebook_values["u"])
+
+
+def test_solve_json_and_info_report_the_same_nodes_chosen(tmp_path):
+    spec = tmp_path / "osc.yaml"
+    spec.write_text(OSCILLATOR)
+    out = tmp_path / "osc.h5"
+    runner = CliRunner()
+    res = runner.invoke(cli, ["solve", str(spec), "-o", str(out), "--format", "json", "-q"])
+    assert res.exit_code == 0, res.output
+    chosen = json.loads(res.stdout)["resolution"]
+    info = json.loads(runner.invoke(cli, ["info", str(out), "--format", "json"]).stdout)
+    assert chosen == info["nodes_chosen"] and chosen["automatic"] == ["t", "k", "c", "x0"]
+    assert chosen["rounds"][-1]["ratio"] <= 1.0 < chosen["rounds"][0]["ratio"]
+    text = runner.invoke(cli, ["info", str(out)]).stdout
+    k = " -> ".join(str(r["nodes"]["k"]) for r in chosen["rounds"])
+    assert f"k: {k}" in text

@@ -286,17 +286,14 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
 
 
 def _resolution_summary(cb) -> dict | None:
-    """Nodes tried per automatic coordinate and why the last solve ended (None without automatic ones)."""
-    import numpy as np
+    """``Codebook.nodes_chosen`` when the solver chose some nodes, else None."""
+    chosen = cb.nodes_chosen()
+    return chosen if chosen and chosen["automatic"] else None
 
-    rep = cb.report
-    auto = [n for n in str(rep.get("resolution_auto", "")).split(",") if n]
-    if not auto:
-        return None
-    rounds = np.asarray(rep["resolution_rounds"], dtype=float)
-    names = cb.coordinate_names
-    return {"automatic": {n: [int(v) for v in rounds[:, names.index(n)]] for n in auto},
-            "ratios": [_finite_or_none(v) for v in rounds[:, -1]], "reason": str(rep["resolution_reason"])}
+
+def _nodes_chosen_text(chosen: dict) -> str:
+    """``"t: 33 -> 33; p: 9 -> 17"``: the nodes of each automatic coordinate, solve by solve."""
+    return "; ".join(f"{c}: " + " -> ".join(str(r["nodes"][c]) for r in chosen["rounds"]) for c in chosen["automatic"])
 
 
 def _finite_or_none(value) -> float | None:
@@ -328,8 +325,7 @@ def _summary_table(summary: dict):
         table.add_row("max error", f"{summary['check_error']:.3e} at {points_text(summary['check_points'])} "
                                    f"vs scipy (tolerance {summary['tolerance']:.1e}), at {summary['check_where']}")
     if summary.get("resolution"):
-        table.add_row("nodes chosen", "; ".join(f"{c}: {' -> '.join(map(str, n))}"
-                                                for c, n in summary["resolution"]["automatic"].items()))
+        table.add_row("nodes chosen", _nodes_chosen_text(summary["resolution"]))
     if summary.get("method") == "march":
         if summary.get("failed_time") is not None:
             reached = f"t = {summary['failed_time']:.6g}"
@@ -460,9 +456,7 @@ def info(codebook, fmt):
             console.print(f"measured: {chk['method']}")
     if summary.get("nodes_chosen") and summary["nodes_chosen"]["automatic"]:
         chosen = summary["nodes_chosen"]
-        steps = "; ".join(f"{c}: " + " -> ".join(str(r["nodes"][c]) for r in chosen["rounds"])
-                          for c in chosen["automatic"])
-        console.print(f"nodes chosen: {steps} ({chosen['reason']})")
+        console.print(f"nodes chosen: {_nodes_chosen_text(chosen)} ({chosen['reason']})")
     console.print(f"{label}: {summary['residual']:.3e} ({state})")
     if summary.get("roundings") is not None:
         r = summary["roundings"]

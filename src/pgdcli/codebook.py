@@ -905,6 +905,18 @@ class Codebook:
             return None
         return bool(int(value))
 
+    def nodes_chosen(self) -> dict | None:
+        """The automatic resolution's solves: ``{"automatic": [names], "reason": str, "rounds": [{"nodes":
+        {coordinate: nodes}, "ratio": measured error / tolerance}]}``; None for a codebook without it."""
+        rep = self.report
+        if "resolution_rounds" not in rep:
+            return None
+        rounds = np.asarray(rep["resolution_rounds"], dtype=float)
+        auto = [n for n in str(rep.get("resolution_auto", "")).split(",") if n]
+        return {"automatic": auto, "reason": str(rep.get("resolution_reason", "")),
+                "rounds": [{"nodes": {c: int(n) for c, n in zip(self.coordinate_names, row[:-1])},
+                            "ratio": float(row[-1]) if np.isfinite(row[-1]) else None} for row in rounds]}
+
     # ------------------------------------------------------------------ summary
     def info(self, path: str | os.PathLike | None = None) -> dict:
         """Summary as plain Python data (what ``pgd info`` prints)."""
@@ -946,12 +958,7 @@ class Codebook:
             if "check_method" in rep:
                 out["check"]["method"] = str(rep["check_method"])
         if "resolution_rounds" in rep:
-            rounds = np.asarray(rep["resolution_rounds"], dtype=float)
-            auto = [n for n in str(rep.get("resolution_auto", "")).split(",") if n]
-            out["nodes_chosen"] = {"automatic": auto, "reason": str(rep.get("resolution_reason", "")),
-                                   "rounds": [{"nodes": {c: int(n) for c, n in zip(self.coordinate_names, row[:-1])},
-                                               "ratio": float(row[-1]) if np.isfinite(row[-1]) else None}
-                                              for row in rounds]}
+            out["nodes_chosen"] = self.nodes_chosen()
         if "resolution" in rep and "resolution_coordinates" in rep:
             names = str(rep["resolution_coordinates"]).split(",")
             table = np.asarray(rep["resolution"], dtype=float)
