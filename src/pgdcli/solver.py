@@ -1183,14 +1183,19 @@ def _measure(problem, result, tolerance: float, relative_tolerance: float):
 
     space = any(c.role == "space" for c in problem.coordinates)
     try:
-        if space or problem.time is None:
-            return check_codebook_pde(problem, result.codebook, tolerance=tolerance,
-                                      relative_tolerance=relative_tolerance)
-        return check_codebook(problem, result.codebook, tolerance=tolerance, relative_tolerance=relative_tolerance)
+        measure = check_codebook_pde if space or problem.time is None else check_codebook
+        check = measure(problem, result.codebook, tolerance=tolerance, relative_tolerance=relative_tolerance)
     except PgdError as exc:  # the reference cannot integrate this problem: say so, keep the solve
         reason = " ".join(str(exc).split())
         result.warnings.append(f"the codebook's error could not be checked against scipy: {reason}")
         return unchecked(reason, tolerance, relative_tolerance)
+    if check.failed and not check.points:
+        result.warnings.append(f"the reference integration failed at all {check.failed} check points: "
+                               f"the error is not measured")
+    elif check.failed:
+        result.warnings.append(f"the reference integration failed at {check.failed} of "
+                               f"{check.failed + check.points} check points; they are not in the measured error")
+    return check
 
 
 # The march's tolerance is checked (pgdcli.check): if the measured error at grid nodes exceeds
@@ -1246,13 +1251,6 @@ def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0
         steps += f", {len(attempts)} marches"
     rep["solver_message"] = steps
     kept.warnings.extend(notes)
-    check = kept.check
-    if check.failed and not check.points:
-        kept.warnings.append(f"the reference integration failed at all {check.failed} check points: "
-                             f"the error is not measured")
-    elif check.failed:
-        kept.warnings.append(f"the reference integration failed at {check.failed} of {check.failed + check.points} "
-                             f"check points; they are not in the measured error")
     return _with_resolution(kept, tolerance)
 
 
