@@ -372,3 +372,16 @@ def test_solve_json_and_info_report_the_same_nodes_chosen(tmp_path):
     text = runner.invoke(cli, ["info", str(out)]).stdout
     k = " -> ".join(str(r["nodes"]["k"]) for r in chosen["rounds"])
     assert f"k: {k}" in text
+
+
+def test_codebook_at_a_steady_report_grid_is_verifys_own():
+    """A steady problem (no time axis in the report): the values at the report's points are verify's."""
+    from conftest import PROBLEMS
+
+    from pgdcli import check
+
+    result = pgdcli.solve(pgdcli.load_spec(PROBLEMS / "poisson.yaml"))
+    report = pgdcli.verify(result.codebook, samples=check.PDE_SAMPLES, times=check.PDE_TIMES,
+                           max_corners=check.PDE_CORNERS, jobs=1, rtol=1e-12, atol=1e-12)
+    assert report.time is None and report.codebook_values["u"].ndim == 3  # (S, X, Y)
+    np.testing.assert_array_equal(check.on_report_grid(result.codebook, report)["u"], report.codebook_values["u"])

@@ -393,23 +393,14 @@ def _pde_reference(problem, codebook, seed: int):
 
 def on_report_grid(codebook, report) -> dict[str, np.ndarray]:
     """The codebook at a verify report's points: shape (S, [T,] X_1, ..., X_d) like its reference."""
-    space = list(report.space_points)
-    lead = 1 if report.time is None else 2
-    ndim = lead + len(space)
-    coords = {}
-    for c in codebook.coordinates:
-        shape = [1] * ndim
-        if c.name == report.time:
-            shape[1] = -1
-            coords[c.name] = np.asarray(report.times, dtype=float).reshape(shape)
-        elif c.name in report.space_points:
-            shape[lead + space.index(c.name)] = -1
-            coords[c.name] = report.space_points[c.name].reshape(shape)
-        else:
-            shape[0] = -1
-            coords[c.name] = np.asarray(report.samples[c.name], dtype=float).reshape(shape)
-    values = codebook.evaluate(coords, fields=list(report.reference))
-    return {u: np.broadcast_to(values[u], report.reference[u].shape) for u in report.reference}
+    from .verification import codebook_on_space_grid
+
+    steady = report.time is None
+    S = next(iter(report.reference.values())).shape[0]
+    times = np.zeros(1) if steady else np.asarray(report.times, dtype=float)  # verify's placeholder time
+    values = codebook_on_space_grid(codebook, report.samples, S, report.time, times, report.space_points,
+                                    list(report.reference))
+    return {u: v[:, 0] if steady else v for u, v in values.items()}
 
 
 def _where(report, index: tuple) -> dict:

@@ -447,9 +447,10 @@ def _statistics(coordinates, time, samples, times, ok, reference, approx, space_
     )
 
 
-def _evaluate_codebook_space(cb, samples: Mapping[str, np.ndarray], S: int, time: str, times: np.ndarray,
+def codebook_on_space_grid(cb, samples: Mapping[str, np.ndarray], S: int, time: str, times: np.ndarray,
                              space_points: Mapping[str, np.ndarray], unknowns) -> dict:
-    """Codebook values (S, T, X_1, ..., X_d) on the tensor grid of the space points."""
+    """Codebook values (S, T, X_1, ..., X_d) on the tensor grid of the space points (a steady problem:
+    ``time`` None and one placeholder time), in blocks of samples that bound the memory."""
     space = list(space_points)
     d = len(space)
     shape = tuple(space_points[c].size for c in space)
@@ -670,7 +671,7 @@ def verify(
                                      progress=report_progress, space_nodes=nodes)
         if time is None:  # the placeholder time axis, as the codebook values have it
             result.values = {u: v[:, None] for u, v in result.values.items()}
-        approx = _evaluate_codebook_space(cb, sample_points, S, time, all_times, space_grid, unknowns)
+        approx = codebook_on_space_grid(cb, sample_points, S, time, all_times, space_grid, unknowns)
         settings.update(
             space_points={n: int(space_grid[n].size) for n in space},
             random_space_points=random_space,
