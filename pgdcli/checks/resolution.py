@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .separated import orthogonal_sweep
-from .tt import tt_centre_cores
+from ..tensors.cp import orthogonal_sweep
+from ..tensors.tt import tt_centre_cores
 
 __all__ = ["resolution_tails"]
 
@@ -54,7 +54,7 @@ def resolution_tails(codebook) -> dict[str, dict[str, float]]:
     dict
         ``{unknown: {coordinate: rms tail}}``.
     """
-    from .codebook import FieldTT
+    from ..codebook.codebook import FieldTT
 
     coords = codebook.coordinates
     sizes = [c.nodes for c in coords]
