@@ -77,7 +77,7 @@ def time_vectorized(problem, points, times):
     return wall if values is not None else float("nan")
 
 
-#: As in tests/test_user_problems.py: Van der Pol is refused either way, sooner with this cap.
+#: As in tests/solve/test_user_problems.py: Van der Pol is refused either way, sooner with this cap.
 SETTINGS = {"vanderpol": "  max_nodes: 65\n"}
 
 

@@ -39,17 +39,17 @@ import time as _time
 import warnings
 from dataclasses import dataclass, field
 from functools import partial
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 import scipy.linalg
 
+from .algorithms.result import SolveResult
+from .codebook.codebook import Codebook, FieldModes
 from .discretization.basis import Basis1D
+from .discretization.coordinates import coordinate_infos
 from .errors import PgdError, SolverError
 from .tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
-
-if TYPE_CHECKING:  # annotations only
-    from .checks.check import CheckResult
 
 __all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
 
@@ -132,35 +132,6 @@ class Discretization:
             tf = np.vstack([np.zeros((1, state.shape[2])), state[s]])  # v(t0) = 0
             out[u] = [tf if c == self.time else params[c] for c in self.coordinates]
         return out
-
-
-def coordinate_infos(problem, *, march: bool):
-    """The codebook coordinates of a problem, the time coordinate's slabs resolved.
-
-    ``solver.time_slabs``: an integer N splits a Chebyshev time coordinate into N equal
-    slabs of ``nodes`` nodes each; ``auto`` is one slab for the enrichment solver, and for
-    the march one slab per accepted step (the provisional single slab returned here is
-    replaced once the steps are known).
-    """
-    from .codebook.codebook import CoordinateInfo
-
-    slabs = getattr(problem.solver, "time_slabs", 1)
-    out = []
-    for c in problem.coordinates:
-        info = CoordinateInfo(c.name, tuple(c.domain), c.nodes, c.discretization, c.role)
-        if len(c.breakpoints) > 2:  # elements: c.nodes per element
-            elements = len(c.breakpoints) - 1
-            info = CoordinateInfo(c.name, tuple(c.domain), elements * (c.nodes - 1) + 1, c.discretization, c.role,
-                                  tuple(c.breakpoints))
-        if c.name == problem.time and isinstance(slabs, int) and slabs > 1:
-            if c.discretization != "chebyshev":
-                raise SolverError(f"{problem.source}: solver.time_slabs: slabs need a chebyshev time coordinate, "
-                                  f"{c.name!r} is {c.discretization}")
-            breakpoints = tuple(np.linspace(c.domain[0], c.domain[1], slabs + 1))
-            info = CoordinateInfo(c.name, tuple(c.domain), slabs * (c.nodes - 1) + 1, c.discretization, c.role,
-                                  breakpoints)
-        out.append(info)
-    return out
 
 
 def _factor_values(term, basis_of: dict[str, Basis1D]) -> dict[str, np.ndarray]:
@@ -985,55 +956,6 @@ def _solve_batched(N: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------
 # driver
 # ----------------------------------------------------------------------------------------------
-@dataclass
-class SolveResult:
-    """Outcome of :func:`solve`.
-
-    Attributes
-    ----------
-    codebook : pgdcli.codebook.codebook.Codebook
-    converged : bool
-        True when the solver converged and the measured error meets the tolerance.
-    status : int
-        0 converged, 1 ``max_modes`` reached, 2 stagnated, 3 the march failed,
-        4 the measured error exceeds the tolerance (:data:`pgdcli.adapt.INACCURATE`).
-    message : str
-    residuals : ndarray, shape (n_modes + 1,)
-        Relative residual before the first mode and after each enrichment.
-    iterations : ndarray, shape (n_modes,)
-        Fixed-point iterations of each enrichment.
-    wall_time : float
-        Seconds.
-    warnings : list of str
-        Findings that do not stop the solve, e.g. a reference that could not
-        check the codebook.
-    check : pgdcli.checks.check.CheckResult or None
-        The error measured against the independent reference (None when the
-        solver did not converge).
-    accurate : bool or None
-        The measured error meets the tolerance (None: it could not be measured).
-    """
-
-    codebook: object
-    converged: bool
-    status: int
-    message: str
-    residuals: np.ndarray
-    iterations: np.ndarray
-    wall_time: float
-    warnings: list = field(default_factory=list)
-    check: "CheckResult | None" = None
-    accurate: bool | None = None
-
-    @property
-    def residual(self) -> float:
-        return float(self.residuals[-1])
-
-    @property
-    def n_modes(self) -> int:
-        return int(self.iterations.size)
-
-
 STAGNATION_WINDOW = 8
 
 
@@ -1114,7 +1036,6 @@ def _enrich(problem, residual_tolerance: float, nmax: int, callback) -> SolveRes
     else:
         message = (f"not converged: relative residual stagnated at {residual:.3g} (asked {tol:.3g}) "
                    f"after {state.rank} modes")
-    from .codebook.codebook import codebook_from_solution
 
     report = {
         "converged": converged,
@@ -1430,3 +1351,27 @@ def _extend_and_norm(prefix: np.ndarray | None, state: _State, j: int,
         return None, float(np.linalg.norm(k @ weights))
     extended = sweep_step(prefix, columns)
     return extended, float(np.linalg.norm((extended * weights) @ suffix.T))
+
+
+def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.ndarray], report: dict) -> Codebook:
+    """Assemble the codebook of a solved problem: lift terms + PGD terms per unknown."""
+    from . import __version__
+
+    coords = coordinate_infos(problem, march=False)
+    nodal = disc.nodal_factors(factors)
+    fields = {}
+    for u in disc.unknowns:
+        lift = disc.lift[u]
+        modes = nodal[u]
+        # a term whose time function (steady: its weight, in the first modes) vanishes for this
+        # unknown carries nothing for it
+        j = 0 if disc.time is None else [c.name for c in coords].index(disc.time)
+        keep = np.any(modes[j] != 0.0, axis=0) & (alphas != 0.0)
+        fields[u] = FieldModes(
+            np.concatenate([lift.weights, alphas[keep]]),
+            tuple(np.hstack([lf, nf[:, keep]]) for lf, nf in zip(lift.factors, modes)),
+        )
+    report = dict(report)
+    report["pgdcli_version"] = __version__
+    return Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
+                    description=problem.description)

@@ -31,3 +31,7 @@ class QueryError(PgdError):
 
 class SolverError(PgdError):
     """The solver cannot run on the given problem (not raised for non-convergence)."""
+
+
+class VerifyError(PgdError):
+    """Invalid verification request (options, points file)."""

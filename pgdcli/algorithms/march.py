@@ -35,10 +35,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..discretization.basis import Basis1D, _chebyshev_unit_nodes
+from ..discretization.basis import Basis1D, chebyshev_unit_nodes
+from ..discretization.coordinates import coordinate_infos
 from ..problem.expressions import Separable, SepTerm, merge_to_function
 from ..errors import SolverError
-from ..tensors.tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
+from ..tensors.tt import (TT, is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "march", "join_and_round",
@@ -273,8 +274,6 @@ def compile_system(problem) -> NonlinearSystem:
     unknowns = [u.name for u in problem.unknowns]
     index = {u: i for i, u in enumerate(unknowns)}
     params = [c.name for c in problem.coordinates if c.name != tname]
-    from ..driver import coordinate_infos
-
     bases = {info.name: info.basis() for info in coordinate_infos(problem, march=True)}
     if not params:  # one trajectory: march a train over a single virtual point
         params = [SINGLE_POINT]
@@ -383,7 +382,7 @@ def round_terms(per_unknown: list[list[tuple[float, TT, TT]]], delta: float, hin
     if all(implicit(terms) <= EXACT_RANK_LIMIT for terms in per_unknown):
         sums = []
         for terms in per_unknown:
-            parts = [a if _is_ones(b) else tt_hadamard(a, b) for _, a, b in terms]
+            parts = [a if is_ones(b) else tt_hadamard(a, b) for _, a, b in terms]
             sums.append(tt_sum(parts, [w for w, _, _ in terms]))
         if stats is not None:
             stats["exact"] = stats.get("exact", 0) + len(sums)
@@ -572,7 +571,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             raise MarchFailure("the solution blows up", t, y)
         t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
         if slab_nodes:  # the step is a slab: its Chebyshev-Lobatto nodes, the last one t_new
-            outs = list(t + h * (_chebyshev_unit_nodes(slab_nodes)[1:] + 1.0) / 2.0)
+            outs = list(t + h * (chebyshev_unit_nodes(slab_nodes)[1:] + 1.0) / 2.0)
             outs[-1] = t_new
             breakpoints.append(t_new)
         else:
@@ -709,7 +708,7 @@ def solve_march(problem, tolerance: float, callback=None):
         the end of the time domain.
     """
     from ..codebook.codebook import Codebook, CoordinateInfo, FieldTT
-    from ..driver import SolveResult
+    from .result import SolveResult
     from .. import __version__
 
     opts = problem.solver
@@ -733,8 +732,6 @@ def solve_march(problem, tolerance: float, callback=None):
     except MarchFailure as exc:
         failure = exc
     wall = _time.perf_counter() - started
-    from ..driver import coordinate_infos
-
     coords = coordinate_infos(problem, march=True)
     names = [c.name for c in problem.coordinates]
     single = system.params == [SINGLE_POINT]

@@ -17,10 +17,10 @@ The reference is scipy's DOP853 (one vectorized ``solve_ivp`` call,
 The sample of the parameter box has parts that fail for different reasons and
 are reported apart, so that the gate can name what is missing:
 
-* corners of the box (all of them up to :data:`CORNERS`, a seeded subset beyond)
+* corners of the box (all of them up to :data:`~pgdcli.checks.sampling.CORNERS`, a seeded subset beyond)
   and grid nodes on edges and faces, at the time nodes: the solver's own error,
   which a tighter solve reduces (``node_ratio``);
-* per parameter coordinate, :data:`LINE` points off the nodes in that coordinate
+* per parameter coordinate, :data:`~pgdcli.checks.sampling.LINE` points off the nodes in that coordinate
   only, the others at nodes: that coordinate's interpolation error, which only
   more nodes in it reduce (``coordinate_ratio[name]``);
 * the node points at the midpoints between time nodes: the time interpolation
@@ -36,14 +36,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .compare import codebook_at_samples, codebook_on_space_grid
+from .sampling import BETWEEN, LINE, check_sample, line_sample, nodes_and_midpoints
+
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
            "points_text", "unchecked"]
-
-CORNERS = 64
-FACE_NODES = 96
-BETWEEN = 96
-LINE = 16
-
 
 @dataclass
 class CheckResult:
@@ -126,102 +123,6 @@ def points_text(n: int) -> str:
     return f"{n} check point" + ("s" if n != 1 else "")
 
 
-def _parameter_nodes(problem, codebook) -> tuple[list[str], list[np.ndarray]]:
-    names = [c.name for c in problem.parameter_coordinates]
-    return names, [codebook.coordinate(n).basis().nodes for n in names]
-
-
-def check_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Corners, face nodes and uniform points of the parameter box, and which of them are grid nodes.
-
-    Returns
-    -------
-    points : dict of str to ndarray, shape (S,)
-        A value per point for every parameter coordinate (``{}`` when there are none: one point).
-    at_nodes : ndarray of bool, shape (S,)
-    """
-    names, nodes = _parameter_nodes(problem, codebook)
-    if not names:
-        return {}, np.ones(1, dtype=bool)
-    rng = np.random.default_rng([seed, 11])
-    m = len(names)
-    last = [len(x) - 1 for x in nodes]
-    if 2**m <= CORNERS:
-        ends = (np.arange(2**m)[:, None] >> np.arange(m)[None, :]) & 1
-    else:
-        ends = np.unique(rng.integers(0, 2, size=(4 * CORNERS, m)), axis=0)
-        ends = ends[rng.permutation(ends.shape[0])[:CORNERS]]
-    corner_index = np.where(ends == 1, last, 0)
-    face_index = np.column_stack([rng.integers(0, len(x), FACE_NODES) for x in nodes])
-    on_end = rng.random((FACE_NODES, m)) < 0.5
-    face_index = np.where(on_end, np.where(rng.random((FACE_NODES, m)) < 0.5, 0, last), face_index)
-    index = np.unique(np.vstack([corner_index, face_index]), axis=0)
-    at_grid = {n: x[index[:, j]] for j, (n, x) in enumerate(zip(names, nodes))}
-    between = {n: rng.uniform(*problem.coordinate(n).domain, size=BETWEEN) for n in names}
-    points = {n: np.concatenate([at_grid[n], between[n]]) for n in names}
-    at_nodes = np.concatenate([np.ones(index.shape[0], dtype=bool), np.zeros(BETWEEN, dtype=bool)])
-    return points, at_nodes
-
-
-def line_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Points off the nodes in one parameter coordinate only, :data:`LINE` per coordinate.
-
-    The off-node value is the midpoint of a random node interval moved by up to a
-    quarter of it (the interpolation error of a polynomial peaks between nodes);
-    the other coordinates sit at random nodes, half of them at an end.
-
-    Returns
-    -------
-    points : dict of str to ndarray, shape (L,)
-    line : ndarray of int, shape (L,)
-        Index (into ``problem.parameter_coordinates``) of the coordinate off its nodes.
-    """
-    names, nodes = _parameter_nodes(problem, codebook)
-    if not names:
-        return {}, np.zeros(0, dtype=int)
-    rng = np.random.default_rng([seed, 13])
-    cols = {n: [] for n in names}
-    counts = []
-    for j, (n, x) in enumerate(zip(names, nodes)):
-        k = _line_intervals(codebook.coordinate(n), x, rng)
-        size = k.size
-        counts.append(size)
-        cols[n].append(x[k] + (x[k + 1] - x[k]) * (0.5 + rng.uniform(-0.25, 0.25, size)))
-        for n2, x2 in zip(names, nodes):
-            if n2 != n:
-                idx = rng.integers(0, len(x2), size)
-                ends = rng.random(size) < 0.5
-                cols[n2].append(np.where(ends, x2[np.where(rng.random(size) < 0.5, 0, len(x2) - 1)], x2[idx]))
-    points = {n: np.concatenate(c) for n, c in cols.items()}
-    return points, np.repeat(np.arange(len(names)), counts)
-
-
-def _line_intervals(info, x: np.ndarray, rng) -> np.ndarray:
-    """Node intervals to sample off the nodes: :data:`LINE` random ones, and 2 in every element.
-
-    Elements are refined where their own points show the error (:mod:`pgdcli.adapt`), so
-    each needs points of its own however small it is.
-    """
-    k = rng.integers(0, len(x) - 1, LINE)
-    bp = getattr(info, "breakpoints", ())
-    if len(bp) <= 2:
-        return k
-    per = (len(x) - 1) // (len(bp) - 1)  # node intervals per element
-    first = np.arange(len(bp) - 1) * per
-    extra = first[:, None] + rng.integers(0, per, (first.size, 2))
-    return np.concatenate([k, extra.ravel()])
-
-
-def _check_times(codebook, time: str) -> tuple[np.ndarray, np.ndarray]:
-    """The time nodes and the midpoints between them, sorted, and which are nodes."""
-    nodes = np.asarray(codebook.coordinate(time).basis().nodes, dtype=float)
-    mids = 0.5 * (nodes[1:] + nodes[:-1])
-    times = np.concatenate([nodes, mids])
-    order = np.argsort(times, kind="stable")
-    is_node = np.concatenate([np.ones(nodes.size, bool), np.zeros(mids.size, bool)])
-    return times[order], is_node[order]
-
-
 def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float):
     """Reference values ``{unknown: (S, T)}`` and a success mask ``(S,)``.
 
@@ -237,14 +138,6 @@ def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: fl
         return values, np.ones(S, dtype=bool)
     ref = solve_reference(problem, points, times, method="DOP853", rtol=max(rtol, 1e-12), atol=max(atol, 1e-12))
     return ref.values, np.asarray(ref.success, dtype=bool)
-
-
-def _on_sample(codebook, points, time: str, times: np.ndarray, unknowns) -> dict[str, np.ndarray]:
-    """Codebook values ``{unknown: (S, T)}`` at every point of the sample and every time."""
-    S = len(next(iter(points.values()))) if points else 1
-    coords = {c.name: (times[None, :] if c.name == time else points[c.name][:, None]) for c in codebook.coordinates}
-    values = codebook.evaluate(coords, fields=list(unknowns))
-    return {u: np.broadcast_to(values[u], (S, times.size)) for u in unknowns}
 
 
 def check_codebook(problem, codebook, *, tolerance: float | None = None, relative_tolerance: float = 0.0,
@@ -274,11 +167,11 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
         points = {n: np.concatenate([points[n], lines[n]]) for n in names}
     group = np.concatenate([np.where(at_nodes, -1, -2), line])  # -1 nodes, -2 uniform, j: line of coordinate j
     time = problem.time
-    times, time_node = _check_times(codebook, time)
+    times, time_node = nodes_and_midpoints(codebook, time)
     S = group.size if names else 1
     reference, ok = _reference(problem, points, S, times, rtol, atol)
     unknowns = [u.name for u in problem.unknowns]
-    approx = _on_sample(codebook, points, time, times, unknowns)
+    approx = codebook_at_samples(codebook, points, time, times, unknowns)
     err = np.zeros((S, times.size))
     ratio = np.zeros((S, times.size))
     per_unknown = {}
@@ -393,8 +286,6 @@ def _pde_reference(problem, codebook, seed: int):
 
 def on_report_grid(codebook, report) -> dict[str, np.ndarray]:
     """The codebook at a verify report's points: shape (S, [T,] X_1, ..., X_d) like its reference."""
-    from .verify import codebook_on_space_grid
-
     steady = report.time is None
     S = next(iter(report.reference.values())).shape[0]
     times = np.zeros(1) if steady else np.asarray(report.times, dtype=float)  # verify's placeholder time

@@ -1,7 +1,7 @@
 """``pgd query`` without click: argument parsing and the lean command.
 
 ``pgd query`` is called in loops, so its start-up time is part of its cost.
-This module does what the click command :func:`pgdcli.cli.main.query` does, with
+This module does what the click command :func:`pgdcli.cli.query_command.query` does, with
 the same helpers (defined here and in :mod:`pgdcli.cli.stream`, used by both), but
 imports only numpy and :mod:`pgdcli.codebook.codebook` (h5py when the codebook is read);
 csv and json only when needed. No click, no rich, no scipy.
@@ -11,7 +11,7 @@ malformed option, any error found before the first chunk of output -- makes it
 return ``None`` having printed nothing, so that the click command runs instead
 and does the reporting (stdin read so far is handed to click unchanged). What
 is printed, for success and for failure, is byte for byte what the click
-command prints (checked by ``tests/test_query_fastpath.py``); an error after
+command prints (checked by ``tests/cli/test_query_fastpath.py``); an error after
 output has begun is reported here with the same bytes.
 """
 
@@ -23,7 +23,7 @@ import sys
 
 from ..errors import QueryError
 
-__all__ = ["run", "main", "UsageProblem"]
+__all__ = ["run", "UsageProblem", "one_line_error"]
 
 FORMATS = ("plain", "csv", "json")
 _VALUE_OPTIONS = ("--format", "--field", "--points")
@@ -195,7 +195,7 @@ def point_chunks(cb, points: str | None, rest: list[str], stdin=None):
     return stream.read_points(handle, source, cb), (handle if points != "-" else None)
 
 
-def _one_line_error(message: str) -> None:
+def one_line_error(message: str) -> None:
     sys.stderr.write(f"Error: {' '.join(str(message).split())}\n")
 
 
@@ -213,7 +213,7 @@ def _stream_rest(writer, chunks, text: str) -> int:
     except PgdError as exc:
         error = guard.flush_stdout()
         if error is None:
-            _one_line_error(str(exc))
+            one_line_error(str(exc))
             return guard.EXIT_USAGE
         exc = error
     except BrokenPipeError as exc_:
@@ -230,7 +230,7 @@ def _stream_rest(writer, chunks, text: str) -> int:
     if isinstance(exc, BrokenPipeError):
         # a pipeline reader went away (e.g. `pgd query ... | head`): not an error
         return guard.EXIT_OK
-    _one_line_error(guard.output_error_message(exc, "to stdout"))
+    one_line_error(guard.output_error_message(exc, "to stdout"))
     return guard.EXIT_USAGE
 
 
@@ -315,37 +315,3 @@ def run(argv: list[str]) -> int | None:
     finally:
         if handle is not None:
             handle.close()
-
-
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    text = " ".join(str(message).split())
-    try:
-        sys.stderr.write(f"Warning: {text}\n")
-    except OSError:
-        pass
-
-
-def main(argv=None) -> None:
-    """Console-script entry point: the lean ``pgd query``, else the click command line."""
-    import warnings
-
-    from . import guard
-
-    # a warning (an inaccurate codebook loaded) is one 'Warning:' line, not Python's file:line format
-    warnings.showwarning = _one_line_warning
-    args = sys.argv[1:] if argv is None else list(argv)
-    try:
-        code = run(args)
-    except KeyboardInterrupt:
-        sys.stderr.write("Error: interrupted\n")
-        sys.exit(guard.EXIT_INTERRUPTED)
-    except Exception as exc:  # noqa: BLE001 - the guard of the lean path (output had begun)
-        if guard.debug_enabled():
-            raise
-        _one_line_error(guard.internal_error_message(exc))
-        sys.exit(guard.EXIT_INTERNAL)
-    if code is not None:
-        sys.exit(code)
-    from .main import cli
-
-    cli.main(args=argv, prog_name="pgd")

@@ -20,125 +20,21 @@ import datetime as _dt
 import os
 import threading
 from bisect import bisect_right
-from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..discretization.basis import KINDS, make_basis
+from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError, QueryError
-
-# pathlib and tempfile are imported by save() only: pgd query never writes
+from . import io as codebook_io
+from .fields import FieldModes, FieldTT, field_summary, validate_field
+from .io import FORMAT_NAME, FORMAT_VERSION
 
 __all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "FieldModes", "FieldTT", "FORMAT_NAME", "FORMAT_VERSION"]
-
-FORMAT_NAME = "pgdcli-codebook"
-FORMAT_VERSION = "1.0"
-_SUPPORTED_MAJOR = 1
 
 
 class InaccurateCodebookWarning(UserWarning):
     """A codebook loaded from a file marked as missing its tolerance (``pgd solve --keep-inaccurate``)."""
-
-
-@dataclass(frozen=True)
-class CoordinateInfo:
-    """A coordinate of the codebook: name, domain, nodes, discretization and role."""
-
-    name: str
-    domain: tuple[float, float]
-    nodes: int
-    discretization: str = "chebyshev"
-    role: str = "parameter"  # 'time' | 'parameter'
-    breakpoints: tuple = ()  # slab boundaries of a piecewise Chebyshev coordinate; () = one slab
-
-    def basis(self):
-        return make_basis(self.discretization, self.domain, self.nodes, self.breakpoints or None)
-
-
-@dataclass(frozen=True, eq=False)
-class FieldModes:
-    """Separated representation of one unknown (weights + one mode matrix per coordinate).
-
-    Parameters
-    ----------
-    alphas : ndarray, shape (n,)
-    modes : tuple of ndarray, each shape (nodes_j, n)
-    """
-
-    alphas: np.ndarray
-    modes: tuple[np.ndarray, ...]
-
-    @property
-    def rank(self) -> int:
-        return int(self.alphas.size)
-
-
-@dataclass(frozen=True, eq=False)
-class FieldTT:
-    """Tensor-train representation of one unknown (the nonlinear solver's codebooks).
-
-    ``u(x) = G_1[:, x_{o_1}, :] G_2[:, x_{o_2}, :] ... G_d[:, x_{o_d}, :]`` where the
-    cores are in the coordinate order ``mode_order`` and each core's middle
-    index runs over the nodes of its coordinate (interpolated like the CP modes).
-
-    Parameters
-    ----------
-    cores : tuple of ndarray, each shape (r_{k-1}, nodes, r_k), r_0 = r_d = 1
-    mode_order : tuple of int
-        Coordinate index of each core.
-    """
-
-    cores: tuple[np.ndarray, ...]
-    mode_order: tuple[int, ...]
-
-    @property
-    def rank(self) -> int:
-        """Largest tensor-train rank (reported as 'modes' for a quick comparison)."""
-        return int(max(c.shape[2] for c in self.cores[:-1])) if len(self.cores) > 1 else 1
-
-    @property
-    def ranks(self) -> tuple[int, ...]:
-        return tuple(int(c.shape[2]) for c in self.cores[:-1])
-
-    @property
-    def size(self) -> int:
-        return int(sum(c.size for c in self.cores))
-
-
-def _validate_tt(name: str, coordinates: Sequence[CoordinateInfo], fm: FieldTT) -> None:
-    if sorted(fm.mode_order) != list(range(len(coordinates))):
-        raise CodebookError(f"unknown {name!r}: tensor-train mode order {list(fm.mode_order)} is not a permutation "
-                            f"of the {len(coordinates)} coordinates")
-    left = 1
-    for k, (core, j) in enumerate(zip(fm.cores, fm.mode_order)):
-        c = coordinates[j]
-        if core.ndim != 3 or core.shape[0] != left or core.shape[1] != c.nodes:
-            raise CodebookError(f"unknown {name!r}: core {k} ({c.name!r}) has shape {core.shape}, expected "
-                                f"({left}, {c.nodes}, r)")
-        left = core.shape[2]
-        if not np.all(np.isfinite(core)):
-            raise CodebookError(f"unknown {name!r}: core {k} ({c.name!r}) contains non-finite values")
-    if left != 1:
-        raise CodebookError(f"unknown {name!r}: the last core's right rank is {left}, expected 1")
-
-
-def _validate(name: str, coordinates: Sequence[CoordinateInfo], fm) -> None:
-    if isinstance(fm, FieldTT):
-        _validate_tt(name, coordinates, fm)
-        return
-    if fm.alphas.ndim != 1:
-        raise CodebookError(f"unknown {name!r}: alphas must be 1D, got shape {fm.alphas.shape}")
-    if len(fm.modes) != len(coordinates):
-        raise CodebookError(f"unknown {name!r}: {len(fm.modes)} mode matrices for {len(coordinates)} coordinates")
-    for j, (c, m) in enumerate(zip(coordinates, fm.modes)):
-        if m.shape != (c.nodes, fm.rank):
-            raise CodebookError(
-                f"unknown {name!r}: modes of coordinate {j} ({c.name!r}) have shape {m.shape}, "
-                f"expected ({c.nodes}, {fm.rank})"
-            )
-    if not (np.all(np.isfinite(fm.alphas)) and all(np.all(np.isfinite(m)) for m in fm.modes)):
-        raise CodebookError(f"unknown {name!r}: alphas or modes contain non-finite values")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -558,7 +454,7 @@ class Codebook:
         if not self.fields:
             raise CodebookError("a codebook needs at least one unknown")
         for uname, fm in self.fields.items():
-            _validate(uname, self.coordinates, fm)
+            validate_field(uname, self.coordinates, fm)
         self.name = name
         self.spec_text = spec_text
         self.description = description
@@ -932,7 +828,7 @@ class Codebook:
                  **({"elements": len(c.breakpoints) - 1} if c.breakpoints and c.role != "time" else {})}
                 for c in self.coordinates
             ],
-            "unknowns": {u: _field_summary(fm) for u, fm in self.fields.items()},
+            "unknowns": {u: field_summary(fm) for u, fm in self.fields.items()},
             "method": str(rep.get("method", "pgd")),
             "converged": bool(rep.get("converged", False)),
             "accurate": self.accurate,
@@ -968,87 +864,14 @@ class Codebook:
             out["size_bytes"] = os.path.getsize(path)
         return out
 
-    # ------------------------------------------------------------------ I/O
+    # ------------------------------------------------------------------ I/O (pgdcli.codebook.io)
     def save(self, path: str | os.PathLike) -> "os.PathLike":
         """Write the codebook to ``path`` atomically (temporary file + rename).
 
         A crash or error while writing leaves any previous file at ``path``
         untouched and no partial file behind.
         """
-        import tempfile
-        from pathlib import Path
-
-        import h5py
-
-        path = Path(path)
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        except OSError as exc:
-            raise CodebookError(f"{path}: cannot write the codebook ({_one_line(exc)})") from None
-        os.close(fd)
-        try:
-            # mkstemp creates 0600; a codebook gets the usual permissions (umask applies)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-            with h5py.File(tmp, "w") as f:
-                self._write(f)
-            with open(tmp, "rb+") as fh:
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException as exc:
-            try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            if isinstance(exc, OSError):
-                raise CodebookError(f"{path}: cannot write the codebook ({_one_line(exc)})") from None
-            raise
-        return path
-
-    def _write(self, f) -> None:
-        from .. import __version__
-
-        f.attrs["encoding-type"] = FORMAT_NAME
-        f.attrs["encoding-version"] = FORMAT_VERSION
-        f.attrs["pgdcli-version"] = __version__
-        f.attrs["name"] = self.name
-        f.attrs["description"] = self.description
-        f.attrs["created"] = self.created
-        f.attrs["coordinate-order"] = np.array(self.coordinate_names, dtype=object)
-        f.attrs["unknown-order"] = np.array(self.unknown_names, dtype=object)
-        f.create_dataset("spec", data=self.spec_text)
-        gc = f.create_group("coordinates")
-        for c in self.coordinates:
-            g = gc.create_group(c.name)
-            g.attrs["domain"] = np.array(c.domain, dtype=float)
-            g.attrs["discretization"] = c.discretization
-            g.attrs["role"] = c.role
-            if c.breakpoints:
-                g.attrs["breakpoints"] = np.array(c.breakpoints, dtype=float)
-            g.create_dataset("nodes", data=c.basis().nodes)
-        gu = f.create_group("unknowns")
-        for u, fm in self.fields.items():
-            g = gu.create_group(u)
-            if isinstance(fm, FieldTT):
-                g.attrs["representation"] = "tensor-train"
-                g.attrs["mode-order"] = np.array([self.coordinates[j].name for j in fm.mode_order], dtype=object)
-                gc = g.create_group("cores")
-                for j, core in zip(fm.mode_order, fm.cores):
-                    gc.create_dataset(self.coordinates[j].name, data=core)
-                continue
-            g.attrs["representation"] = "cp"
-            g.create_dataset("alphas", data=fm.alphas)
-            gm = g.create_group("modes")
-            for c, m in zip(self.coordinates, fm.modes):
-                gm.create_dataset(c.name, data=m)
-        gr = f.create_group("report")
-        for key, value in self.report.items():
-            if isinstance(value, np.ndarray):
-                gr.create_dataset(key, data=value)
-            elif value is not None:
-                gr.attrs[key] = value
+        return codebook_io.save(self, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Codebook":
@@ -1060,102 +883,13 @@ class Codebook:
             The file is missing, not HDF5, truncated, not a codebook, of an
             unknown major version, or inconsistent.
         """
-        import h5py
-
-        p = str(path)
-        if not os.path.exists(p):
-            raise CodebookError(f"{p}: no such file")
-        if os.path.isdir(p):
-            raise CodebookError(f"{p}: is a directory, expected a codebook file (.h5)")
-        try:
-            f = h5py.File(p, "r")
-        except OSError:
-            raise CodebookError(f"{p}: not a readable HDF5 file (truncated or not a codebook)") from None
-        try:
-            with f:
-                cb = cls._read(f, p)
-        except CodebookError:
-            raise
-        except (KeyError, OSError, ValueError, TypeError) as exc:
-            raise CodebookError(f"{p}: corrupt codebook ({_one_line(exc)})") from None
+        cb = cls(**codebook_io.load_parts(path, _basis))
         if cb.accurate is False:
             import warnings
 
-            warnings.warn(f"{p}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was written "
-                          f"with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
+            warnings.warn(f"{path}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was "
+                          f"written with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
         return cb
-
-    @classmethod
-    def _read(cls, f, p: str) -> "Codebook":
-        kind = _attr_str(f.attrs.get("encoding-type"))
-        if kind != FORMAT_NAME:
-            raise CodebookError(f"{p}: not a pgdcli codebook (encoding-type {kind!r}, expected {FORMAT_NAME!r})")
-        version = _attr_str(f.attrs.get("encoding-version"))
-        try:
-            major = int(version.split(".")[0])
-        except (ValueError, AttributeError):
-            raise CodebookError(f"{p}: unreadable encoding-version {version!r}") from None
-        if major > _SUPPORTED_MAJOR:
-            raise CodebookError(
-                f"{p}: codebook format {version} is newer than this pgdcli supports "
-                f"({_SUPPORTED_MAJOR}.x); upgrade pgdcli (pip install -U pgdcli)"
-            )
-        if major < 1:
-            raise CodebookError(f"{p}: unsupported codebook format {version}")
-        coord_names = [_attr_str(x) for x in f.attrs["coordinate-order"]]
-        unknown_names = [_attr_str(x) for x in f.attrs["unknown-order"]]
-        coords = []
-        for name in coord_names:
-            g = f["coordinates"][name]
-            domain = tuple(float(v) for v in g.attrs["domain"])
-            kind_ = _attr_str(g.attrs["discretization"])
-            if kind_ not in KINDS:
-                raise CodebookError(f"{p}: coordinate {name!r} has unknown discretization {kind_!r}")
-            nodes = g["nodes"][()]
-            breakpoints = tuple(float(v) for v in g.attrs.get("breakpoints", ()))
-            info = CoordinateInfo(name, domain, int(nodes.size), kind_, _attr_str(g.attrs.get("role", "parameter")),
-                                  breakpoints)
-            if not np.array_equal(_basis(info).nodes, nodes):  # built once: the codebook reuses it
-                raise CodebookError(f"{p}: stored nodes of coordinate {name!r} do not match its {kind_} basis")
-            coords.append(info)
-        fields = {}
-        for u in unknown_names:
-            g = f["unknowns"][u]
-            representation = _attr_str(g.attrs.get("representation", "cp"))
-            if representation == "tensor-train":
-                order = [_attr_str(x) for x in g.attrs["mode-order"]]
-                unknown_coords = [c for c in order if c not in coord_names]
-                if unknown_coords:
-                    raise CodebookError(f"{p}: unknown {u!r}: tensor-train core for unknown coordinate "
-                                        f"{unknown_coords[0]!r}")
-                cores = tuple(np.asarray(g["cores"][c][()], dtype=float) for c in order)
-                fields[u] = FieldTT(cores, tuple(coord_names.index(c) for c in order))
-                continue
-            if representation != "cp":
-                raise CodebookError(f"{p}: unknown {u!r} has representation {representation!r}, which this "
-                                    f"pgdcli does not know; upgrade pgdcli (pip install -U pgdcli)")
-            modes = tuple(np.asarray(g["modes"][c][()], dtype=float) for c in coord_names)
-            fields[u] = FieldModes(np.asarray(g["alphas"][()], dtype=float).reshape(-1), modes)
-        report = {}
-        if "report" in f:
-            gr = f["report"]
-            report.update({k: _attr_value(v) for k, v in gr.attrs.items()})
-            report.update({k: gr[k][()] for k in gr.keys()})
-        spec = f["spec"][()] if "spec" in f else b""
-        return cls(
-            coords, fields,
-            name=_attr_str(f.attrs.get("name", "codebook")),
-            spec_text=spec.decode() if isinstance(spec, bytes) else str(spec),
-            report=report,
-            description=_attr_str(f.attrs.get("description", "")),
-            created=_attr_str(f.attrs.get("created", "")) or None,
-        )
-
-
-def _field_summary(fm) -> dict:
-    if isinstance(fm, FieldTT):
-        return {"representation": "tensor-train", "modes": fm.rank, "ranks": list(fm.ranks), "floats": fm.size}
-    return {"representation": "cp", "modes": fm.rank, "floats": int(fm.alphas.size + sum(m.size for m in fm.modes))}
 
 
 _TT_CHUNK = 2048  # points per block: keeps the (points, nodes, rank) intermediates in cache
@@ -1209,49 +943,3 @@ def _grid_cp(fm: FieldModes, mats: list[np.ndarray]) -> np.ndarray:
     sizes = [v.shape[0] for j, v in enumerate(vs) if j != last]
     grid = (block @ vs[last].T).reshape(sizes + [vs[last].shape[0]])  # the longest axis last
     return np.moveaxis(grid, -1, last)
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
-
-
-def _attr_str(v) -> str:
-    if isinstance(v, bytes):
-        return v.decode()
-    if v is None:
-        return ""
-    return str(v)
-
-
-def _attr_value(v):
-    if isinstance(v, bytes):
-        return v.decode()
-    if isinstance(v, np.generic):
-        return v.item()
-    return v
-
-
-def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.ndarray], report: dict) -> Codebook:
-    """Assemble the codebook of a solved problem: lift terms + PGD terms per unknown."""
-    from .. import __version__
-
-    from ..driver import coordinate_infos
-
-    coords = coordinate_infos(problem, march=False)
-    nodal = disc.nodal_factors(factors)
-    fields = {}
-    for u in disc.unknowns:
-        lift = disc.lift[u]
-        modes = nodal[u]
-        # a term whose time function (steady: its weight, in the first modes) vanishes for this
-        # unknown carries nothing for it
-        j = 0 if disc.time is None else [c.name for c in coords].index(disc.time)
-        keep = np.any(modes[j] != 0.0, axis=0) & (alphas != 0.0)
-        fields[u] = FieldModes(
-            np.concatenate([lift.weights, alphas[keep]]),
-            tuple(np.hstack([lf, nf[:, keep]]) for lf, nf in zip(lift.factors, modes)),
-        )
-    report = dict(report)
-    report["pgdcli_version"] = __version__
-    return Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
-                    description=problem.description)

@@ -37,6 +37,7 @@ import json
 import re
 
 from ..errors import PgdError
+from .fields import FieldTT
 
 __all__ = ["ExportError", "TARGETS", "DEFAULT_LIMIT", "layout", "export", "size_of"]
 
@@ -69,7 +70,7 @@ def layout(cb) -> dict:
         coords.append(entry)
     unknowns = []
     for u, fm in cb.fields.items():
-        if hasattr(fm, "cores"):
+        if isinstance(fm, FieldTT):
             unknowns.append({"name": u, "representation": "tt", "mode_order": [int(j) for j in fm.mode_order],
                              "shapes": [list(map(int, core.shape)) for core in fm.cores],
                              "cores": [core.reshape(-1).tolist() for core in fm.cores]})

@@ -23,6 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis
+from .fields import FieldTT
 
 __all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
 
@@ -104,7 +105,7 @@ def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[
     out = {}
     for u in selected:
         fm = fields[u]
-        if hasattr(fm, "cores"):
+        if isinstance(fm, FieldTT):
             out[u] = [_tt_points(fm, _swap(mats, j, dmats[j])) for j in wrt]
         else:
             vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P, rank)
@@ -160,7 +161,7 @@ def gradient_grid(fields, bases, axes, wrt: Sequence[int], selected: Sequence[st
     out = {}
     for u in selected:
         fm = fields[u]
-        grid = _tt_grid if hasattr(fm, "cores") else _cp_grid
+        grid = _tt_grid if isinstance(fm, FieldTT) else _cp_grid
         out[u] = [grid(fm, m) for m in variants]
     return out
 
@@ -221,14 +222,14 @@ class TrajectoryModel:
         self.fields = [codebook.fields[u] for u in fields]
         rows = self.bases[self.axis].interpolation_matrix(np.asarray(values, dtype=float))
         # per unknown: the axis's modes (P, R) or its core contracted with the rows (P, r0, r1)
-        self.axis_blocks = [rows @ fm.modes[self.axis] if not hasattr(fm, "cores") else
+        self.axis_blocks = [rows @ fm.modes[self.axis] if not isinstance(fm, FieldTT) else
                             np.tensordot(rows, fm.cores[list(fm.mode_order).index(self.axis)], axes=(1, 1))
                             for fm in self.fields]
         # tensor trains: each other core as (nodes, r0 * r1) (left of the axis) or (nodes, r1 * r0)
         # (right of it, transposed), so that weights times it is one matrix-vector product
         self.unfolded = []
         for fm in self.fields:
-            if not hasattr(fm, "cores"):
+            if not isinstance(fm, FieldTT):
                 self.unfolded.append(None)
                 continue
             k = list(fm.mode_order).index(self.axis)

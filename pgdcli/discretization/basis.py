@@ -34,6 +34,7 @@ __all__ = [
     "PiecewiseChebyshevBasis",
     "LinearBasis",
     "make_basis",
+    "chebyshev_unit_nodes",
     "KINDS",
 ]
 
@@ -101,7 +102,8 @@ class Basis1D:
         raise NotImplementedError
 
 
-def _chebyshev_unit_nodes(n: int) -> np.ndarray:
+def chebyshev_unit_nodes(n: int) -> np.ndarray:
+    """The n Chebyshev-Lobatto points on [-1, 1], ascending, shape (n,)."""
     # sin form of -cos(pi j / (n - 1)): symmetric to the last bit, exact 0 at the centre
     m = n - 1
     return np.sin(np.pi * (2.0 * np.arange(n) - m) / (2.0 * m))
@@ -149,7 +151,7 @@ class ChebyshevBasis(Basis1D):
             raise ValueError(f"a Chebyshev basis needs at least 2 nodes, got {n}")
         low, high = map(float, self.domain)
         object.__setattr__(self, "kind", "chebyshev")
-        object.__setattr__(self, "nodes", _map_to_domain(_chebyshev_unit_nodes(n), (low, high)))
+        object.__setattr__(self, "nodes", _map_to_domain(chebyshev_unit_nodes(n), (low, high)))
         object.__setattr__(self, "weights", _clenshaw_curtis_unit_weights(n) * (high - low) / 2.0)
         bary = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
         bary[0] *= 0.5
@@ -313,7 +315,7 @@ class PiecewiseChebyshevBasis(Basis1D):
             raise ValueError(f"{n} nodes do not make {slabs} slabs of equal node counts")
         m = (n - 1) // slabs + 1
         bp[0], bp[-1] = float(self.domain[0]), float(self.domain[1])
-        unit = _chebyshev_unit_nodes(m)
+        unit = chebyshev_unit_nodes(m)
         nodes, weights = np.empty(n), np.zeros(n)
         local_w = _clenshaw_curtis_unit_weights(m)
         local_d = ChebyshevBasis((-1.0, 1.0), m).derivative

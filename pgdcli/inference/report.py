@@ -53,7 +53,7 @@ def plot_fit(result, path, dpi: int = 150):
     """Data (markers) and the fitted curve (lines) of every observed unknown; saved as PNG/SVG."""
     from matplotlib.figure import Figure
 
-    from ..plot.figures import save_figure
+    from ..plot.files import save_figure
 
     varying = [n for n in result.coordinates if np.ptp(result.fitted[n]) > 0]
     xname = varying[0] if varying else None

@@ -22,7 +22,7 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["TT", "tt_round", "tt_round_many", "tt_round_sum_of_products", "tt_sum", "tt_hadamard", "tt_rank_one",
-           "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate"]
+           "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate", "is_ones"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -362,7 +362,7 @@ _ONES: dict[tuple[int, ...], TT] = {}
 def tt_ones(shape: Sequence[int]) -> TT:
     """The all-ones tensor (rank 1), the neutral factor of a Hadamard product.
 
-    One shared instance per shape (trains are immutable), so :func:`_is_ones`
+    One shared instance per shape (trains are immutable), so :func:`is_ones`
     recognises it by identity: the march asks thousands of times per solve.
     """
     shape = tuple(int(n) for n in shape)
@@ -479,7 +479,7 @@ def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, over
                 for _, a, b in terms]
     sketch = rank_hint + oversample
     if d == 1 or sum(implicit) <= 2 * sketch:
-        exact = tt_sum([a if _is_ones(b) else tt_hadamard(a, b) for _, a, b in terms], [w for w, _, _ in terms])
+        exact = tt_sum([a if is_ones(b) else tt_hadamard(a, b) for _, a, b in terms], [w for w, _, _ in terms])
         stats["exact"] = stats.get("exact", 0) + 1
         return tt_round(exact, absolute=absolute, max_rank=max_rank)
     rng = np.random.default_rng(0) if rng is None else rng
@@ -493,7 +493,7 @@ def tt_round_sum_of_products(terms, *, absolute: float, rank_hint: int = 8, over
         sketch *= 2
 
 
-def _is_ones(t: TT) -> bool:
+def is_ones(t: TT) -> bool:
     if _ONES.get(t.shape) is t:
         return True
     return all(c.shape[0] == 1 and c.shape[2] == 1 and np.all(c == 1.0) for c in t.cores)

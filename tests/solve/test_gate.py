@@ -326,7 +326,7 @@ def test_query_of_an_inaccurate_codebook_warns_in_one_line(tmp_path):
     spec.write_text(COARSE)
     out = tmp_path / "coarse.h5"
     CliRunner().invoke(cli, ["solve", str(spec), "-o", str(out), "--keep-inaccurate", "-q"])
-    res = subprocess.run([sys.executable, "-c", "from pgdcli.cli.query import main; main()", "query", str(out),
+    res = subprocess.run([sys.executable, "-c", "from pgdcli.cli.entry import main; main()", "query", str(out),
                           "--t", "1", "--k", "2"], capture_output=True, text=True)
     assert res.returncode == 0 and len(res.stdout.split()) == 2
     lines = res.stderr.strip().splitlines()

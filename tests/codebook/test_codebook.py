@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from conftest import codebook_points
 
+from pgdcli.codebook import io as codebook_io
 from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, Codebook, CoordinateInfo, FieldModes
 from pgdcli.errors import CodebookError, QueryError
 
@@ -223,14 +224,14 @@ def test_save_is_atomic_on_failure(tmp_path, monkeypatch):
         f.attrs["encoding-type"] = "half written"
         raise RuntimeError("disk on fire")
 
-    monkeypatch.setattr(Codebook, "_write", boom)
+    monkeypatch.setattr(codebook_io, "write_contents", boom)
     with pytest.raises(RuntimeError, match="disk on fire"):
         cb.save(target)
     assert list(tmp_path.iterdir()) == []  # neither the target nor a temporary file
     monkeypatch.undo()
     cb.save(target)
     before = target.read_bytes()
-    monkeypatch.setattr(Codebook, "_write", boom)
+    monkeypatch.setattr(codebook_io, "write_contents", boom)
     with pytest.raises(RuntimeError):
         cb.save(target)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cb.h5"]

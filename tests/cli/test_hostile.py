@@ -22,14 +22,14 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-import pgdcli.cli.main as cli_module
+from pgdcli.cli import guard, solve_command
 from pgdcli.cli import stream
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, FieldModes
 from pgdcli.errors import SpecError
 from pgdcli.problem.spec import MAX_SPEC_NODES, load_spec, parse_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PROBLEMS = ROOT / "problems"
 ALL_SHIPPED = sorted(p.stem for p in PROBLEMS.glob("*.yaml"))
 
@@ -254,21 +254,21 @@ def test_internal_error_has_its_own_status_and_one_line(monkeypatch):
     def boom(*args, **kwargs):
         raise RuntimeError("boom\nsecond line")
 
-    monkeypatch.setattr(cli_module, "_solve", boom)
+    monkeypatch.setattr(solve_command, "_solve", boom)
     line = assert_one_error(invoke("solve", PROBLEMS / "parametric.yaml"), 70)
     assert line == ("Error: internal error: RuntimeError: boom second line; please report it with the spec "
                     "(run with --debug or PGD_DEBUG=1 for the traceback)")
     for env, args in (({"PGD_DEBUG": "1"}, []), ({}, ["--debug"])):
         result = invoke(*args, "solve", PROBLEMS / "parametric.yaml", env=env)
         assert result.exit_code == 70 and "Traceback" in result.stderr and "boom" in result.stderr
-    cli_module.guard.set_debug(False)
+    guard.set_debug(False)
 
 
 def test_internal_error_on_the_lean_query_path(codebook_path):
     code = ("import sys, pgdcli.cli.stream as s\n"
             "def boom(*a, **k):\n    raise ZeroDivisionError('inside')\n"
             "s.format_chunk = boom\n"
-            "from pgdcli.cli.query import main\n"
+            "from pgdcli.cli.entry import main\n"
             f"main(['query', {str(codebook_path('spring'))!r}, '--t', '1', '--k', '2', '--c', '0.3'])\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 70 and proc.stdout == ""

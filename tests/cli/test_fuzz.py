@@ -6,7 +6,7 @@ no partial or temporary file left next to an output.
 
 Budget: about a minute in CI (the ``ci`` profile). For a longer local run::
 
-    PGD_FUZZ=long PGD_FUZZ_EXAMPLES=10000 python -m pytest -q tests/test_fuzz.py   # ~10 minutes
+    PGD_FUZZ=long PGD_FUZZ_EXAMPLES=10000 python -m pytest -q tests/cli/test_fuzz.py   # ~10 minutes
 
 The ``long`` profile is randomized (a new seed every run) and runs ``PGD_FUZZ_EXAMPLES``
 (default 2000) examples per cheap test, a fifth of them for those that solve or draw.
@@ -30,7 +30,7 @@ from pgdcli.cli.main import cli
 from pgdcli.errors import PgdError, SolverError
 from pgdcli.problem.spec import parse_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PROBLEMS = ROOT / "problems"
 
 LONG = os.environ.get("PGD_FUZZ", "") == "long"

@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 import pgdcli
 from pgdcli.adapt import INACCURATE
 
-HERE = Path(__file__).resolve().parent / "user_problems"
+HERE = Path(__file__).resolve().parents[1] / "user_problems"
 GRAV = 9.81
 
 RHS = {

@@ -18,7 +18,7 @@ from conftest import PROBLEMS
 
 import pgdcli
 from pgdcli import driver as solver, load_spec, parse_spec
-from pgdcli.checks import check
+from pgdcli.checks import check, sampling
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, FieldTT
 
@@ -37,12 +37,12 @@ def _variant(name: str, edit) -> str:
 def test_sample_holds_every_corner_grid_nodes_and_points_between(solved):
     cb = solved("coupled").codebook
     problem = load_spec(PROBLEMS / "coupled.yaml")
-    points, at_nodes = check.check_sample(problem, cb)
+    points, at_nodes = sampling.check_sample(problem, cb)
     names = ["a", "b", "c"]
     grid = {n: cb.coordinate(n).basis().nodes for n in names}
     on_grid = np.all([np.isin(points[n], grid[n]) for n in names], axis=0)
     np.testing.assert_array_equal(on_grid, at_nodes)  # node points are nodes, the others are not
-    assert (~at_nodes).sum() == check.BETWEEN
+    assert (~at_nodes).sum() == sampling.BETWEEN
     corners = {tuple(c) for c in itertools.product((0.0, 1.0), repeat=3)}
     found = {tuple(float(points[n][i]) for n in names) for i in np.flatnonzero(at_nodes)}
     assert corners <= found
@@ -53,11 +53,11 @@ def test_sample_holds_every_corner_grid_nodes_and_points_between(solved):
 def test_sample_beyond_the_corner_budget_is_a_subset_of_corners(solved):
     cb = solved("rigid_body").codebook
     problem = load_spec(PROBLEMS / "rigid_body.yaml")
-    points, at_nodes = check.check_sample(problem, cb)
+    points, at_nodes = sampling.check_sample(problem, cb)
     names = [c.name for c in problem.parameter_coordinates]
     box = np.column_stack([points[n][at_nodes] for n in names])
     corner_rows = np.all((box == 0.5) | (box == 1.5), axis=1)
-    assert corner_rows.sum() >= check.CORNERS  # 64 of the 64 corners of a 6-D box, and face points
+    assert corner_rows.sum() >= sampling.CORNERS  # 64 of the 64 corners of a 6-D box, and face points
 
 
 def test_measured_error_is_the_true_error_of_the_codebook(solved):
@@ -66,8 +66,8 @@ def test_measured_error_is_the_true_error_of_the_codebook(solved):
     cb = result.codebook
     problem = load_spec(PROBLEMS / "logistic.yaml")
     measured = check.check_codebook(problem, cb)
-    points, _ = check.check_sample(problem, cb)
-    lines, _ = check.line_sample(problem, cb)
+    points, _ = sampling.check_sample(problem, cb)
+    lines, _ = sampling.line_sample(problem, cb)
     points = {n: np.concatenate([points[n], lines[n]]) for n in points}
     nodes = cb.coordinate("t").basis().nodes
     times = np.concatenate([nodes, 0.5 * (nodes[1:] + nodes[:-1])])  # the nodes and the midpoints between
@@ -87,7 +87,7 @@ def test_a_wrong_codebook_is_measured_wrong(solved):
     cores[-1] = cores[-1] * (1.0 + 1e-4)  # the whole field 1e-4 too large
     wrong = Codebook(cb.coordinates, {"u": FieldTT(tuple(cores), fm.mode_order)}, name="wrong")
     measured = check.check_codebook(problem, wrong)
-    points, _ = check.check_sample(problem, cb)
+    points, _ = sampling.check_sample(problem, cb)
     t = cb.coordinate("t").basis().nodes
     expected = 1e-4 * exact_logistic(t[None, :], points["r"][:, None], points["u0"][:, None]).max()
     assert measured.error == pytest.approx(expected, rel=1e-3)

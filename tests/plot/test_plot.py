@@ -28,12 +28,13 @@ import pytest
 from click.testing import CliRunner
 from scipy.linalg import subspace_angles
 
-from pgdcli.plot import figures as P
+from pgdcli import plot as P
+from pgdcli.plot import draw, files, options
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook
 from pgdcli.errors import PgdError, QueryError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ("parametric", "relaxation", "spring")
 MARCHED = ("coupled", "logistic")  # nonlinear: time march, tensor-train codebooks
 
@@ -209,7 +210,7 @@ def test_solution_lines_equal_codebook_values(plot_codebooks):
     assert data["layout"] == "lines" and data["time"] == "t"
     assert data["points"] == [{"k": 3.2, "c": 0.3}, {"k": 1.5, "c": 0.1}, {"k": 2.5, "c": 0.45}]  # midpoints
     t = data["t"]
-    assert t[0] == 0.0 and t[-1] == 4.0 and t.size == P.LINE_POINTS
+    assert t[0] == 0.0 and t[-1] == 4.0 and t.size == options.LINE_POINTS
     for p, row in zip(data["points"], data["values"]):
         np.testing.assert_array_equal(row, cb(t=t, **p)["v"])
     fig = P.draw_solution(data)
@@ -226,7 +227,7 @@ def test_solution_default_points_span_the_first_parameter(plot_codebooks):
     cb, _ = plot_codebooks["relaxation"]
     data = P.solution_data(cb)
     ks = [p["k"] for p in data["points"]]
-    np.testing.assert_allclose(ks, np.linspace(0.5, 5, P.DEFAULT_AT_CURVES))
+    np.testing.assert_allclose(ks, np.linspace(0.5, 5, options.DEFAULT_AT_CURVES))
     assert all(p["a"] == 0.0 and p["u0"] == 0.5 for p in data["points"])
 
 
@@ -253,7 +254,7 @@ def test_solution_reference_markers(plot_codebooks):
     calls = []
     data = P.solution_data(cb, at=["k=1,a=0.5", "k=4"], reference=exact_reference("relaxation", calls))
     ref = data["reference"]
-    assert ref["t"].size == P.REFERENCE_MARKERS and ref["values"].shape == (2, P.REFERENCE_MARKERS)
+    assert ref["t"].size == options.REFERENCE_MARKERS and ref["values"].shape == (2, options.REFERENCE_MARKERS)
     params, times = calls[0]
     assert set(params) == {"k", "a", "u0"}  # every non-time coordinate, never t
     np.testing.assert_array_equal(params["k"], [1.0, 4.0])
@@ -423,7 +424,7 @@ def test_render_png_of_the_expected_size(plot_codebooks, tmp_path, monkeypatch, 
     cb, path = plot_codebooks[name]
     # the error kind of the parametric problem exercises the real reference (if present)
     if kind == "error" and name != "parametric":
-        monkeypatch.setattr(P, "reference_solver", lambda codebook, **kw: exact_reference(name))
+        monkeypatch.setattr(files, "reference_solver", lambda codebook, **kw: exact_reference(name))
     out = P.render(path, kind, tmp_path / f"{name}-{kind}.png", dpi=40, size=(5.5, 3.25))
     assert out == tmp_path / f"{name}-{kind}.png"
     assert _png_size(out) == (220, 130)
@@ -522,7 +523,7 @@ def test_cli_needs_no_display_and_no_pyplot(plot_codebooks, tmp_path):
     """A fresh process without DISPLAY: the image is written and pyplot is never imported."""
     _, path = plot_codebooks["parametric"]
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MPLBACKEND")}
-    code = ("import sys; from pgdcli.cli.main import main\n"
+    code = ("import sys; from pgdcli.cli.entry import main\n"
             "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
             "assert 'matplotlib.pyplot' not in sys.modules\n")
     out = tmp_path / "m.png"
@@ -668,7 +669,7 @@ def test_tt_modes_figure_draws_the_data(march_codebooks):
             np.testing.assert_array_equal(xy[:, 1], panel["values"][:, i])
         title = ax.get_title(loc="left")
         assert f"rank {panel['rank']}" in title and "\u03c3 = " in title
-        assert P._compact(panel["singular_values"][0]) in title
+        assert draw._compact(panel["singular_values"][0]) in title
     legend = fig.legends[0]
     assert [t.get_text() for t in legend.get_texts()] == ["mode 1", "mode 2", "mode 3", "mode 4"]
     assert "normalized" in legend.get_title().get_text() and "HOSVD" in fig._suptitle.get_text()
@@ -717,8 +718,8 @@ def test_march_convergence_figure_draws_the_data(march_codebooks):
     labels = [t.get_text() for t in ax2.get_legend().get_texts()]
     assert labels[0] == "u1" and all(lab.startswith(u) for lab, u in zip(labels, data["unknowns"]))
     title = fig._suptitle.get_text()
-    assert P._sci(data["error_estimate"]) in title and P._sci(data["tolerance"]) in title
-    assert "tolerance 1e-9" in title and f"max error {P._sci(data['check_error'])} vs scipy" in title
+    assert draw._sci(data["error_estimate"]) in title and draw._sci(data["tolerance"]) in title
+    assert "tolerance 1e-9" in title and f"max error {draw._sci(data['check_error'])} vs scipy" in title
     assert f"{data['steps']} accepted steps" in ax1.get_title(loc="left")
 
 

@@ -12,7 +12,7 @@ from pgdcli.errors import PgdError
 from pgdcli.checks.reference import METHODS, solve_reference
 from pgdcli.problem.spec import load_spec, parse_spec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PROBLEMS = ROOT / "problems"
 
 

@@ -1,7 +1,7 @@
 """The lean ``pgd query`` (pgdcli.cli.query) and the fast evaluation paths of Codebook.
 
 ``pgd query`` runs without click when it can (the console script's entry point is
-``pgdcli.cli.query:main``). These tests hold it to three things:
+``pgdcli.cli.entry:main``). These tests hold it to three things:
 
 - byte-identical output: for plain / csv / json, lists, ranges, ``--field``,
   ``--points`` (file and stdin), the lean path prints exactly what the

@@ -259,7 +259,7 @@ def test_cli_refuses_a_nonlinear_steady_problem(tmp_path):
 
 
 def test_plot_data_of_a_steady_codebook_runs_along_space(poisson):
-    from pgdcli.plot.figures import error_data, solution_data
+    from pgdcli.plot import error_data, solution_data
 
     cb = poisson.codebook
     lines = solution_data(cb, at=["a=0.7,g=1,q=3"], points=11)

@@ -15,7 +15,7 @@ import pgdcli
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PROBLEMS = ROOT / "problems"
 
 TOP_KEYS = {"codebook", "problem", "passed", "gate", "settings", "unknowns", "failures", "wall_time"}
@@ -176,10 +176,10 @@ def test_python_api(accurate):
 
 
 def test_cli_methods_match_the_reference():
-    from pgdcli.cli import main as cli_module
     from pgdcli.checks.reference import METHODS
+    from pgdcli.cli import verify_command
 
-    assert cli_module._VERIFY_METHODS == METHODS
+    assert verify_command.VERIFY_METHODS == METHODS
 
 
 def test_package_verify_is_the_function_even_after_the_module_is_imported(accurate):

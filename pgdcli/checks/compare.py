@@ -1,0 +1,127 @@
+"""One comparison of a codebook with a reference: codebook values at the checked points, error figures.
+
+Shared by ``pgd verify`` and the solve-time check. numpy only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+__all__ = ["UnknownErrors", "codebook_at_samples", "codebook_on_space_grid", "error_statistics", "json_float"]
+
+
+# codebook evaluations per block (bounds memory of the interpolation matrices)
+_EVAL_BLOCK = 100_000
+
+
+@dataclass
+class UnknownErrors:
+    """Error figures of one unknown (see the module docstring for the definitions).
+
+    NaN when no sample point could be integrated.
+    """
+
+    max_abs_error: float
+    max_rel_error: float
+    rms_error: float
+    reference_scale: float
+    where: dict[str, float]
+    codebook_value: float
+    reference_value: float
+
+    def to_dict(self) -> dict:
+        return {
+            "max_abs_error": json_float(self.max_abs_error),
+            "max_rel_error": json_float(self.max_rel_error),
+            "rms_error": json_float(self.rms_error),
+            "reference_scale": json_float(self.reference_scale),
+            "where": {k: json_float(v) for k, v in self.where.items()},
+            "codebook_value": json_float(self.codebook_value),
+            "reference_value": json_float(self.reference_value),
+        }
+
+
+def codebook_at_samples(cb, samples: Mapping[str, np.ndarray], time: str, times: np.ndarray, unknowns) -> dict:
+    S = len(next(iter(samples.values()))) if samples else 1
+    T = times.size
+    out = {u: np.empty((S, T)) for u in unknowns}
+    block = max(1, _EVAL_BLOCK // max(T, 1))
+    for start in range(0, S, block):
+        rows = slice(start, min(S, start + block))
+        coords = {}
+        for c in cb.coordinates:
+            coords[c.name] = times[None, :] if c.name == time else samples[c.name][rows, None]
+        values = cb.evaluate(coords, fields=list(unknowns))
+        for u in unknowns:
+            out[u][rows] = np.broadcast_to(values[u], (rows.stop - rows.start, T))
+    return out
+
+
+def error_statistics(coordinates, time, samples, times, ok, reference, approx, space_points=None) -> UnknownErrors:
+    """Figures over the successful samples; values (S, T) or, with space coordinates, (S, T, X_1, ..., X_d)
+    with the space axes in the order of ``space_points``."""
+    if not ok.any():
+        nan = float("nan")
+        return UnknownErrors(nan, nan, nan, nan, {c: nan for c in coordinates}, nan, nan)
+    space_points = space_points or {}
+    ref = reference[ok]
+    cbv = approx[ok]
+    err = np.abs(cbv - ref)
+    index = np.unravel_index(int(np.argmax(err)), err.shape)
+    i, j = index[0], index[1]
+    at_space = {c: float(points[k]) for (c, points), k in zip(space_points.items(), index[2:])}
+    max_abs = float(err[index])
+    scale = float(np.max(np.abs(ref)))
+    if scale > 0:
+        rel = max_abs / scale
+    else:
+        rel = 0.0 if max_abs == 0 else float("inf")
+    rows = np.flatnonzero(ok)
+    where = {c: float(times[j]) if c == time else at_space[c] if c in at_space else float(samples[c][rows[i]])
+             for c in coordinates}
+    return UnknownErrors(
+        max_abs_error=max_abs,
+        max_rel_error=float(rel),
+        rms_error=float(np.sqrt(np.mean(err**2))),
+        reference_scale=scale,
+        where=where,
+        codebook_value=float(cbv[index]),
+        reference_value=float(ref[index]),
+    )
+
+
+def codebook_on_space_grid(cb, samples: Mapping[str, np.ndarray], S: int, time: str, times: np.ndarray,
+                             space_points: Mapping[str, np.ndarray], unknowns) -> dict:
+    """Codebook values (S, T, X_1, ..., X_d) on the tensor grid of the space points (a steady problem:
+    ``time`` None and one placeholder time), in blocks of samples that bound the memory."""
+    space = list(space_points)
+    d = len(space)
+    shape = tuple(space_points[c].size for c in space)
+    per_sample = times.size * int(np.prod(shape))
+    out = {u: np.empty((S, times.size) + shape) for u in unknowns}
+    block = max(1, _EVAL_BLOCK // max(per_sample, 1))
+    for start in range(0, S, block):
+        rows = slice(start, min(S, start + block))
+        n = rows.stop - rows.start
+        coords = {}
+        for c in cb.coordinates:
+            if c.name == time:
+                coords[c.name] = times.reshape((1, -1) + (1,) * d)
+            elif c.name in space_points:
+                k = space.index(c.name)
+                coords[c.name] = space_points[c.name].reshape((1, 1) + tuple(-1 if m == k else 1 for m in range(d)))
+            else:
+                coords[c.name] = samples[c.name][rows].reshape((-1, 1) + (1,) * d)
+        values = cb.evaluate(coords, fields=list(unknowns))
+        for u in unknowns:
+            out[u][rows] = np.broadcast_to(values[u], (n, times.size) + shape)
+    return out
+
+
+def json_float(value: float) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None

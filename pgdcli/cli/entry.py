@@ -1,0 +1,47 @@
+"""The ``pgd`` console script: the lean ``pgd query`` first, else the click command line.
+
+A plain ``pgd query`` runs in :mod:`pgdcli.cli.query` (numpy and h5py only, no click); everything
+else, and any query that fails or asks for help, runs through click (:mod:`pgdcli.cli.main`), which
+is imported only then.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from . import guard
+from .query import one_line_error, run
+
+__all__ = ["main"]
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    text = " ".join(str(message).split())
+    try:
+        sys.stderr.write(f"Warning: {text}\n")
+    except OSError:
+        pass
+
+
+def main(argv=None) -> None:
+    """Console-script entry point: the lean ``pgd query``, else the click command line."""
+    import warnings
+
+    # a warning (an inaccurate codebook loaded) is one 'Warning:' line, not Python's file:line format
+    warnings.showwarning = _one_line_warning
+    args = sys.argv[1:] if argv is None else list(argv)
+    try:
+        code = run(args)
+    except KeyboardInterrupt:
+        sys.stderr.write("Error: interrupted\n")
+        sys.exit(guard.EXIT_INTERRUPTED)
+    except Exception as exc:  # noqa: BLE001 - the guard of the lean path (output had begun)
+        if guard.debug_enabled():
+            raise
+        one_line_error(guard.internal_error_message(exc))
+        sys.exit(guard.EXIT_INTERNAL)
+    if code is not None:
+        sys.exit(code)
+    from .main import cli
+
+    cli.main(args=argv, prog_name="pgd")

@@ -1,0 +1,99 @@
+"""``pgd fit`` (:mod:`pgdcli.inference`) and ``pgd export`` (:mod:`pgdcli.codebook.export`)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from .group import cli
+
+def _assignments(values, option: str) -> dict:
+    """``NAME=VALUE`` options (repeatable, or comma lists) -> {name: float}."""
+    out = {}
+    for text in values:
+        for item in filter(None, (p.strip() for p in text.split(","))):
+            name, sep, value = item.partition("=")
+            try:
+                out[name.strip()] = float(value)
+            except ValueError:
+                sep = ""
+            if not sep or not name.strip():
+                raise click.BadParameter(f"expected NAME=VALUE, got {item!r}", param_hint=f"'{option}'")
+    return out
+
+
+@cli.command("fit")
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("data", type=click.File("r"))
+@click.option("--fix", multiple=True, metavar="NAME=V[,NAME=V]", help="Hold coordinates at values (repeatable).")
+@click.option("--sigma", multiple=True, metavar="U=S[,U=S]",
+              help="Standard deviation of an observed unknown's data (default 1; a sigma_U column: per row).")
+@click.option("--starts", type=click.IntRange(min=1), default=8, show_default=True, metavar="N",
+              help="Local solves: the box centre, then N-1 scrambled Sobol points.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Sobol scrambling seed.")
+@click.option("--no-check", is_flag=True, help="Skip the re-solve at the estimate by the independent reference.")
+@click.option("--format", "fmt", type=click.Choice(["plain", "csv", "json"]), default="plain", show_default=True,
+              help="plain: 'name estimate stderr' per free coordinate; csv: the fitted curve; json: everything.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE.png",
+              help="Draw the data and the fit (.png or .svg).")
+@click.option("-q", "--quiet", is_flag=True, help="No summary line on stderr.")
+def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_path, quiet):
+    """Estimate the free coordinates of CODEBOOK that best explain DATA (CSV, '-' for stdin).
+
+    \b
+    DATA's header names known coordinates (the time coordinate at least), observed
+    unknowns (a subset is fine) and optional sigma_<unknown> columns. Every other
+    coordinate not held by --fix is estimated within its domain (least squares,
+    Jacobian from the codebook's exact derivatives), then checked by re-solving at
+    the estimate with the independent reference.
+
+    \b
+      pgd fit codebooks/coupled.h5 trajectory.csv --sigma u1=1e-3 --format json
+    """
+    from ..inference.fitting import fit
+    from ..inference.report import plot_fit, summary, write_result
+
+    label = "DATA (stdin)" if data.name == "<stdin>" else str(data.name)
+    result = fit(codebook, data, fix=_assignments(fix, "--fix"), sigma=_assignments(sigma, "--sigma"),
+                 starts=starts, seed=seed, check=not no_check, label=label)
+    write_result(sys.stdout, result, fmt)
+    if plot_path is not None:
+        plot_fit(result, plot_path)
+    if not quiet:
+        click.echo(summary(result), err=True)
+
+
+@cli.command("export")
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--to", "target", type=click.Choice(["c", "glsl", "json"]), required=True,
+              help="c: one C99 header (double and float32 evaluators); glsl: a shader function; json: the numbers.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE",
+              help="Write to FILE [default: stdout].")
+@click.option("--force", is_flag=True, help="Export even past the size limit (16 MiB of float64 numbers).")
+@click.option("-q", "--quiet", is_flag=True, help="No size line on stderr.")
+def export_command(codebook, target, output, force, quiet):
+    """Write a self-contained evaluator of CODEBOOK for engines and other languages.
+
+    \b
+      pgd export codebooks/rigid_body.h5 --to c -o pgd_rigid_body.h
+      pgd export codebooks/coupled.h5 --to json > coupled.json
+    """
+    from ..codebook.codebook import Codebook
+    from ..codebook.export import export
+
+    cb = Codebook.load(codebook)
+    files, size = export(cb, target, force=force)
+    ((name, text),) = files.items()
+    if output is None:
+        sys.stdout.write(text)
+    else:
+        try:
+            output.write_text(text)
+        except OSError as exc:
+            raise click.BadParameter(f"cannot write {output} ({exc.strerror or exc})", param_hint="'-o'") from None
+    if not quiet:
+        where = output if output is not None else f"stdout ({name})"
+        click.echo(f"exported {cb.name} to {target}: {size // 8} numbers, {size / 2**20:.2f} MiB as float64; "
+                   f"{len(text.encode()) / 2**20:.2f} MiB of text to {where}", err=True)

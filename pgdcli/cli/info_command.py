@@ -1,0 +1,62 @@
+"""``pgd info``: what a codebook holds and how it was made."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from .group import cli
+from .text import human_size, nodes_chosen_text, short_where
+
+@cli.command()
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True)
+def info(codebook, fmt):
+    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time."""
+    from ..codebook.codebook import Codebook
+
+    cb = Codebook.load(codebook)
+    summary = cb.info(codebook)
+    if fmt == "json":
+        click.echo(json.dumps(summary, indent=2))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    from ..checks.check import points_text
+
+    console = Console(highlight=False, soft_wrap=True)
+    console.print(f"[bold]{summary['name']}[/]  {summary['description']}".rstrip())
+    coords = Table(title="coordinates", title_justify="left")
+    for col in ("name", "role", "domain", "nodes", "discretization"):
+        coords.add_column(col)
+    for c in summary["coordinates"]:
+        nodes = str(c["nodes"]) + (f" ({c['elements']} elements)" if c.get("elements") else "")
+        coords.add_row(c["name"], c["role"], f"[{c['domain'][0]:g}, {c['domain'][1]:g}]", nodes, c["discretization"])
+    console.print(coords)
+    console.print("modes: " + ", ".join(
+        f"{u} {v['modes']}" if v.get("representation") != "tensor-train" else f"{u} tensor train, ranks {tuple(v['ranks'])}"
+        for u, v in summary["unknowns"].items()))
+    state = "converged" if summary["converged"] else "NOT converged"
+    label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
+    if summary.get("accurate") is False:
+        console.print("[bold red]INACCURATE[/]: this codebook misses its tolerance (written with --keep-inaccurate)")
+    if summary.get("check") is not None and summary["check"]["error"] is not None:
+        chk = summary["check"]
+        console.print(f"max error: {chk['error']:.3e} at {points_text(chk['points'])} vs scipy, at {short_where(chk['where'])} "
+                      f"(tolerance {summary['tolerance']:.1e})")
+        if chk.get("method"):
+            console.print(f"measured: {chk['method']}")
+    if summary.get("nodes_chosen") and summary["nodes_chosen"]["automatic"]:
+        chosen = summary["nodes_chosen"]
+        console.print(f"nodes chosen: {nodes_chosen_text(chosen)} ({chosen['reason']})")
+    console.print(f"{label}: {summary['residual']:.3e} ({state})")
+    if summary.get("roundings") is not None:
+        r = summary["roundings"]
+        console.print(f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized "
+                      f"({r['redone']} redone with a larger sketch)")
+    console.print(f"solve time: {summary['solve_time']:.3f} s")
+    console.print(f"size: {human_size(summary['size_bytes'])} ({summary['size_bytes']} bytes)")
+    console.print(f"format: {summary['format']}, written by pgdcli {summary['pgdcli_version']}, {summary['created']}")

@@ -1,0 +1,192 @@
+"""``pgd solve``: spec -> checked codebook, with progress and a summary table."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from .group import Failed, cli, run_command, stderr_console, warn
+from .text import human_size, nodes_chosen_text, short_where
+
+@cli.command()
+@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="Codebook path [default: the spec's output, else codebooks/<name>.h5].")
+@click.option("--tolerance", type=float,
+              help="Override solver.tolerance: the bound on the codebook's max abs error, measured.")
+@click.option("--relative-tolerance", type=float, help="Override solver.relative_tolerance (error <= "
+              "tolerance + relative_tolerance * |u|).")
+@click.option("--max-modes", type=int, help="Override solver.max_modes.")
+@click.option("--keep-inaccurate", is_flag=True,
+              help="Write the codebook even when its measured error exceeds the tolerance (marked as such in "
+                   "the file; the exit status is still 1).")
+@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
+              help="text: summary table on stderr; json: the summary as JSON on stdout.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress or summary on stderr.")
+def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
+    """Solve the problem in SPEC (YAML) and write its codebook.
+
+    After the solve, the codebook's error is measured against an independent
+    scipy reference. The codebook is written (atomically) only when the solver
+    converged and that error meets the tolerance; otherwise nothing is written
+    at the target path and the exit status is 1, with one line saying how large
+    the error is, where, and what lacks resolution (--keep-inaccurate writes a
+    codebook that misses its tolerance anyway, marked in the file).
+    """
+    run_command(_solve, spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet)
+
+
+def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
+    from .outputs import prepare_output
+    from ..driver import solve as solve_problem
+    from ..problem.spec import load_spec
+
+    problem = load_spec(spec)
+    target = Path(output) if output is not None else Path(problem.output)
+    console = None if quiet else stderr_console()
+    tol = problem.solver.tolerance if tolerance is None else tolerance
+    nmax = problem.solver.max_modes if max_modes is None else max_modes
+    if tolerance is not None and not 0.0 < tolerance < 1.0:
+        raise click.BadParameter(f"expected a number in (0, 1), got {tolerance}", param_hint="'--tolerance'")
+    if max_modes is not None and max_modes < 1:
+        raise click.BadParameter(f"expected an integer >= 1, got {max_modes}", param_hint="'--max-modes'")
+    if relative_tolerance is not None and not 0.0 <= relative_tolerance < 1.0:
+        raise click.BadParameter(f"expected a number in [0, 1), got {relative_tolerance}",
+                                 param_hint="'--relative-tolerance'")
+    overrides = {"tolerance": tolerance, "relative_tolerance": relative_tolerance, "max_modes": max_modes}
+    prepare_output(target, "--output" if output is not None else f"{spec}: output")  # before the solve
+    if console is None:
+        result = solve_problem(problem, **overrides)
+    else:
+        result = _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides)
+    for warning in result.warnings:
+        warn(warning)
+    keep = result.converged or (keep_inaccurate and result.accurate is False)
+    summary = _solve_summary(problem, result, target if keep else None)
+    summary["warnings"] = list(result.warnings)
+    if keep:
+        result.codebook.save(target)
+        summary["size_bytes"] = target.stat().st_size
+    if console is not None:
+        console.print(_summary_table(summary))
+    if fmt == "json":
+        click.echo(json.dumps(summary, indent=2))
+    if not result.converged:
+        written = (f"written anyway to {target}, marked inaccurate (--keep-inaccurate)" if keep
+                   else f"no codebook written to {target}")
+        raise Failed(f"{spec}: {result.message}; {written}")
+
+
+def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
+    """Enrichment: residual decades reached / decades asked; march: time reached / time domain."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[status]}"),
+               TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=False) as progress:
+        span = -math.log10(tol)
+        task = progress.add_task(f"solving {problem.name}", total=span, status="starting")
+
+        def callback(info):
+            if "time" in info:  # separated time march
+                t0 = problem.time_coordinate.domain[0]
+                frac = (info["time"] - t0) / (info["end"] - t0)
+                rank = max((max(r) for r in info["ranks"] if r), default=1)
+                progress.update(task, completed=span * frac,
+                                status=f"t = {info['time']:.4g}/{info['end']:.4g}  {info['steps']} steps  "
+                                       f"max rank {rank}")
+                return
+            r = info["residual"]
+            done = min(span, -math.log10(r) if r > 0 else span)
+            progress.update(task, completed=max(done, 0.0),
+                            status=f"{info['mode']}/{nmax} modes  residual {r:.2e} (tolerance {tol:.0e})")
+
+        return solve_problem(problem, callback=callback, **overrides)
+
+
+def _solve_summary(problem, result, target: Path | None) -> dict:
+    from ..codebook.fields import FieldTT
+
+    cb = result.codebook
+    rep = cb.report
+    march = rep.get("method") == "march"
+    # a march that failed holds no solution: its fields are placeholders, not ranks to report
+    placeholder = march and result.status == 3
+    return {
+        "problem": problem.name,
+        "method": "march" if march else "pgd",
+        "converged": bool(result.converged),
+        "accurate": result.accurate,
+        "message": result.message,
+        "residual": _finite_or_none(result.residual),  # march: the RMS error estimate; null if none
+        **({"check_error": _finite_or_none(rep["check_error"]), "check_points": int(rep["check_points"]),
+            "check_ratio": _finite_or_none(rep["check_ratio"]), "check_where": short_where(rep["check_where"]),
+            "check_method": str(rep["check_method"])}
+           if "check_error" in rep else {}),
+        "relative_tolerance": float(rep.get("relative_tolerance", 0.0)),
+        "resolution": _resolution_summary(cb),
+        **({key: float(rep[key]) for key in ("failed_time", "blowup_time") if key in rep} if placeholder else {}),
+        "tolerance": float(rep["tolerance"]),
+        # march: the largest tensor-train rank
+        "modes": None if placeholder else {u: fm.rank for u, fm in cb.fields.items()},
+        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if isinstance(fm, FieldTT)},
+        "coordinates": {c.name: c.nodes for c in cb.coordinates},
+        "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
+        "wall_time": float(result.wall_time),
+        "output": None if target is None else str(target),
+    }
+
+
+def _resolution_summary(cb) -> dict | None:
+    """``Codebook.nodes_chosen`` when the solver chose some nodes, else None."""
+    chosen = cb.nodes_chosen()
+    return chosen if chosen and chosen["automatic"] else None
+
+
+def _finite_or_none(value) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _summary_table(summary: dict):
+    from rich.table import Table
+
+    from ..checks.check import points_text
+
+    table = Table(title=f"pgd solve: {summary['problem']}", show_header=False, title_justify="left")
+    table.add_column(style="bold")
+    table.add_column()
+    if summary.get("accurate") is not False:
+        table.add_row("status", "[green]converged[/]" if summary["converged"] else "[red]not converged[/]")
+    if summary.get("accurate") is False:
+        table.add_row("status", "[red]tolerance not met[/]")
+    if summary.get("check_error") is not None:
+        table.add_row("max error", f"{summary['check_error']:.3e} at {points_text(summary['check_points'])} "
+                                   f"vs scipy (tolerance {summary['tolerance']:.1e}), at {summary['check_where']}")
+    if summary.get("resolution"):
+        table.add_row("nodes chosen", nodes_chosen_text(summary["resolution"]))
+    if summary.get("method") == "march":
+        if summary.get("failed_time") is not None:
+            reached = f"t = {summary['failed_time']:.6g}"
+            if summary.get("blowup_time") is not None:
+                reached += f" (blows up at t ~ {summary['blowup_time']:.4g})"
+            table.add_row("reached", reached)
+        if summary["residual"] is not None:
+            table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
+        if summary["ranks"] is not None:
+            table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
+    else:
+        residual = "none" if summary["residual"] is None else f"{summary['residual']:.3e}"
+        table.add_row("residual", f"{residual} (relative; the solver's stopping signal)")
+        table.add_row("modes", ", ".join(f"{u}: {n}" for u, n in summary["modes"].items()))
+    slabs = summary.get("slabs", {})
+    table.add_row("nodes", ", ".join(f"{c}: {n}" + (f" ({slabs[c]} slabs)" if c in slabs else "")
+                                     for c, n in summary["coordinates"].items()))
+    table.add_row("time", f"{summary['wall_time']:.2f} s")
+    if summary.get("output"):
+        size = summary.get("size_bytes")
+        table.add_row("codebook", summary["output"] + (f" ({human_size(size)})" if size else ""))
+    return table

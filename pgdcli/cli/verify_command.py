@@ -1,0 +1,158 @@
+"""``pgd verify``: a codebook against an independent reference (:mod:`pgdcli.checks.verify`)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from .group import Failed, cli, run_command, stderr_console
+
+VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.reference.METHODS (no numpy import here)
+
+
+@cli.command("verify")
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--samples", type=click.IntRange(min=1), metavar="N",
+              help="Random points of the parameter box, checked in addition to all its corners "
+                   "[default: 64; for a time-dependent PDE, whose reference costs ~2 s a point, 4, or one "
+                   "per element of its finest linear parameter coordinate].")
+@click.option("--sampling", type=click.Choice(["sobol", "lhs"]), default="sobol", show_default=True,
+              help="Scrambled Sobol or Latin hypercube sampling.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the samples and of the random times.")
+@click.option("--points", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE",
+              help="CSV file whose header names the non-time coordinates: check these points instead of "
+                   "the samples and corners.")
+@click.option("--times", "n_times", type=click.IntRange(min=0), default=16, show_default=True, metavar="N",
+              help="Random times, checked in addition to every node of the time coordinate.")
+@click.option("--method", type=click.Choice(VERIFY_METHODS, case_sensitive=False), default="DOP853",
+              metavar="[" + "|".join(VERIFY_METHODS) + "]", show_default=True, help="solve_ivp method of the reference (Radau, BDF or LSODA for stiff problems).")
+@click.option("--rtol", type=click.FloatRange(0, 1, min_open=True, max_open=True),
+              help="Relative tolerance of the reference [default: 1e-12; 1e-10 with space coordinates].")
+@click.option("--atol", type=click.FloatRange(0, 1, min_open=True, max_open=True),
+              help="Absolute tolerance of the reference [default: 1e-12].")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), metavar="N",
+              help="Worker processes [default: all cores]; 1 runs in this process.")
+@click.option("--max-error", type=click.FloatRange(min=0), metavar="TOL",
+              help="Exit 1 when the max absolute error of an unknown exceeds TOL.")
+@click.option("--max-rel-error", type=click.FloatRange(min=0), metavar="TOL",
+              help="Exit 1 when the max relative error (max abs error / max |reference|) of an unknown exceeds TOL.")
+@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
+              help="text: table on stderr; json: the report as JSON on stdout (keys in docs/verify.md).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar or table on stderr.")
+def verify_command(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error,
+                   max_rel_error, fmt, quiet):
+    """Check CODEBOOK against an independent reference of its own problem.
+
+    The problem stored in the codebook is integrated again with scipy's
+    solve_ivp at sample points of the parameter box (scrambled Sobol plus
+    every corner), and the codebook is compared with it at every time node
+    and at random times. A table of the errors per unknown goes to stderr.
+
+    Exit status: 0 passed; 1 a reference integration failed or an error
+    exceeds --max-error / --max-rel-error (the CI gate); 2 invalid input.
+
+    \b
+      pgd verify codebooks/spring.h5
+      pgd verify codebooks/spring.h5 --max-error 1e-8 --format json > verify.json
+      pgd verify codebooks/spring.h5 --points points.csv --times 100 --method Radau
+    """
+    run_command(_verify, codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error,
+         max_rel_error, fmt, quiet)
+
+
+def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error, max_rel_error,
+            fmt, quiet):
+    from ..checks.verify import verify as verify_codebook
+
+    for hint, value in (("'--max-error'", max_error), ("'--max-rel-error'", max_rel_error)):
+        if value is not None and not math.isfinite(value):
+            raise click.BadParameter(f"expected a finite number >= 0, got {value}", param_hint=hint)
+    method = next(m for m in VERIFY_METHODS if m.lower() == method.lower())
+    options = dict(samples=samples, sampling=sampling, seed=seed, points=points, times=n_times, method=method,
+                   rtol=rtol, atol=atol, jobs=jobs, max_error=max_error, max_rel_error=max_rel_error)
+    console = None if quiet else stderr_console()
+    if console is None:
+        report = verify_codebook(codebook, **options)
+    else:
+        report = _verify_with_progress(console, codebook, verify_codebook, options)
+        for renderable in _verify_tables(report, max_error, max_rel_error):
+            console.print(renderable)
+    if fmt == "json":
+        click.echo(json.dumps(report.to_dict(), indent=2))
+    reasons = report.violations(max_error, max_rel_error)
+    if reasons:
+        raise Failed(f"{codebook}: verification failed: " + "; ".join(reasons))
+
+
+def _verify_with_progress(console, codebook, verify_codebook, options):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    # no refresh thread (auto_refresh=False): the worker pool may then fork this process safely
+    progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TextColumn("parameter points"), TimeElapsedColumn(), console=console, auto_refresh=False)
+    state = {}
+
+    def callback(done, total):
+        if "task" not in state:
+            progress.start()
+            state["task"] = progress.add_task(f"verifying {Path(codebook).name}", total=total)
+        progress.update(state["task"], completed=done)
+        progress.refresh()
+
+    try:
+        return verify_codebook(codebook, progress=callback, **options)
+    finally:
+        if "task" in state:
+            progress.stop()
+
+
+def _verify_tables(report, max_error, max_rel_error) -> list:
+    from rich.table import Table
+
+    def number(value):
+        return "n/a" if not math.isfinite(value) else f"{value:.3e}"
+
+    s = report.settings
+    if s["sampling"] == "points":
+        where = f"{s['parameter_points']} parameter points from {s['points_file'] or 'the given points'}"
+    else:
+        capped = f" (capped at {s['corners']})" if s["corners"] < s["corners_total"] else ""
+        where = (f"{s['parameter_points']} parameter points ({s['samples']} {s['sampling']} + "
+                 f"{s['corners_total']} corners{capped})")
+    if report.time is None:
+        caption = f"{where}, steady; reference: Chebyshev collocation, sparse direct solve, {s['jobs']} job(s), "
+    else:
+        caption = (f"{where} x {s['times']} times ({s['time_nodes']} nodes + {s['random_times']} random); "
+                   f"reference {s['method']} rtol {s['rtol']:.0e} atol {s['atol']:.0e}, {s['jobs']} job(s), ")
+    caption += f"{report.wall_time:.2f} s. rel error = max abs error / max |reference| of the unknown."
+    table = Table(title=f"pgd verify: {report.problem}", title_justify="left", caption=caption,
+                  caption_justify="left")
+    for column in ("unknown", "max abs error", "max rel error", "RMS error", "max |reference|", "worst at"):
+        table.add_column(column, justify="left" if column in ("unknown", "worst at") else "right")
+    for name, stats in report.unknowns.items():
+        at = ", ".join(f"{k}={v:.6g}" for k, v in stats.where.items()) if math.isfinite(stats.max_abs_error) else "n/a"
+        table.add_row(name, number(stats.max_abs_error), number(stats.max_rel_error), number(stats.rms_error),
+                      number(stats.reference_scale), at)
+    out: list = [table]
+    if report.failures:
+        failed = Table(title=f"reference failed at {len(report.failures)} of {s['parameter_points']} parameter points",
+                       title_justify="left", title_style="bold red")
+        failed.add_column("point")
+        failed.add_column("reason")
+        for failure in report.failures[:10]:
+            failed.add_row(", ".join(f"{k}={v:.6g}" for k, v in failure.point.items()) or "-", failure.message)
+        if len(report.failures) > 10:
+            failed.add_row(f"... {len(report.failures) - 10} more", "(all in --format json)")
+        out.append(failed)
+    gates = ["every reference integration succeeds"]
+    if max_error is not None:
+        gates.append(f"max abs error <= {max_error:.3g}")
+    if max_rel_error is not None:
+        gates.append(f"max rel error <= {max_rel_error:.3g}")
+    verdict = "[green]passed[/]" if report.passed(max_error, max_rel_error) else "[red]FAILED[/]"
+    out.append(f"{verdict} (gate: {', '.join(gates)})")
+    return out
