@@ -27,7 +27,7 @@ import numpy as np
 from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError, QueryError
 from . import io as codebook_io
-from .fields import FieldModes, FieldTT, field_summary, validate_field
+from .fields import FieldModes, FieldTT, validate_field
 from .io import FORMAT_NAME, FORMAT_VERSION
 
 __all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "FieldModes", "FieldTT", "FORMAT_NAME", "FORMAT_VERSION"]
@@ -828,7 +828,7 @@ class Codebook:
                  **({"elements": len(c.breakpoints) - 1} if c.breakpoints and c.role != "time" else {})}
                 for c in self.coordinates
             ],
-            "unknowns": {u: field_summary(fm) for u, fm in self.fields.items()},
+            "unknowns": {u: _field_summary(fm) for u, fm in self.fields.items()},
             "method": str(rep.get("method", "pgd")),
             "converged": bool(rep.get("converged", False)),
             "accurate": self.accurate,
@@ -890,6 +890,12 @@ class Codebook:
             warnings.warn(f"{path}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was "
                           f"written with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
         return cb
+
+
+def _field_summary(fm) -> dict:
+    if isinstance(fm, FieldTT):
+        return {"representation": "tensor-train", "modes": fm.rank, "ranks": list(fm.ranks), "floats": fm.size}
+    return {"representation": "cp", "modes": fm.rank, "floats": int(fm.alphas.size + sum(m.size for m in fm.modes))}
 
 
 _TT_CHUNK = 2048  # points per block: keeps the (points, nodes, rank) intermediates in cache

@@ -15,7 +15,7 @@ import numpy as np
 from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError
 
-__all__ = ["FieldModes", "FieldTT", "validate_field", "field_summary"]
+__all__ = ["FieldModes", "FieldTT", "validate_field"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,10 +101,3 @@ def validate_field(name: str, coordinates: Sequence[CoordinateInfo], fm) -> None
             )
     if not (np.all(np.isfinite(fm.alphas)) and all(np.all(np.isfinite(m)) for m in fm.modes)):
         raise CodebookError(f"unknown {name!r}: alphas or modes contain non-finite values")
-
-
-def field_summary(fm) -> dict:
-    """The ``pgd info`` figures of a field: representation, modes (largest rank), ranks, stored floats."""
-    if isinstance(fm, FieldTT):
-        return {"representation": "tensor-train", "modes": fm.rank, "ranks": list(fm.ranks), "floats": fm.size}
-    return {"representation": "cp", "modes": fm.rank, "floats": int(fm.alphas.size + sum(m.size for m in fm.modes))}
