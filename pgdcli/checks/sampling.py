@@ -19,6 +19,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import VerifyError
+from .reference_base import sampled_coordinates, space_coordinates  # one definition for references and samples
 
 __all__ = ["MAX_CORNERS", "SAMPLINGS", "space_coordinates", "sampled_coordinates", "read_points", "check_points_domain",
            "default_samples", "sample_box", "box_corners", "parameter_points", "check_times", "space_points_grid",
@@ -37,16 +38,6 @@ MAX_POINTS_FILE_BYTES = 8 << 20
 #: Random points per space coordinate checked besides the codebook's nodes of that coordinate.
 DEFAULT_RANDOM_SPACE_POINTS = 4
 SAMPLINGS = ("sobol", "lhs")
-
-def space_coordinates(problem) -> tuple:
-    """Space coordinates of the problem (discretized by the reference, not sampled)."""
-    return tuple(c for c in problem.coordinates if getattr(c, "role", "") == "space")
-
-
-def sampled_coordinates(problem) -> tuple:
-    """Coordinates whose points verify samples: neither time nor space."""
-    return tuple(c for c in problem.coordinates if c.name != problem.time and getattr(c, "role", "") != "space")
-
 
 def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
     """Parameter points from a CSV file whose header names the non-time coordinates.

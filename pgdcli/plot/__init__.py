@@ -36,7 +36,8 @@ Conventions
 
 from __future__ import annotations
 
-from .draw import draw_convergence, draw_error, draw_modes, draw_solution, plot_convergence, plot_error, plot_modes, plot_solution
+from .draw import (draw_convergence, draw_error, draw_modes, draw_solution, plot_convergence, plot_error, plot_modes,
+                   plot_solution)
 from .files import default_output, render, save_figure
 from .modes import convergence_data, modes_data, tt_hosvd_modes
 from .options import DEFAULT_DPI, FORMATS, KINDS, parse_over, parse_point, parse_size

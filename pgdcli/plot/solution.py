@@ -7,7 +7,8 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import PgdError, QueryError
-from .options import DEFAULT_AT_CURVES, LINE_POINTS, MAP_POINTS, REFERENCE_MARKERS, count_points, domain_midpoint, field_name, is_steady, line_axis, parse_over, parse_point, point_label, time_coordinate_of
+from .options import (DEFAULT_AT_CURVES, LINE_POINTS, MAP_POINTS, REFERENCE_MARKERS, count_points, domain_midpoint,
+                      field_name, is_steady, line_axis, parse_over, parse_point, point_label, time_coordinate_of)
 
 __all__ = ["solution_data", "error_data", "reference_solver"]
 

@@ -1,0 +1,440 @@
+"""Strong-form Chebyshev-Gauss-Lobatto collocation for the method-of-lines reference: nodes,
+differentiation matrices, barycentric interpolation, the tensor grid, the linear operator of a
+problem and its boundary elimination. Written here from scratch so that it shares nothing with the
+PGD solver's weak-form discretization (pgdcli.discretization).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import SolverError
+from .reference_base import ReferenceBudgetExceeded, sampled_coordinates, space_coordinates
+
+__all__ = ["chebyshev_points", "chebyshev_weights", "chebyshev_differentiation", "barycentric_matrix"]
+
+
+def chebyshev_points(n: int, domain: tuple[float, float] = (-1.0, 1.0)) -> np.ndarray:
+    """The ``n`` Chebyshev-Gauss-Lobatto points of ``domain``, ascending, ends exact.
+
+    ``x_j = low + (1 + s_j) (high - low) / 2`` with ``s_j = -cos(pi j / (n - 1))``
+    (computed as a sine, so that the points are symmetric to rounding).
+    """
+    if n < 2:
+        raise ValueError(f"need at least 2 Chebyshev points, got {n}")
+    low, high = map(float, domain)
+    j = np.arange(n)
+    s = np.sin(np.pi * (2 * j - (n - 1)) / (2 * (n - 1)))
+    x = low + (1.0 + s) * (0.5 * (high - low))
+    x[0], x[-1] = low, high
+    return x
+
+
+def chebyshev_weights(n: int) -> np.ndarray:
+    """Barycentric weights of the Chebyshev-Gauss-Lobatto points (ascending order)."""
+    w = (-1.0) ** np.arange(n)
+    w[0] *= 0.5
+    w[-1] *= 0.5
+    return w
+
+
+def chebyshev_differentiation(n: int, domain: tuple[float, float] = (-1.0, 1.0)) -> np.ndarray:
+    """First-derivative collocation matrix ``D`` on :func:`chebyshev_points` (``(D u)_i = u'(x_i)``
+    for polynomials of degree < n).
+
+    Off-diagonal ``D_ij = (w_j / w_i) / (x_i - x_j)`` with the barycentric weights, the node
+    differences from trigonometric identities (no cancellation near the ends), and the diagonal
+    from the negative sum of its row (exact derivative of constants).
+    """
+    low, high = map(float, domain)
+    theta = np.pi * np.arange(n) / (n - 1)  # x = low + (1 - cos theta) (high - low) / 2
+    ti, tj = theta[:, None], theta[None, :]
+    diff = (high - low) * np.sin(0.5 * (ti + tj)) * np.sin(0.5 * (ti - tj))  # x_i - x_j
+    w = chebyshev_weights(n)
+    with np.errstate(divide="ignore"):
+        D = (w[None, :] / w[:, None]) / diff
+    np.fill_diagonal(D, 0.0)
+    np.fill_diagonal(D, -D.sum(axis=1))
+    return D
+
+
+def barycentric_matrix(nodes: np.ndarray, weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Interpolation matrix ``W`` (P, n): ``W @ f(nodes)`` interpolates at ``points``
+    (barycentric formula of the second kind; a point on a node takes that node's value)."""
+    nodes = np.asarray(nodes, dtype=float)
+    points = np.atleast_1d(np.asarray(points, dtype=float))
+    diff = points[:, None] - nodes[None, :]
+    scale = max(1.0, float(np.max(np.abs(nodes))))
+    hit = np.abs(diff) <= 1e-15 * scale
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = weights[None, :] / diff
+        W = r / r.sum(axis=1, keepdims=True)
+    rows = hit.any(axis=1)
+    if rows.any():
+        W[rows] = 0.0
+        W[rows, np.argmax(hit[rows], axis=1)] = 1.0
+    return W
+
+
+class SpaceGrid:
+    """Tensor-product Chebyshev-Gauss-Lobatto grid over the space coordinates (C order, spec order)."""
+
+    def __init__(self, coordinates, nodes: Mapping[str, int]) -> None:
+        import scipy.sparse as sp
+
+        self.names = [c.name for c in coordinates]
+        self.domains = {c.name: tuple(map(float, c.domain)) for c in coordinates}
+        self.points = {c.name: chebyshev_points(nodes[c.name], c.domain) for c in coordinates}
+        self.weights = {n: chebyshev_weights(x.size) for n, x in self.points.items()}
+        self.shape = tuple(self.points[n].size for n in self.names)
+        self.n = int(np.prod(self.shape))
+        self.index = {n: ix.reshape(-1) for n, ix in zip(self.names, np.indices(self.shape))}
+        self.values = {n: self.points[n][self.index[n]] for n in self.names}
+        self._ops: dict = {}
+        self._sp = sp
+
+    def derivative(self, name: str, order: int):
+        """Sparse (n, n) matrix of ``d^order/dx^order`` along one coordinate on the full grid."""
+        key = (name, order)
+        if key not in self._ops:
+            sp = self._sp
+            D = chebyshev_differentiation(self.points[name].size, self.domains[name])
+            if order == 2:
+                D = D @ D
+            k = self.names.index(name)
+            before = int(np.prod(self.shape[:k]))
+            after = int(np.prod(self.shape[k + 1:]))
+            self._ops[key] = sp.kron(sp.kron(sp.identity(before), sp.csr_matrix(D)), sp.identity(after),
+                                     format="csr")
+        return self._ops[key]
+
+
+def _term_parts(term, time: str, space: list[str]):
+    """A SepTerm split into (coef, time function or None, parameter factors, space factors)."""
+    time_func, param_factors, space_factors = None, [], []
+    for name, func in term.factors:
+        if name == time:
+            time_func = func
+        elif name in space:
+            space_factors.append((name, func))
+        else:
+            param_factors.append((name, func))
+    return term.coef, time_func, param_factors, space_factors
+
+
+class PdeModel:
+    """Sample-independent pieces of the method-of-lines system.
+
+    Per unknown ``s``, the grid points on an end of a coordinate where ``s`` has boundary
+    conditions are boundary points; each carries one condition (a value condition if one of its
+    coordinates gives one, else the gradient condition of its first coordinate) in place of the
+    collocated equation there. The conditions ``C_BB u_B + C_BI u_I = g`` give
+    ``u_B = E u_I + C_BB^-1 g`` with ``E = -C_BB^-1 C_BI``; the full state is ``u = Z y + h``
+    over the interior values ``y``. The equation rows kept (``R``) are, for every equation, the
+    interior points of the unknown whose ``der()`` it holds. Each term of each coefficient gives a
+    matrix ``R (c * L) Z`` (``L`` the identity or a derivative) weighted per sample by its
+    parameter factors and per time by its time function.
+    """
+
+    def __init__(self, problem, nodes: Mapping[str, int]) -> None:
+        import scipy.sparse as sp
+
+        self.problem = problem
+        time = problem.time
+        self.time = time
+        coords = space_coordinates(problem)
+        self.space = [c.name for c in coords]
+        self.params = [c.name for c in sampled_coordinates(problem)]
+        grid = SpaceGrid(coords, nodes)
+        self.grid = grid
+        n = grid.n
+        names = list(problem.unknown_names)
+        index = {u: i for i, u in enumerate(names)}
+        q = self.q = len(names)
+
+        # -- the unknown each equation belongs to (its rows at boundary points are replaced) -------
+        owners = []
+        for equation in problem.equations:
+            ders = {a.unknown for m in equation.polynomial for a in m if a.order == 1 and a.coordinate == time}
+            owners.append(index[next(iter(ders))] if len(ders) == 1 else None)
+        if None in owners or len(set(owners)) != q:
+            owners = list(range(q))  # equations in unknown order
+        self.owners = owners
+
+        # -- boundary points, conditions and the elimination u = Z y + h ----------------------------
+        interior_cols, z_blocks, self.boundary = [], [], []
+        offsets = np.zeros(q + 1, dtype=int)
+        for s, unknown in enumerate(problem.unknowns):
+            conds = {c: ends for c, ends in unknown.boundary.items() if c in self.space}
+            on_end = np.zeros(n, dtype=bool)
+            for c in conds:
+                ix = grid.index[c]
+                on_end |= (ix == 0) | (ix == grid.shape[grid.names.index(c)] - 1)
+            B = np.flatnonzero(on_end)
+            Iidx = np.flatnonzero(~on_end)
+            choice = []  # (point, coordinate, side, Boundary)
+            for p in B:
+                candidates = []
+                for c in grid.names:
+                    if c not in conds:
+                        continue
+                    ix = grid.index[c][p]
+                    last = grid.shape[grid.names.index(c)] - 1
+                    if ix == 0 or ix == last:
+                        side = 0 if ix == 0 else 1
+                        candidates.append((c, side, conds[c][side]))
+                values = [cand for cand in candidates if cand[2].kind == "value"]
+                choice.append((int(p),) + (values[0] if values else candidates[0]))
+            E = np.zeros((B.size, Iidx.size))
+            lu = None
+            if B.size:
+                import scipy.linalg as sla
+
+                C = np.zeros((B.size, n))
+                for row, (p, c, side, bc) in enumerate(choice):
+                    if bc.kind == "value":
+                        C[row, p] = 1.0
+                    else:
+                        C[row] = grid.derivative(c, 1)[p].toarray().ravel()
+                CBB, CBI = C[:, B], C[:, Iidx]
+                cond = np.linalg.cond(CBB)
+                if not cond < 1e12:
+                    raise SolverError(f"{problem.source}: unknowns.{unknown.name}.boundary: the boundary conditions "
+                                      "do not determine the boundary values of the method-of-lines reference "
+                                      f"(condition number {cond:.3g})")
+                lu = sla.lu_factor(CBB)
+                E = -sla.lu_solve(lu, CBI)
+                E[np.abs(E) <= 1e-15 * max(1.0, float(np.max(np.abs(E))))] = 0.0
+            self.boundary.append((B, Iidx, choice, lu))
+            # Z_s: (n, |I|) with identity rows at I and E rows at B
+            Zs = sp.lil_matrix((n, Iidx.size))
+            Zs[Iidx, np.arange(Iidx.size)] = 1.0
+            if B.size:
+                Zs[B, :] = E
+            z_blocks.append(Zs.tocsr())
+            interior_cols.append(Iidx)
+            offsets[s + 1] = offsets[s] + Iidx.size
+        self.interior = interior_cols
+        self.offsets = offsets
+        self.m = int(offsets[-1])
+        self.Z = sp.block_diag(z_blocks, format="csr")
+        rows = np.concatenate([r * n + interior_cols[owners[r]] for r in range(q)])
+        self.rows = rows  # kept rows of the full (q n) system, in the order of the interior unknowns
+
+        # -- operator and source terms ---------------------------------------------------------
+        def place(r: int, s: int, block):
+            blocks = [[None] * q for _ in range(q)]
+            blocks[r][s] = block
+            for i in range(q):  # bmat needs every block row and column sized
+                if blocks[i][i] is None:
+                    blocks[i][i] = sp.csr_matrix((n, n))
+            return sp.bmat(blocks, format="csr")
+
+        self.ops = []  # (kind 'mass'|'op', time key, time func, param factors, coef, R A Z, R A (for h))
+        self.sources = []  # (time key, time func, param factors, coef, R-rows vector)
+        for r, equation in enumerate(problem.equations):
+            for monomial, sep in equation.polynomial.items():
+                if len(monomial) > 1:
+                    from ..problem.expressions import format_monomial
+
+                    raise SolverError(
+                        f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
+                        "method-of-lines reference supports equations linear in the unknowns"
+                    )
+                for term in sep.terms:
+                    coef, tfunc, pf, sf = _term_parts(term, time, self.space)
+                    values = np.ones(n)
+                    for name, func in sf:
+                        values = values * np.broadcast_to(func(grid.values[name]), (n,))
+                    key = None if tfunc is None else tfunc.tree
+                    if not monomial:
+                        full = np.zeros(q * n)
+                        full[r * n:(r + 1) * n] = values
+                        self.sources.append((key, tfunc, pf, coef, full[rows]))
+                        continue
+                    atom = monomial[0]
+                    s = index[atom.unknown]
+                    if atom.order == 1 and atom.coordinate == time:
+                        kind, L = "mass", None
+                    elif atom.order == 0:
+                        kind, L = "op", None
+                    else:
+                        kind, L = "op", grid.derivative(atom.coordinate, atom.order)
+                    block = sp.diags(values) if L is None else sp.diags(values) @ L
+                    A = place(r, s, sp.csr_matrix(block))[rows]
+                    self.ops.append((kind, key, tfunc, pf, coef, (A @ self.Z).tocsr(), A))
+        self.time_funcs = {}
+        for entry in self.ops:
+            if entry[1] is not None:
+                self.time_funcs[entry[1]] = entry[2]
+        for entry in self.sources:
+            if entry[0] is not None:
+                self.time_funcs[entry[0]] = entry[1]
+        self.static_mass = all(key is None for kind, key, *_ in self.ops if kind == "mass")
+
+    # -- per-sample data ---------------------------------------------------------------------------
+    @staticmethod
+    def _weights(pf, coef: float, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
+        w = np.full(S, float(coef))
+        for name, func in pf:
+            w = w * np.broadcast_to(func(params[name]), (S,))
+        return w
+
+    def boundary_lift(self, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
+        """``h`` (S, q n): boundary values from the conditions at every sample."""
+        import scipy.linalg as sla
+
+        n = self.grid.n
+        h = np.zeros((S, self.q * n))
+        for s, (B, _, choice, lu) in enumerate(self.boundary):
+            if not B.size:
+                continue
+            g = np.zeros((S, B.size))
+            for row, (p, c, side, bc) in enumerate(choice):
+                if bc.value.is_zero:
+                    continue
+                at = {name: params[name] for name in self.params}
+                at.update({name: np.full(S, self.grid.values[name][p]) for name in self.space})
+                g[:, row] = np.broadcast_to(bc.value.evaluate(**at), (S,))
+            h[:, s * n + B] = sla.lu_solve(lu, g.T).T
+        return h
+
+    def initial_grid(self, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
+        """Initial values (S, q, n) at the grid nodes."""
+        n = self.grid.n
+        at = {name: params[name][:, None] for name in self.params}
+        at.update({name: self.grid.values[name][None, :] for name in self.space})
+        out = np.empty((S, self.q, n))
+        for s, unknown in enumerate(self.problem.unknowns):
+            out[:, s, :] = np.broadcast_to(unknown.initial.evaluate(**at), (S, n)) if unknown.initial.terms else 0.0
+        return out
+
+    def interior_values(self, full: np.ndarray) -> np.ndarray:
+        """Interior values (S, m) of full grid values (S, q, n)."""
+        return np.concatenate([full[:, s, self.interior[s]] for s in range(self.q)], axis=1)
+
+
+class PdeSystem:
+    """``y' = -(M(t)^-1) (A(t) y + b(t))`` for a chunk of samples, block-diagonal over samples."""
+
+    def __init__(self, model: PdeModel, params: Mapping[str, np.ndarray], S: int, max_evaluations: int) -> None:
+        import scipy.sparse as sp
+
+        self.model = model
+        self.S = S
+        self.max_evaluations = max_evaluations
+        self.evaluations = 0
+        self.last_y = None
+        m = model.m
+        h = model.boundary_lift(params, S)  # (S, q n)
+        self.h = h
+        mass: dict = {}
+        ops: dict = {}
+        src: dict = {}
+        for kind, key, _, pf, coef, AZ, A in model.ops:
+            w = model._weights(pf, coef, params, S)
+            target = mass if kind == "mass" else ops
+            target[key] = [w[i] * AZ if j is None else j + w[i] * AZ for i, j in enumerate(target.get(key, [None] * S))]
+            if kind == "op":  # the known boundary part h of the state (constant in time: no mass term)
+                src[key] = src.get(key, 0.0) + np.concatenate([w[i] * (A @ h[i]) for i in range(S)])
+        for key, _, pf, coef, vec in model.sources:
+            w = model._weights(pf, coef, params, S)
+            src[key] = src.get(key, 0.0) + np.concatenate([w[i] * vec for i in range(S)])
+        self.bad = np.zeros(S, dtype=bool)
+        self.bad_reason = ""
+        self.keys = sorted(set(ops) | set(src), key=lambda k: (k is not None, repr(k)))
+        self.funcs = model.time_funcs
+        zero = sp.csr_matrix((S * m, S * m))
+        self.A = {k: sp.block_diag(ops[k], format="csr") if k in ops else zero for k in self.keys}
+        self.b = {k: np.asarray(src[k]) if k in src else np.zeros(S * m) for k in self.keys}
+        self.M = {k: sp.block_diag(mass[k], format="csr") for k in mass}
+        self.static = model.static_mass
+        if model.time is None:  # steady: no der(), nothing to invert
+            self.diagonal = self.constant = True
+            return
+        self.diagonal = all((M - sp.diags(M.diagonal())).count_nonzero() == 0 for M in self.M.values())
+        if self.static:
+            M = self.M.get(None, zero)
+            self._mass_check(M)
+            if self.bad.any():
+                return
+            if self.diagonal:
+                inv = sp.diags(1.0 / M.diagonal())
+                self.A = {k: (inv @ A).tocsr() for k, A in self.A.items()}
+                self.b = {k: inv @ b for k, b in self.b.items()}
+            else:
+                from scipy.sparse.linalg import splu
+
+                lu = splu(M.tocsc())
+                self.A = {k: sp.csr_matrix(lu.solve(A.toarray())) for k, A in self.A.items()}
+                self.b = {k: lu.solve(b) for k, b in self.b.items()}
+        self.constant = self.static and self.keys in ([], [None])
+
+    def _mass_check(self, M) -> None:
+        m, S = self.model.m, self.S
+        if self.diagonal:
+            d = M.diagonal().reshape(S, m)
+            bad = ~np.isfinite(d).all(axis=1) | (d == 0).any(axis=1)
+            reason = "a coefficient of der() vanishes or is not finite at this point"
+        else:
+            bad = np.zeros(S, dtype=bool)
+            dense = M.toarray()
+            for i in range(S):
+                block = dense[i * m:(i + 1) * m, i * m:(i + 1) * m]
+                bad[i] = not (np.isfinite(block).all() and np.linalg.cond(block) < 1e14)
+            reason = "the matrix of der() coefficients is singular at this point (not an ODE system there)"
+        self.bad, self.bad_reason = bad, reason
+
+    def _weight(self, key, t: float) -> float:
+        return 1.0 if key is None else float(self.funcs[key](t))
+
+    def matrix(self, t: float):
+        import scipy.sparse as sp
+
+        A = sp.csr_matrix((self.S * self.model.m,) * 2)
+        for k in self.keys:
+            A = A + (self.A[k] if k is None else self._weight(k, t) * self.A[k])
+        return A
+
+    def _mass_at(self, t: float):
+        M = None
+        for k, Mk in self.M.items():
+            term = Mk if k is None else self._weight(k, t) * Mk
+            M = term if M is None else M + term
+        return M
+
+    def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
+        self.evaluations += 1
+        self.last_y = y
+        if self.evaluations > self.max_evaluations:
+            raise ReferenceBudgetExceeded
+        out = np.zeros_like(y, dtype=float)
+        for k in self.keys:
+            w = self._weight(k, t)
+            if w != 0.0:
+                b = self.b[k] if y.ndim == 1 else self.b[k][:, None]
+                out -= w * (self.A[k] @ y + b)
+        if self.static:
+            return out
+        M = self._mass_at(t)
+        if self.diagonal:
+            d = M.diagonal()
+            return out / (d if y.ndim == 1 else d[:, None])
+        from scipy.sparse.linalg import spsolve
+
+        return spsolve(M.tocsc(), out)
+
+    def jacobian(self, t: float, y: np.ndarray):
+        import scipy.sparse as sp
+
+        J = -self.matrix(t)
+        if self.static:
+            return J
+        M = self._mass_at(t)
+        if self.diagonal:
+            return sp.diags(1.0 / M.diagonal()) @ J
+        from scipy.sparse.linalg import splu
+
+        return sp.csr_matrix(splu(M.tocsc()).solve(J.toarray()))

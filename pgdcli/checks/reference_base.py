@@ -1,0 +1,194 @@
+"""What the ODE and the PDE references share: settings, result types, argument checks, chunks over
+worker processes. Imports nothing of the solvers (see :mod:`pgdcli.checks.reference`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from typing import Callable, Mapping
+
+import numpy as np
+
+from ..errors import SolverError
+
+__all__ = ["METHODS", "PDE_METHODS", "ReferenceResult", "ReferenceBudgetExceeded", "DEFAULT_MAX_EVALUATIONS", "DEFAULT_SPACE_NODES"]
+
+
+#: Integration methods of ``scipy.integrate.solve_ivp`` that may be used.
+METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")
+
+#: Right-hand-side evaluations one integration may spend before it is given up
+#: (a stiff problem under an explicit method would otherwise run for hours).
+DEFAULT_MAX_EVALUATIONS = 500_000
+
+#: Collocation nodes per space coordinate of the method-of-lines reference.
+DEFAULT_SPACE_NODES = 40
+#: ``solve_ivp`` methods the method-of-lines reference may use (its system is stiff).
+PDE_METHODS = ("BDF", "Radau")
+#: Default tolerances of the method-of-lines reference.
+PDE_RTOL = 1e-10
+PDE_ATOL = 1e-12
+
+
+@dataclass
+class ReferenceResult:
+    """Reference values of every unknown at parameter samples and times.
+
+    Attributes
+    ----------
+    values : dict of str to ndarray, shape (S, T)
+        Unknown name -> values at sample ``i`` (row) and the ``j``-th given
+        time (column), in the order the times were given; shape (S,) for a
+        steady problem. NaN where the sample failed.
+    success : ndarray of bool, shape (S,)
+    messages : list of str
+        Per sample: ``''`` when fine, else why the integration failed.
+    method, rtol, atol
+        The settings used.
+    """
+
+    values: dict[str, np.ndarray]
+    success: np.ndarray
+    messages: list[str]
+    method: str = "DOP853"
+    rtol: float = 1e-12
+    atol: float = 1e-12
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def n_failed(self) -> int:
+        return int(np.count_nonzero(~self.success))
+
+
+class ReferenceBudgetExceeded(Exception):
+    """Raised inside an integration that spent its evaluation budget."""
+
+
+def sample_subset(params: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    return {name: values[rows] for name, values in params.items()}
+
+
+
+def pool_context():
+    """fork on Linux when this process runs no other thread (fast, no ``__main__`` guard needed in
+    user scripts), else forkserver/spawn (forking a process that runs threads can deadlock)."""
+    import multiprocessing
+    import sys
+    import threading
+
+    methods = multiprocessing.get_all_start_methods()
+    if sys.platform.startswith("linux") and "fork" in methods and threading.active_count() == 1:
+        return multiprocessing.get_context("fork")
+    return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+
+
+# ----------------------------------------------------------------------------------------------
+# public API
+# ----------------------------------------------------------------------------------------------
+
+def run_in_chunks(n_samples: int, chunk_size: int, jobs: int, progress, values: np.ndarray, success: np.ndarray,
+                   messages: list, solve_here: Callable, submit: Callable | None) -> None:
+    """Solve the samples chunk by chunk, here or in worker processes, storing every result.
+
+    ``solve_here(rows)`` and the future of ``submit(pool, rows)`` return ``(values, success,
+    messages)`` for the sample indices ``rows``; they are written into the given arrays, and
+    ``progress`` (if any) is told the number of samples finished.
+    """
+    bounds = list(range(0, n_samples, max(1, int(chunk_size)))) + [n_samples]
+    chunks = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+    done = 0
+
+    def store(rows, result):
+        nonlocal done
+        v, ok, msgs = result
+        values[rows] = v
+        success[rows] = ok
+        for i, msg in zip(rows, msgs):
+            messages[i] = msg
+        done += rows.size
+        if progress is not None:
+            progress(done)
+
+    workers = min(max(1, int(jobs)), len(chunks))
+    if workers <= 1 or submit is None:
+        for rows in chunks:
+            store(rows, solve_here(rows))
+        return
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=pool_context()) as pool:
+        futures = {submit(pool, rows): rows for rows in chunks}
+        try:
+            for future in as_completed(futures):
+                store(futures[future], future.result())
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+def space_coordinates(problem) -> tuple:
+    """The coordinates of the problem with role ``'space'`` (spec order)."""
+    return tuple(c for c in problem.coordinates if getattr(c, "role", "parameter") == "space")
+
+
+def sampled_coordinates(problem) -> tuple:
+    """The coordinates sampled by a reference: neither time nor space."""
+    return tuple(c for c in problem.coordinates if c.name != problem.time and getattr(c, "role", "") != "space")
+
+
+def check_tolerances(rtol, atol) -> None:
+    for label, value in (("rtol", rtol), ("atol", atol)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float, np.floating)) and math.isfinite(value)
+                                           and 0 < value < 1):
+            raise SolverError(f"{label} must be a number in (0, 1), got {value!r}")
+
+
+def checked_times(times, t0: float, time: str) -> np.ndarray:
+    times = np.atleast_1d(np.asarray(times, dtype=float))
+    if times.ndim != 1 or times.size == 0:
+        raise SolverError(f"times: expected a non-empty 1-D array, got shape {times.shape}")
+    if not np.isfinite(times).all():
+        raise SolverError("times: values must be finite")
+    if (times < t0).any():
+        raise SolverError(f"times: {float(times.min())!r} is before the start {time} = {t0:g} of the time domain")
+    return times
+
+
+def checked_params(params: Mapping[str, np.ndarray], names: list[str], time: str, others: list[str],
+                  label: str = "params") -> tuple[dict[str, np.ndarray], int]:
+    for key in params:
+        if key not in names:
+            if key == time:
+                what = "the time coordinate (give it as times)"
+            elif key in others:
+                what = "a space coordinate (give it as space_points)"
+            else:
+                what = "not a parameter coordinate"
+            raise SolverError(f"{label}: {key!r} is {what}; the parameters are {', '.join(names) or 'none'}")
+    missing = [n for n in names if n not in params]
+    if missing:
+        raise SolverError(f"{label}: missing coordinate(s) {', '.join(missing)}")
+    arrays = {n: np.atleast_1d(np.asarray(params[n], dtype=float)) for n in names}
+    sizes = {a.shape for a in arrays.values()}
+    if any(a.ndim != 1 for a in arrays.values()) or len(sizes) > 1:
+        raise SolverError(f"{label}: expected 1-D arrays of one length, got shapes {sorted(sizes)}")
+    if any(not np.isfinite(a).all() for a in arrays.values()):
+        raise SolverError(f"{label}: values must be finite")
+    S = next(iter(arrays.values())).size if arrays else 1
+    return arrays, S
+
+
+def start_time(problem) -> float:
+    """The start of the time domain; -inf for a steady problem (every time is 'late')."""
+    return -np.inf if problem.time is None else float(problem.time_coordinate.domain[0])
+
+
+def reference_times(problem, times) -> np.ndarray:
+    """Validated times; a steady problem takes ``None`` and gets one placeholder time."""
+    if problem.time is None:
+        if times is not None:
+            raise SolverError(f"{problem.source}: times: a steady problem (no time coordinate) takes times=None")
+        return np.zeros(1)
+    if times is None:
+        raise SolverError("times: expected a non-empty 1-D array of times, got None")
+    return checked_times(times, start_time(problem), problem.time)
