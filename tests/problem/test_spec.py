@@ -359,7 +359,7 @@ def test_problem_is_hashable_and_comparable():
 
 
 def test_every_shipped_problem_parses_and_is_checked_by_a_test():
-    tests = "".join(p.read_text() for p in pathlib.Path("tests").glob("test_*.py"))
+    tests = "".join(p.read_text() for p in pathlib.Path("tests").rglob("test_*.py"))
     shipped = sorted(pathlib.Path("problems").glob("*.yaml"))
     assert shipped
     for path in shipped:
