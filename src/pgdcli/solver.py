@@ -1087,11 +1087,15 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     if nmax < 1:
         raise SolverError(f"max_modes must be at least 1, got {nmax}")
     march = _use_march(problem)
+    # the solver's own target (RMS of the march, residual of the enrichment) that met the tolerance at
+    # the nodes is carried from one round of the automatic resolution to the next: the error at the
+    # nodes hardly depends on how many nodes there are, so each round need not find it again
+    learned: dict = {}
     if march:
-        once = partial(_checked_march, tolerance=tol, relative_tolerance=rtol, callback=callback)
+        once = partial(_checked_march, tolerance=tol, relative_tolerance=rtol, callback=callback, learned=learned)
     else:
         once = partial(_checked_enrichment, tolerance=tol, relative_tolerance=rtol, max_modes=nmax,
-                       callback=callback)
+                       callback=callback, learned=learned)
     with _blas_single_thread():
         return solve_to_tolerance(problem, once, march=march)
 
@@ -1143,9 +1147,13 @@ RESIDUAL_FLOOR = 1e-13
 
 
 def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float, max_modes: int,
-                        callback=None) -> SolveResult:
-    """Enrich, measure the error against the reference, tighten the residual if the nodes need it."""
-    target = tolerance
+                        callback=None, learned: dict | None = None) -> SolveResult:
+    """Enrich, measure the error against the reference, tighten the residual if the nodes need it.
+
+    ``learned`` (updated) carries the residual that met the tolerance at the nodes to the next call.
+    """
+    learned = {} if learned is None else learned
+    target = learned.get("residual", tolerance)
     kept = None
     attempts = []
     for _ in range(CHECK_ATTEMPTS):
@@ -1167,6 +1175,8 @@ def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float,
         # a residual is cheap to lower and the error follows it only roughly: at least a decade below
         # the residual reached (heat1d: 4.3e-10 with 7 modes, error 1.05e-8; 8 modes: 3.6e-10)
         target = max(RESIDUAL_FLOOR, min(target, result.residual) * min(0.1, CHECK_SAFETY / ratio))
+    if kept.check.node_ratio <= 1.0:
+        learned["residual"] = attempts[-1][0]
     rep = kept.codebook.report
     if kept.check.node_ratio > 1.0:  # the residual cannot (or did not) bring it down: more time or space nodes
         rep["discretization_limited"] = 1
@@ -1210,17 +1220,20 @@ CHECK_ATTEMPTS = 3
 CHECK_SAFETY = 0.5
 
 
-def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0, callback=None) -> "SolveResult":
+def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0, callback=None,
+                   learned: dict | None = None) -> "SolveResult":
     """March, measure the error against scipy at the check sample, tighten the march if the nodes need it.
 
     The march controls an RMS over the parameter grid; the user's tolerance is read
     as a bound on the max abs error, and this is where it is made one (see
     :mod:`pgdcli.check`). Errors between the parameter nodes (interpolation) do not
     fall with a tighter march: they are for :mod:`pgdcli.adapt` (more nodes).
+    ``learned`` (updated) carries the target that met the tolerance at the nodes to the next call.
     """
     from .march import solve_march
 
-    target = CHECK_FIRST * tolerance
+    learned = {} if learned is None else learned
+    target = learned.get("march_target", CHECK_FIRST * tolerance)
     kept = None
     attempts = []
     notes = []
@@ -1241,6 +1254,8 @@ def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0
         if not np.isfinite(check.node_ratio) or check.node_ratio <= 1.0:
             break
         target *= CHECK_SAFETY / check.node_ratio
+    if kept.check.node_ratio <= 1.0:
+        learned["march_target"] = attempts[-1][0]
     rep = kept.codebook.report
     rep["tolerance"] = float(tolerance)
     rep["march_tolerance"] = float(attempts[-1][0])
