@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes
-from pgdcli.resolution import resolution_tails
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.checks.resolution import resolution_tails
 
 COORDS = (CoordinateInfo("x", (0.0, 1.0), 9, "chebyshev", "space"),
           CoordinateInfo("k", (1.0, 3.0), 7, "chebyshev", "parameter"),
@@ -67,7 +67,7 @@ def test_chebyshev_decay_is_the_bernstein_ellipse_of_a_pole():
     """1/(1 + (x - 0.3)^2) on [-1, 1] has poles at 0.3 +- i: its coefficients fall like rho**-k with
     rho = |z + sqrt(z^2 - 1)| at the pole (the Bernstein ellipse through it), which the fitted
     decay must recover; the linear coordinate and the one with too few nodes are left out."""
-    from pgdcli.resolution import chebyshev_decay
+    from pgdcli.checks.resolution import chebyshev_decay
 
     info = (CoordinateInfo("x", (-1.0, 1.0), 33, "chebyshev", "parameter"),
             CoordinateInfo("k", (1.0, 3.0), 7, "chebyshev", "parameter"),
@@ -84,7 +84,7 @@ def test_chebyshev_decay_is_the_bernstein_ellipse_of_a_pole():
 
 def test_chebyshev_decay_skips_a_resolved_coordinate():
     """A polynomial of low degree is resolved: its spectrum is at rounding level, nothing to extrapolate."""
-    from pgdcli.resolution import chebyshev_decay
+    from pgdcli.checks.resolution import chebyshev_decay
 
     info = (CoordinateInfo("x", (-1.0, 1.0), 17, "chebyshev", "parameter"),)
     x = _nodes(info[0])

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .separated import orthogonal_sweep
-from .tt import tt_centre_cores
+from ..tensors.cp import orthogonal_sweep
+from ..tensors.tt import tt_centre_cores
 
 __all__ = ["resolution_tails", "chebyshev_decay"]
 
@@ -60,7 +60,7 @@ def _row_norms(codebook, matrices) -> dict[str, dict[str, np.ndarray | None]]:
     dict
         ``{unknown: {coordinate: (m_j,) ndarray or None}}``.
     """
-    from .codebook import FieldTT
+    from ..codebook.codebook import FieldTT
 
     coords = codebook.coordinates
     sizes = [c.nodes for c in coords]

@@ -39,7 +39,7 @@ from typing import Callable, Iterable, Iterator, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from .errors import ExpressionError
+from ..errors import ExpressionError
 
 __all__ = [
     "FUNCTIONS",

@@ -25,7 +25,7 @@ Conventions
   ``modes`` shows their HOSVD modes (:func:`tt_hosvd_modes`, normalized, with
   the singular values), and ``convergence`` the march's accepted step sizes
   and the state's tensor-train ranks at the time nodes.
-- The independent reference is :func:`pgdcli.reference.solve_reference`
+- The independent reference is :func:`pgdcli.checks.reference.solve_reference`
   (scipy ``solve_ivp``) on the spec embedded in the codebook; any callable
   ``reference(params, times) -> result`` with ``result.values[unknown]`` of
   shape ``(S, T)``, ``result.success`` (S,) and ``result.messages`` can be
@@ -41,7 +41,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import PgdError, QueryError
+from ..errors import PgdError, QueryError
 
 __all__ = [
     "KINDS",
@@ -227,16 +227,16 @@ def reference_solver(codebook, *, source: str = "<codebook>", method: str | None
     """The independent reference for ``codebook``: ``solve(params, times) -> ReferenceResult``.
 
     Re-parses the spec embedded in the codebook and integrates it with
-    :func:`pgdcli.reference.solve_reference` (scipy ``solve_ivp``; ``None`` settings: its
+    :func:`pgdcli.checks.reference.solve_reference` (scipy ``solve_ivp``; ``None`` settings: its
     defaults, DOP853 at 1e-12 for ODEs, the method of lines with BDF for space coordinates).
     """
-    from .spec import parse_spec
+    from ..problem.spec import parse_spec
 
     if not codebook.spec_text.strip():
         raise PgdError(f"{source}: the codebook has no embedded spec; a reference solution needs one")
     try:
-        from .reference import solve_reference
-    except ImportError as exc:  # pragma: no cover - only while pgdcli.reference is missing
+        from ..checks.reference import solve_reference
+    except ImportError as exc:  # pragma: no cover - only while pgdcli.checks.reference is missing
         raise PgdError(f"the reference solver is not available ({exc})") from None
     problem = parse_spec(codebook.spec_text, source=source, allow_nonlinear=True)
 
@@ -293,8 +293,8 @@ def _reference_description(reference) -> str:
 def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *, points: int | None = None) -> dict:
     """The first ``count`` modes of ``field`` per coordinate, on a fine grid.
 
-    A CP unknown (:class:`~pgdcli.codebook.FieldModes`) shows its stored modes.
-    A tensor-train unknown (:class:`~pgdcli.codebook.FieldTT`, the time march's
+    A CP unknown (:class:`~pgdcli.codebook.codebook.FieldModes`) shows its stored modes.
+    A tensor-train unknown (:class:`~pgdcli.codebook.codebook.FieldTT`, the time march's
     codebooks) has no per-coordinate modes of its own; it shows its HOSVD modes:
     for coordinate ``j``, the leading left singular vectors of the tensor's
     mode-``j`` unfolding (nodes of ``j`` x nodes of all other coordinates),
@@ -323,7 +323,7 @@ def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *
         above ``max(unfolding shape) * eps * sigma_1``, numpy's ``matrix_rank``) and
         ``singular_values`` (all min(n, r_{k-1} r_k) of them, decreasing).
     """
-    from .codebook import FieldTT
+    from ..codebook.codebook import FieldTT
 
     name = _field(codebook, field)
     if int(count) != count or count < 1:
@@ -373,7 +373,7 @@ def tt_hosvd_modes(fm) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """HOSVD modes of a tensor train, without forming the tensor.
 
     For each core ``k`` (coordinate ``j = fm.mode_order[k]``) the train is
-    orthogonalized around it (:func:`pgdcli.tt.tt_centre_cores`), so that the
+    orthogonalized around it (:func:`pgdcli.tensors.tt.tt_centre_cores`), so that the
     mode-``j`` unfolding of the tensor equals ``C_k`` (core ``k`` reshaped to
     ``(nodes_j, r_{k-1} r_k)``) times a matrix with orthonormal rows. The SVD of ``C_k`` then gives the
     unfolding's left singular vectors and singular values.
@@ -386,7 +386,7 @@ def tt_hosvd_modes(fm) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         (m,) the singular values in decreasing order, ``m = min(nodes_j,
         r_{k-1} r_k)``.
     """
-    from .tt import tt_centre_cores
+    from ..tensors.tt import tt_centre_cores
 
     out = {}
     for k, centre in enumerate(tt_centre_cores(fm.cores)):
@@ -1095,7 +1095,7 @@ def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | 
     the option) rather than being ignored. ``warn`` receives reference
     failures (one line each).
     """
-    from .codebook import Codebook
+    from ..codebook.codebook import Codebook
 
     if kind not in KINDS:
         raise QueryError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")

@@ -1,9 +1,9 @@
 """``pgd query`` without click: argument parsing and the lean command.
 
 ``pgd query`` is called in loops, so its start-up time is part of its cost.
-This module does what the click command :func:`pgdcli.cli.query` does, with
-the same helpers (defined here and in :mod:`pgdcli.stream`, used by both), but
-imports only numpy and :mod:`pgdcli.codebook` (h5py when the codebook is read);
+This module does what the click command :func:`pgdcli.cli.main.query` does, with
+the same helpers (defined here and in :mod:`pgdcli.cli.stream`, used by both), but
+imports only numpy and :mod:`pgdcli.codebook.codebook` (h5py when the codebook is read);
 csv and json only when needed. No click, no rich, no scipy.
 
 :func:`run` handles the plain invocations. Anything else -- ``--help``, a
@@ -21,7 +21,7 @@ import io
 import os
 import sys
 
-from .errors import QueryError
+from ..errors import QueryError
 
 __all__ = ["run", "main", "UsageProblem"]
 
@@ -78,7 +78,7 @@ def parse_coordinate_args(args: list[str], cb) -> dict[str, str]:
 def parse_values(name: str, text: str):
     """A number, a comma list or ``start:stop:count`` -> 1-D float array.
 
-    A count is checked against :func:`pgdcli.stream.max_points` before
+    A count is checked against :func:`pgdcli.cli.stream.max_points` before
     anything is allocated (``0:1:1000000000000`` is refused, not attempted).
     """
     import numpy as np
@@ -181,7 +181,7 @@ class _Recorder:
 
 
 def point_chunks(cb, points: str | None, rest: list[str], stdin=None):
-    """The points of a query, in chunks (:mod:`pgdcli.stream`), and a file handle to close (or None).
+    """The points of a query, in chunks (:mod:`pgdcli.cli.stream`), and a file handle to close (or None).
 
     Grid arguments are parsed and checked (domain, size) here, before any output.
     """
@@ -203,7 +203,7 @@ def _stream_rest(writer, chunks, text: str) -> int:
     """Print the evaluated first chunk and every other one; errors from here on are reported here,
     with the bytes the click command would print (the output has begun: no falling back)."""
     from . import guard
-    from .errors import PgdError
+    from ..errors import PgdError
 
     try:
         writer.write(text)
@@ -285,7 +285,7 @@ def run(argv: list[str]) -> int | None:
     codebook, fmt, fields, points, rest = split
     recorder = handle = None
     try:
-        from .codebook import Codebook
+        from ..codebook.codebook import Codebook
         from .stream import Writer
 
         if os.path.isdir(codebook):
@@ -346,6 +346,6 @@ def main(argv=None) -> None:
         sys.exit(guard.EXIT_INTERNAL)
     if code is not None:
         sys.exit(code)
-    from .cli import cli
+    from .main import cli
 
     cli.main(args=argv, prog_name="pgd")

@@ -7,9 +7,9 @@ Three targets share one description of the numbers (:func:`layout`):
 ``c``
     One C99 header with the numbers as ``static const`` arrays and
     ``int pgd_<name>_eval(const double *coords, double *out)`` plus a float32
-    variant ``pgd_<name>_eval_f`` (libc only): see :mod:`pgdcli.export_c`.
+    variant ``pgd_<name>_eval_f`` (libc only): see :mod:`pgdcli.codebook.export_c`.
 ``glsl``
-    A shader function over constant arrays: see :mod:`pgdcli.export_c`.
+    A shader function over constant arrays: see :mod:`pgdcli.codebook.export_c`.
 
 JSON schema (all arrays flat, row-major)::
 
@@ -36,7 +36,7 @@ from __future__ import annotations
 import json
 import re
 
-from .errors import PgdError
+from ..errors import PgdError
 
 __all__ = ["ExportError", "TARGETS", "DEFAULT_LIMIT", "layout", "export", "size_of"]
 

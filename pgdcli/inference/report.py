@@ -10,7 +10,7 @@ __all__ = ["write_result", "summary", "plot_fit"]
 
 
 def write_result(stream, result, fmt: str) -> None:
-    """Write a :class:`~pgdcli.fitting.FitResult` to ``stream``.
+    """Write a :class:`~pgdcli.inference.fitting.FitResult` to ``stream``.
 
     ``plain``: one line per free coordinate, ``name estimate stderr`` (full precision);
     ``csv``: the fitted curve, one row per data row: the data's coordinate columns, then for
@@ -53,7 +53,7 @@ def plot_fit(result, path, dpi: int = 150):
     """Data (markers) and the fitted curve (lines) of every observed unknown; saved as PNG/SVG."""
     from matplotlib.figure import Figure
 
-    from .plot import save_figure
+    from ..plot.figures import save_figure
 
     varying = [n for n in result.coordinates if np.ptp(result.fitted[n]) > 0]
     xname = varying[0] if varying else None

@@ -12,8 +12,8 @@ satisfy ``|u - u_ref| <= atol + rtol * |u_ref|`` (``solver.tolerance`` is atol,
 *ratio* ``max |u - u_ref| / (atol + rtol |u_ref|)``: the check passes at <= 1.
 
 The reference is scipy's DOP853 (one vectorized ``solve_ivp`` call,
-:mod:`pgdcli.reference`, which shares no code with the solvers) at rtol = atol =
-1e-13 (space coordinates: :func:`pgdcli.verification.verify`'s method of lines).
+:mod:`pgdcli.checks.reference`, which shares no code with the solvers) at rtol = atol =
+1e-13 (space coordinates: :func:`pgdcli.checks.verify.verify`'s method of lines).
 The sample of the parameter box has parts that fail for different reasons and
 are reported apart, so that the gate can name what is missing:
 
@@ -27,7 +27,7 @@ are reported apart, so that the gate can name what is missing:
   error (``coordinate_ratio[time]``);
 * points uniform in the box (``between_ratio``): all of it at once.
 
-numpy and :mod:`pgdcli.reference` only.
+numpy and :mod:`pgdcli.checks.reference` only.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ class CheckResult:
         ratio at each (max over times): where along it the error is.
     tail_ratio : dict of str to float
         Per coordinate, the largest Chebyshev tail over the unknowns
-        (:func:`pgdcli.resolution.resolution_tails`) over the tolerance: an
+        (:func:`pgdcli.checks.resolution.resolution_tails`) over the tolerance: an
         estimate of the interpolation error along it that needs no sample.
     tolerance, relative_tolerance : float
         atol and rtol of the check.
@@ -228,7 +228,7 @@ def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: fl
     One vectorized DOP853 call with output at ``times`` (its dense output at
     rtol 1e-13 agrees with node-to-node integration at 1e-12 to ~3e-12, and costs a
     tenth); if that call fails (a sample blows up), the node-to-node integration of
-    :func:`pgdcli.reference.solve_reference`, which isolates the failing samples.
+    :func:`pgdcli.checks.reference.solve_reference`, which isolates the failing samples.
     """
     from .reference import solve_reference, solve_reference_vectorized
 
@@ -253,7 +253,7 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
 
     Parameters
     ----------
-    problem : pgdcli.spec.Problem
+    problem : pgdcli.problem.spec.Problem
         With a time coordinate and no space coordinates.
     codebook : pgdcli.Codebook
     tolerance, relative_tolerance : float
@@ -334,11 +334,11 @@ def check_codebook_pde(problem, codebook, *, tolerance: float | None = None, rel
                        seed: int = 0) -> CheckResult:
     """Error of a codebook with space coordinates (or steady) against the method-of-lines reference.
 
-    The reference of ``pgd verify`` (:func:`pgdcli.verification.verify`) at the corners
+    The reference of ``pgd verify`` (:func:`pgdcli.checks.verify.verify`) at the corners
     of the parameter box and :data:`PDE_SAMPLES` Sobol points, on every space node of the
     codebook plus random space points, at the time nodes plus random times. Per
     coordinate, the off-node share is estimated from the Chebyshev tails
-    (:func:`pgdcli.resolution.resolution_tails`) relative to the tolerance.
+    (:func:`pgdcli.checks.resolution.resolution_tails`) relative to the tolerance.
 
     Returns
     -------
@@ -378,7 +378,7 @@ _PDE_REFERENCES: dict = {}
 
 def _pde_reference(problem, codebook, seed: int):
     """verify's report at the check sample (reused for the same nodes) and the codebook's values there."""
-    from .verification import verify
+    from .verify import verify
 
     key = (problem.source_text, tuple((c.name, c.nodes, c.breakpoints) for c in codebook.coordinates), seed)
     report = _PDE_REFERENCES.get(key)
@@ -393,7 +393,7 @@ def _pde_reference(problem, codebook, seed: int):
 
 def on_report_grid(codebook, report) -> dict[str, np.ndarray]:
     """The codebook at a verify report's points: shape (S, [T,] X_1, ..., X_d) like its reference."""
-    from .verification import codebook_on_space_grid
+    from .verify import codebook_on_space_grid
 
     steady = report.time is None
     S = next(iter(report.reference.values())).shape[0]

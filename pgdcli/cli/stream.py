@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import os
 
-from .errors import QueryError
+from ..errors import QueryError
 
 __all__ = ["CHUNK", "DEFAULT_MAX_POINTS", "MAX_LINE_BYTES", "max_points", "check_grid_size", "grid_points",
            "read_points", "format_chunk", "closing", "Writer"]

@@ -1,4 +1,4 @@
-"""C and GLSL sources of a codebook's evaluator (see :mod:`pgdcli.export` for the layout).
+"""C and GLSL sources of a codebook's evaluator (see :mod:`pgdcli.codebook.export` for the layout).
 
 C: one header, C99, libc only (no math.h). Include it in one translation unit::
 
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import __version__
+from .. import __version__
 
 __all__ = ["c_header", "glsl_source"]
 

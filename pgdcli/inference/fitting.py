@@ -11,7 +11,7 @@ over the observed unknowns ``u`` and the data rows, and its Jacobian from
 starts (the box centre, then scrambled Sobol points) guard against local
 minima; the best is kept. Standard errors are ``sqrt(diag(s^2 (J^T J)^-1))``,
 ``s^2 = sum r^2 / (m - n)``. The estimate is then checked: the problem is
-re-solved at it by the independent reference (:mod:`pgdcli.reference`) and
+re-solved at it by the independent reference (:mod:`pgdcli.checks.reference`) and
 the codebook-vs-reference misfit at the data points is reported.
 
 Data columns: one per known coordinate (the time coordinate is required when
@@ -28,8 +28,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .errors import PgdError
-from .fit_data import FitError, check_finite, fixed_values, read_data, split_columns
+from ..errors import PgdError
+from .data import FitError, check_finite, fixed_values, read_data, split_columns
 
 __all__ = ["FitError", "FitResult", "fit", "read_data", "sobol_starts"]
 
@@ -104,13 +104,13 @@ class FitResult:
 class _Model:
     """Weighted residuals and their Jacobian in the free coordinates, for one data set.
 
-    When at most one data coordinate varies (a trajectory), a :class:`~pgdcli.gradient.TrajectoryModel`
+    When at most one data coordinate varies (a trajectory), a :class:`~pgdcli.codebook.gradient.TrajectoryModel`
     along it gives values and Jacobian in one sweep per call (cached for the Jacobian call at the same
     point); otherwise :meth:`Codebook.evaluate` and :meth:`Codebook.gradient` at every row.
     """
 
     def __init__(self, cb, coords, observed, sigma, fixed, free):
-        from .gradient import TrajectoryModel
+        from ..codebook.gradient import TrajectoryModel
 
         self.cb, self.observed, self.free = cb, observed, free
         rows = len(next(iter(coords.values()))) if coords else 1
@@ -138,7 +138,7 @@ class _Model:
     def values(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """Every unknown at the data rows for the free coordinates ``x``: shape (rows,) each."""
         if self.trajectory is not None:
-            from .gradient import TrajectoryModel
+            from ..codebook.gradient import TrajectoryModel
 
             names = self.cb.unknown_names
             axis = self.cb.coordinate_names[self.trajectory.axis]
@@ -258,7 +258,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
     """
     from scipy.optimize import least_squares
 
-    from .codebook import Codebook
+    from ..codebook.codebook import Codebook
 
     cb = codebook if isinstance(codebook, Codebook) else Codebook.load(codebook)
     if not isinstance(data, Mapping):
@@ -322,8 +322,8 @@ def _message(res, free: Sequence[str], bounds: np.ndarray) -> str:
 
 def _reference_check(cb, result: FitResult, coords: Mapping, model: _Model, label: str) -> None:
     """Re-solve at the estimate with the independent reference; store the misfits."""
-    from .reference import solve_reference
-    from .spec import parse_spec
+    from ..checks.reference import solve_reference
+    from ..problem.spec import parse_spec
 
     try:
         problem = parse_spec(cb.spec_text, source=f"{cb.name} (embedded spec)", allow_nonlinear=True)

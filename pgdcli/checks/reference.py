@@ -4,7 +4,7 @@ This module exists to check codebooks (``pgd verify``, plots): it must not
 share a code path with the PGD solver beyond the parsed spec, so that a bug in
 operator assembly cannot cancel out. It therefore never imports
 ``solver``, ``basis`` or ``separated``: the equations are evaluated pointwise
-from the parsed :class:`~pgdcli.expressions.Polynomial` of each equation.
+from the parsed :class:`~pgdcli.problem.expressions.Polynomial` of each equation.
 
 Equation ``r`` reads (lhs - rhs = 0)
 
@@ -47,7 +47,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from .errors import SolverError
+from ..errors import SolverError
 
 __all__ = [
     "METHODS",
@@ -182,7 +182,7 @@ class _System:
                 coef = _Coefficient(sep, time, params, S)
                 if derivatives:
                     if len(monomial) != 1:
-                        from .expressions import format_monomial
+                        from ..problem.expressions import format_monomial
 
                         raise SolverError(
                             f"{problem.source}: equations[{r}]: '{format_monomial(monomial, time)}': der() may "
@@ -388,7 +388,7 @@ def _solve_group(problem, params, S, t0, times, method, rtol, atol, max_evaluati
 
 @functools.lru_cache(maxsize=8)
 def _parse(text: str, source: str):
-    from .spec import parse_spec
+    from ..problem.spec import parse_spec
 
     try:
         return parse_spec(text, source=source, allow_nonlinear=True)
@@ -480,7 +480,7 @@ def solve_reference(
 
     Parameters
     ----------
-    problem : pgdcli.spec.Problem
+    problem : pgdcli.problem.spec.Problem
         Parsed spec (linear or, with ``allow_nonlinear=True``, polynomial in
         the unknowns; linear when it has space coordinates).
     params : dict of str to array_like, shape (S,)
@@ -592,7 +592,7 @@ def solve_reference(
 # ----------------------------------------------------------------------------------------------
 # Strong-form Chebyshev-Gauss-Lobatto collocation, written here from scratch (nodes,
 # differentiation matrices, barycentric interpolation) so that it shares nothing with the PGD
-# solver's weak-form discretization in pgdcli.basis / pgdcli.solver.
+# solver's weak-form discretization in pgdcli.discretization.basis / pgdcli.driver.
 
 # unknowns per vectorized solve_ivp call (samples integrated together as one block-diagonal system);
 # the error norm of solve_ivp is an RMS over the state, so few samples share one call
@@ -868,7 +868,7 @@ class _PdeModel:
         for r, equation in enumerate(problem.equations):
             for monomial, sep in equation.polynomial.items():
                 if len(monomial) > 1:
-                    from .expressions import format_monomial
+                    from ..problem.expressions import format_monomial
 
                     raise SolverError(
                         f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
@@ -1411,7 +1411,7 @@ def solve_reference_pde(
 
     Parameters
     ----------
-    problem : pgdcli.spec.Problem
+    problem : pgdcli.problem.spec.Problem
         A linear problem with at least one space coordinate.
     params : dict of str to array_like, shape (S,)
         A value per sample for every coordinate that is neither time nor space (``{}`` when there

@@ -25,8 +25,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .basis import KINDS, make_basis
-from .errors import CodebookError, QueryError
+from ..discretization.basis import KINDS, make_basis
+from ..errors import CodebookError, QueryError
 
 # pathlib and tempfile are imported by save() only: pgd query never writes
 
@@ -713,7 +713,7 @@ class Codebook:
         dict
             ``out[u][c]``: d u / d c, shaped like :meth:`evaluate`'s (or :meth:`evaluate_grid`'s) values.
             Where the interpolant has a kink (a slab breakpoint, a linear element's node) the derivative
-            is the one from the right (at the upper end: from the left). See :mod:`pgdcli.gradient`.
+            is the one from the right (at the upper end: from the left). See :mod:`pgdcli.codebook.gradient`.
         """
         from .gradient import gradient_grid, gradient_points
 
@@ -1008,7 +1008,7 @@ class Codebook:
         return path
 
     def _write(self, f) -> None:
-        from . import __version__
+        from .. import __version__
 
         f.attrs["encoding-type"] = FORMAT_NAME
         f.attrs["encoding-version"] = FORMAT_VERSION
@@ -1233,9 +1233,9 @@ def _attr_value(v):
 
 def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.ndarray], report: dict) -> Codebook:
     """Assemble the codebook of a solved problem: lift terms + PGD terms per unknown."""
-    from . import __version__
+    from .. import __version__
 
-    from .solver import coordinate_infos
+    from ..driver import coordinate_infos
 
     coords = coordinate_infos(problem, march=False)
     nodal = disc.nodal_factors(factors)

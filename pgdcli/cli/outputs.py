@@ -15,7 +15,7 @@ import stat
 import tempfile
 from pathlib import Path
 
-from .errors import PgdError
+from ..errors import PgdError
 
 __all__ = ["prepare_output"]
 

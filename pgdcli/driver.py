@@ -2,7 +2,7 @@
 
 The problem ``sum_s A_rs(x) du_s/dt + B_rs(x) u_s = f_r(x)`` with ``u_s(t0) = u0_s``
 is lifted (``u = u0 + v``, ``v(t0) = 0``) and discretized coordinate by
-coordinate (:mod:`pgdcli.basis`), which turns it into one tensor equation
+coordinate (:mod:`pgdcli.discretization.basis`), which turns it into one tensor equation
 ``A v = F`` over the modes ``(field, x_1, ..., x_d)``. The *field* mode, of size
 the number of unknowns, carries the coupling between equations, so coupled
 linear systems are solved as one separated problem.
@@ -29,7 +29,7 @@ Algorithm (free functions below):
    one only if they lower the residual, each checked with one more step of the
    projection's sweep (:func:`_update_sweep`).
 4. The relative residual (eq. 16) is computed in separated form by orthogonal
-   sweeps (:func:`pgdcli.separated.separated_norm`), accurate to rounding.
+   sweeps (:func:`pgdcli.tensors.cp.separated_norm`), accurate to rounding.
 """
 
 from __future__ import annotations
@@ -44,12 +44,12 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 import scipy.linalg
 
-from .basis import Basis1D
+from .discretization.basis import Basis1D
 from .errors import PgdError, SolverError
-from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
+from .tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
 
 if TYPE_CHECKING:  # annotations only
-    from .check import CheckResult
+    from .checks.check import CheckResult
 
 __all__ = ["SolveResult", "Discretization", "discretize", "solve", "enrich", "project_alphas", "residual_norm"]
 
@@ -86,7 +86,7 @@ class Discretization:
     names : list of str
         ``STATE`` then the parameter coordinate names.
     bases : dict
-        Coordinate name -> :class:`~pgdcli.basis.Basis1D`.
+        Coordinate name -> :class:`~pgdcli.discretization.basis.Basis1D`.
     operator : SeparatedOperator
         Preconditioned operator; ``terms[k][j]`` of shape (n_j, n_j).
     source : CPTensor
@@ -142,7 +142,7 @@ def coordinate_infos(problem, *, march: bool):
     the march one slab per accepted step (the provisional single slab returned here is
     replaced once the steps are known).
     """
-    from .codebook import CoordinateInfo
+    from .codebook.codebook import CoordinateInfo
 
     slabs = getattr(problem.solver, "time_slabs", 1)
     out = []
@@ -403,7 +403,7 @@ def discretize(problem) -> Discretization:
 
     Parameters
     ----------
-    problem : pgdcli.spec.Problem
+    problem : pgdcli.problem.spec.Problem
 
     Returns
     -------
@@ -749,7 +749,7 @@ def _update_order(state: _State) -> list[int]:
     """Modes in the order the update sweep visits them: smallest first.
 
     The projection's sweep runs the other way (largest first, the cheap order
-    of :func:`~pgdcli.separated.sweep_order`), so its partial results are the
+    of :func:`~pgdcli.tensors.cp.sweep_order`), so its partial results are the
     suffixes the update sweep needs (:func:`_suffix_sweeps`).
     """
     return sweep_order([state.images[j].shape[1] for j in range(state.op.order)])[::-1]
@@ -991,7 +991,7 @@ class SolveResult:
 
     Attributes
     ----------
-    codebook : pgdcli.codebook.Codebook
+    codebook : pgdcli.codebook.codebook.Codebook
     converged : bool
         True when the solver converged and the measured error meets the tolerance.
     status : int
@@ -1007,7 +1007,7 @@ class SolveResult:
     warnings : list of str
         Findings that do not stop the solve, e.g. a reference that could not
         check the codebook.
-    check : pgdcli.check.CheckResult or None
+    check : pgdcli.checks.check.CheckResult or None
         The error measured against the independent reference (None when the
         solver did not converge).
     accurate : bool or None
@@ -1054,7 +1054,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
 
     Parameters
     ----------
-    problem : pgdcli.spec.Problem or str or path
+    problem : pgdcli.problem.spec.Problem or str or path
         A validated problem, or the path of a YAML spec.
     tolerance, relative_tolerance, max_modes : optional
         Override ``problem.solver``: the codebook must satisfy
@@ -1072,7 +1072,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         :data:`pgdcli.adapt.INACCURATE` and a message saying where and why.
     """
     from .adapt import solve_to_tolerance
-    from .spec import Problem, load_spec
+    from .problem.spec import Problem, load_spec
 
     if not isinstance(problem, Problem):
         problem = load_spec(problem)
@@ -1118,7 +1118,7 @@ def _enrich(problem, residual_tolerance: float, nmax: int, callback) -> SolveRes
     else:
         message = (f"not converged: relative residual stagnated at {residual:.3g} (asked {tol:.3g}) "
                    f"after {state.rank} modes")
-    from .codebook import codebook_from_solution
+    from .codebook.codebook import codebook_from_solution
 
     report = {
         "converged": converged,
@@ -1189,7 +1189,7 @@ def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float,
 
 def _measure(problem, result, tolerance: float, relative_tolerance: float):
     """The codebook's error against the independent reference; unchecked (with a warning) if it cannot run."""
-    from .check import check_codebook, check_codebook_pde, unchecked
+    from .checks.check import check_codebook, check_codebook_pde, unchecked
 
     space = any(c.role == "space" for c in problem.coordinates)
     try:
@@ -1208,7 +1208,7 @@ def _measure(problem, result, tolerance: float, relative_tolerance: float):
     return check
 
 
-# The march's tolerance is checked (pgdcli.check): if the measured error at grid nodes exceeds
+# The march's tolerance is checked (pgdcli.checks.check): if the measured error at grid nodes exceeds
 # it, the march is repeated with its RMS target scaled by CHECK_SAFETY * tolerance / error, at most
 # CHECK_ATTEMPTS marches in all. DOP853 is of order 8, so a tighter target costs few more steps;
 # mostly it raises the ranks.
@@ -1226,11 +1226,11 @@ def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0
 
     The march controls an RMS over the parameter grid; the user's tolerance is read
     as a bound on the max abs error, and this is where it is made one (see
-    :mod:`pgdcli.check`). Errors between the parameter nodes (interpolation) do not
+    :mod:`pgdcli.checks.check`). Errors between the parameter nodes (interpolation) do not
     fall with a tighter march: they are for :mod:`pgdcli.adapt` (more nodes).
     ``learned`` (updated) carries the target that met the tolerance at the nodes to the next call.
     """
-    from .march import solve_march
+    from .algorithms.march import solve_march
 
     learned = {} if learned is None else learned
     target = learned.get("march_target", CHECK_FIRST * tolerance)
@@ -1276,7 +1276,7 @@ def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveRe
     decides (:mod:`pgdcli.adapt`); the tails are reported, and they give warnings
     only when the error could not be measured.
     """
-    from .resolution import resolution_tails
+    from .checks.resolution import resolution_tails
 
     if not result.converged:
         return result

@@ -5,7 +5,7 @@ result. stdout carries data only; progress, tables and messages go to stderr.
 Exit status: 0 success, 1 a numerical outcome the user asked to be told
 about (solver not converged, verification gate failed), 2 invalid input
 (one ``Error:`` line, no traceback), 70 an internal error (a bug: one line,
-the traceback with ``--debug``); see :mod:`pgdcli.guard`.
+the traceback with ``--debug``); see :mod:`pgdcli.cli.guard`.
 
 This is the only module that imports click and rich; rich is imported only by
 the commands that draw with it, so ``pgd query`` stays lean.
@@ -20,9 +20,9 @@ from pathlib import Path
 
 import click
 
-from . import __version__
+from .. import __version__
 from . import guard
-from .errors import PgdError
+from ..errors import PgdError
 from .guard import EXIT_FAILED, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 
@@ -30,7 +30,7 @@ from .guard import EXIT_FAILED, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_U
 # one-line errors for every usage problem
 # ----------------------------------------------------------------------------------------------
 class PgdGroup(click.Group):
-    """A click group that runs every command inside the guard of :mod:`pgdcli.guard`.
+    """A click group that runs every command inside the guard of :mod:`pgdcli.cli.guard`.
 
     Usage errors and :class:`PgdError` are one ``Error:`` line on stderr (exit 2);
     anything unexpected is one ``Error: internal error: ...`` line (exit 70, the
@@ -188,8 +188,8 @@ def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurat
 
 def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
     from .outputs import prepare_output
-    from .solver import solve as solve_problem
-    from .spec import load_spec
+    from ..driver import solve as solve_problem
+    from ..problem.spec import load_spec
 
     problem = load_spec(spec)
     target = Path(output) if output is not None else Path(problem.output)
@@ -312,7 +312,7 @@ def _short_where(where: str) -> str:
 def _summary_table(summary: dict):
     from rich.table import Table
 
-    from .check import points_text
+    from ..checks.check import points_text
 
     table = Table(title=f"pgd solve: {summary['problem']}", show_header=False, title_justify="left")
     table.add_column(style="bold")
@@ -385,10 +385,10 @@ def query(ctx, codebook, fmt, fields, points):
       pgd query codebooks/parametric.h5 --t 5 --k 2
       pgd query codebooks/spring.h5 --t 0:4:41 --k 2 --c 0.3 --field x --format csv
     """
-    # the parsing, checking and printing helpers live in pgdcli._query and pgdcli.stream, where a
+    # the parsing, checking and printing helpers live in pgdcli.cli.query and pgdcli.cli.stream, where a
     # plain `pgd query` runs without click (see main): both paths print the same bytes
-    from . import _query
-    from .codebook import Codebook
+    from . import query as _query
+    from ..codebook.codebook import Codebook
     from .stream import Writer
 
     cb = Codebook.load(codebook)
@@ -420,7 +420,7 @@ def query(ctx, codebook, fmt, fields, points):
 @click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True)
 def info(codebook, fmt):
     """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time."""
-    from .codebook import Codebook
+    from ..codebook.codebook import Codebook
 
     cb = Codebook.load(codebook)
     summary = cb.info(codebook)
@@ -430,7 +430,7 @@ def info(codebook, fmt):
     from rich.console import Console
     from rich.table import Table
 
-    from .check import points_text
+    from ..checks.check import points_text
 
     console = Console(highlight=False, soft_wrap=True)
     console.print(f"[bold]{summary['name']}[/]  {summary['description']}".rstrip())
@@ -501,7 +501,7 @@ def plot_command(codebook, kind, output, field, count, at, over, fix, reference,
       pgd plot codebooks/spring.h5 --kind solution --over t,k --fix c=0.2
       pgd plot codebooks/spring.h5 --kind error --over k,c --fix t=4
     """
-    from . import plot as plotting
+    from ..plot import figures as plotting
     from .outputs import prepare_output
 
     target = Path(output) if output is not None else plotting.default_output(codebook, kind)
@@ -515,7 +515,7 @@ def plot_command(codebook, kind, output, field, count, at, over, fix, reference,
 # ----------------------------------------------------------------------------------------------
 # verify
 # ----------------------------------------------------------------------------------------------
-_VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.reference.METHODS (no numpy import here)
+_VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.reference.METHODS (no numpy import here)
 
 
 @cli.command("verify")
@@ -571,7 +571,7 @@ def verify_command(codebook, samples, sampling, seed, points, n_times, method, r
 
 def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error, max_rel_error,
             fmt, quiet):
-    from .verification import verify as verify_codebook
+    from ..checks.verify import verify as verify_codebook
 
     for hint, value in (("'--max-error'", max_error), ("'--max-rel-error'", max_rel_error)):
         if value is not None and not math.isfinite(value):
@@ -664,7 +664,7 @@ def _verify_tables(report, max_error, max_rel_error) -> list:
 
 
 # ----------------------------------------------------------------------------------------------
-# fit (pgdcli.fitting) and export (pgdcli.export)
+# fit (pgdcli.inference.fitting) and export (pgdcli.codebook.export)
 # ----------------------------------------------------------------------------------------------
 def _assignments(values, option: str) -> dict:
     """``NAME=VALUE`` options (repeatable, or comma lists) -> {name: float}."""
@@ -709,8 +709,8 @@ def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_pa
     \b
       pgd fit codebooks/coupled.h5 trajectory.csv --sigma u1=1e-3 --format json
     """
-    from .fitting import fit
-    from .fit_report import plot_fit, summary, write_result
+    from ..inference.fitting import fit
+    from ..inference.report import plot_fit, summary, write_result
 
     label = "DATA (stdin)" if data.name == "<stdin>" else str(data.name)
     result = fit(codebook, data, fix=_assignments(fix, "--fix"), sigma=_assignments(sigma, "--sigma"),
@@ -737,8 +737,8 @@ def export_command(codebook, target, output, force, quiet):
       pgd export codebooks/rigid_body.h5 --to c -o pgd_rigid_body.h
       pgd export codebooks/coupled.h5 --to json > coupled.json
     """
-    from .codebook import Codebook
-    from .export import export
+    from ..codebook.codebook import Codebook
+    from ..codebook.export import export
 
     cb = Codebook.load(codebook)
     files, size = export(cb, target, force=force)
@@ -759,10 +759,10 @@ def export_command(codebook, target, output, force, quiet):
 def main(argv=None) -> None:
     """Console-script entry point.
 
-    A plain ``pgd query`` runs in :mod:`pgdcli._query` (no click machinery); everything
+    A plain ``pgd query`` runs in :mod:`pgdcli.cli.query` (no click machinery); everything
     else, and any query that fails or asks for help, runs through click as usual.
     """
-    from ._query import main as query_first
+    from .query import main as query_first
 
     query_first(argv)
 

@@ -13,7 +13,7 @@ This is the only module that imports yaml. A spec looks like::
 
 Every error is a :class:`~pgdcli.errors.SpecError` with a one-line message
 ``"<source>: <key path>: <what was expected>, got <what was found>"``.
-Expressions are parsed by :mod:`pgdcli.expressions` (never evaluated by Python).
+Expressions are parsed by :mod:`pgdcli.problem.expressions` (never evaluated by Python).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from typing import Any, Iterable
 import numpy as np
 import yaml
 
-from .errors import SpecError
+from ..errors import SpecError
 from .expressions import (
     BUILTIN_NAMES,
     Polynomial,

@@ -2,7 +2,7 @@
 
 A tolerance is a promise about the codebook, not about the solver: every solve is
 followed by a measurement of its error against an independent reference
-(:mod:`pgdcli.check`). :func:`solve_to_tolerance` turns that measurement into
+(:mod:`pgdcli.checks.check`). :func:`solve_to_tolerance` turns that measurement into
 decisions:
 
 * the error within the tolerance (``ratio <= 1``): done;
@@ -29,7 +29,7 @@ import time as _time
 
 import numpy as np
 
-from .resolution import chebyshev_decay
+from .checks.resolution import chebyshev_decay
 
 __all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "solve_to_tolerance", "refined_nodes", "initial_nodes"]
 
@@ -219,16 +219,16 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
 
     Parameters
     ----------
-    problem : pgdcli.spec.Problem
+    problem : pgdcli.problem.spec.Problem
     solve_once : callable
         ``solve_once(problem) -> SolveResult`` with ``.check`` set (a
-        :class:`~pgdcli.check.CheckResult`) when it converged.
+        :class:`~pgdcli.checks.check.CheckResult`) when it converged.
     march : bool
         The method is the time march (its time nodes are not refined here).
 
     Returns
     -------
-    pgdcli.solver.SolveResult
+    pgdcli.driver.SolveResult
         ``accurate`` True (within the tolerance), False (``converged`` False,
         ``status`` :data:`INACCURATE`) or None (the reference could not check it).
     """
@@ -301,7 +301,7 @@ def _refusal(problem, check, march: bool, limited) -> str:
 
 
 def _finish(result, problem, rounds, accurate, reason, started):
-    from .check import points_text
+    from .checks.check import points_text
 
     check = result.check
     cb = result.codebook

@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis
+from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis
 
 __all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
 
@@ -32,7 +32,7 @@ def derivative_matrix(basis, x) -> np.ndarray:
 
     Parameters
     ----------
-    basis : pgdcli.basis.Basis1D
+    basis : pgdcli.discretization.basis.Basis1D
     x : array_like, shape (p,)
         Points in the basis's domain (not checked).
 

@@ -2,7 +2,7 @@
 
 For equations polynomial in the unknowns (``der(u1) + u2*u3 = 1``), the state
 ``u(t_n; p)`` is kept as a function of the non-time coordinates ``p`` (initial
-conditions, parameters) in tensor-train form (:mod:`pgdcli.tt`) and advanced
+conditions, parameters) in tensor-train form (:mod:`pgdcli.tensors.tt`) and advanced
 with the explicit Dormand-Prince 8(5,3) Runge-Kutta scheme (the coefficients
 of :class:`scipy.integrate.DOP853`), whose embedded estimate controls the step
 size. The right-hand side is evaluated in separated form: products of
@@ -24,8 +24,8 @@ by ``h``). The report's ``error_estimate`` adds these up over the march; it
 does not include the growth of errors through the dynamics (the Lipschitz
 factor), and the worst point of the grid can be 5-20 times the RMS: the user's
 tolerance is a max abs error, measured against scipy after the march and
-enforced by repeating it with a tighter RMS target (:mod:`pgdcli.check`,
-``pgdcli.solver._checked_march``).
+enforced by repeating it with a tighter RMS target (:mod:`pgdcli.checks.check`,
+``pgdcli.driver._checked_march``).
 """
 
 from __future__ import annotations
@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .basis import Basis1D, _chebyshev_unit_nodes
-from .expressions import Separable, SepTerm, merge_to_function
-from .errors import SolverError
-from .tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
+from ..discretization.basis import Basis1D, _chebyshev_unit_nodes
+from ..problem.expressions import Separable, SepTerm, merge_to_function
+from ..errors import SolverError
+from ..tensors.tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "march", "join_and_round",
@@ -273,7 +273,7 @@ def compile_system(problem) -> NonlinearSystem:
     unknowns = [u.name for u in problem.unknowns]
     index = {u: i for i, u in enumerate(unknowns)}
     params = [c.name for c in problem.coordinates if c.name != tname]
-    from .solver import coordinate_infos
+    from ..driver import coordinate_infos
 
     bases = {info.name: info.basis() for info in coordinate_infos(problem, march=True)}
     if not params:  # one trajectory: march a train over a single virtual point
@@ -699,18 +699,18 @@ def _blowup_region(system: NonlinearSystem, state: list[TT]) -> str:
 
 
 def solve_march(problem, tolerance: float, callback=None):
-    """Solve a (nonlinear) problem by the separated time march; see :func:`pgdcli.solver.solve`.
+    """Solve a (nonlinear) problem by the separated time march; see :func:`pgdcli.driver.solve`.
 
     Returns
     -------
-    pgdcli.solver.SolveResult
+    pgdcli.driver.SolveResult
         ``converged`` is False, with a message naming the time (and the
         region of the domain) where the march failed, when it could not reach
         the end of the time domain.
     """
-    from .codebook import Codebook, CoordinateInfo, FieldTT
-    from .solver import SolveResult
-    from . import __version__
+    from ..codebook.codebook import Codebook, CoordinateInfo, FieldTT
+    from ..driver import SolveResult
+    from .. import __version__
 
     opts = problem.solver
     started = _time.perf_counter()
@@ -733,7 +733,7 @@ def solve_march(problem, tolerance: float, callback=None):
     except MarchFailure as exc:
         failure = exc
     wall = _time.perf_counter() - started
-    from .solver import coordinate_infos
+    from ..driver import coordinate_infos
 
     coords = coordinate_infos(problem, march=True)
     names = [c.name for c in problem.coordinates]

@@ -1,14 +1,14 @@
 """Check a codebook against an independent reference (``pgd verify``).
 
 The problem stored in the codebook (its embedded spec) is integrated again
-with scipy's ``solve_ivp`` (:mod:`pgdcli.reference`, which shares no code with
+with scipy's ``solve_ivp`` (:mod:`pgdcli.checks.reference`, which shares no code with
 the PGD solver) at sample points of the parameter box, and the codebook is
 compared with it at every time node of the codebook's time grid plus random
 times.
 
 Problems with space coordinates (``der(u, x)``, boundary conditions): the
 space coordinates are not sampled; the reference is the method of lines of
-:func:`pgdcli.reference.solve_reference_pde` (Chebyshev collocation, BDF), and
+:func:`pgdcli.checks.reference.solve_reference_pde` (Chebyshev collocation, BDF), and
 at every parameter point and time both are compared on the tensor grid of, per
 space coordinate, every node of that coordinate in the codebook plus
 ``space_points`` random points of its domain (seeded). ``where`` then names the
@@ -47,7 +47,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from .errors import CodebookError, PgdError
+from ..errors import CodebookError, PgdError
 
 __all__ = ["verify", "VerifyReport", "UnknownErrors", "Failure", "VerifyError", "MAX_CORNERS", "SAMPLINGS"]
 
@@ -249,7 +249,7 @@ def _sampled(problem) -> tuple:
 
 
 def _parse_problem(cb, source: str):
-    from .spec import parse_spec
+    from ..problem.spec import parse_spec
 
     if not cb.spec_text.strip():
         raise CodebookError(f"{source}: the codebook holds no problem spec; it cannot be verified")
@@ -540,7 +540,7 @@ def verify(
     space_nodes : int or dict of str to int, optional
         With space coordinates: collocation nodes per space coordinate of the
         method-of-lines reference (default
-        :data:`pgdcli.reference.DEFAULT_SPACE_NODES`).
+        :data:`pgdcli.checks.reference.DEFAULT_SPACE_NODES`).
 
     Returns
     -------
@@ -552,7 +552,7 @@ def verify(
         Unreadable codebook, a codebook without spec, invalid options or
         points (:class:`VerifyError`).
     """
-    from .codebook import Codebook
+    from ..codebook.codebook import Codebook
     from .reference import DEFAULT_SPACE_NODES, METHODS, PDE_METHODS, solve_reference, solve_reference_pde
 
     started = _time.perf_counter()

@@ -9,7 +9,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .errors import PgdError
+from ..errors import PgdError
 
 __all__ = ["FitError", "read_data", "check_finite", "split_columns", "fixed_values"]
 

@@ -2,10 +2,10 @@
 
 Python API
 ----------
-- :func:`load_spec` -- YAML spec file -> validated :class:`~pgdcli.spec.Problem`
-- :func:`solve` -- problem -> :class:`~pgdcli.solver.SolveResult` (``.codebook``, ``.converged``, ``.residuals``)
+- :func:`load_spec` -- YAML spec file -> validated :class:`~pgdcli.problem.spec.Problem`
+- :func:`solve` -- problem -> :class:`~pgdcli.driver.SolveResult` (``.codebook``, ``.converged``, ``.residuals``)
 - :class:`Codebook` -- ``Codebook.load(path)``; ``codebook(t=..., k=...)`` -> {unknown: ndarray}
-- :func:`fit` -- codebook + data -> :class:`~pgdcli.fitting.FitResult` (parameter identification)
+- :func:`fit` -- codebook + data -> :class:`~pgdcli.inference.fitting.FitResult` (parameter identification)
 
 Submodules are imported lazily so that evaluating a codebook does not pay for
 scipy or yaml.
@@ -16,19 +16,19 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 __all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "Codebook", "PgdError"]
-__all__ += ["fit"]  # parameter identification (pgdcli.fitting)
+__all__ += ["fit"]  # parameter identification (pgdcli.inference.fitting)
 
 _LAZY = {
-    "load_spec": ("spec", "load_spec"),
-    "parse_spec": ("spec", "parse_spec"),
-    "Problem": ("spec", "Problem"),
-    "solve": ("solver", "solve"),
-    "SolveResult": ("solver", "SolveResult"),
-    "Codebook": ("codebook", "Codebook"),
-    "verify": ("verification", "verify"),
+    "load_spec": ("problem.spec", "load_spec"),
+    "parse_spec": ("problem.spec", "parse_spec"),
+    "Problem": ("problem.spec", "Problem"),
+    "solve": ("driver", "solve"),
+    "SolveResult": ("driver", "SolveResult"),
+    "Codebook": ("codebook.codebook", "Codebook"),
+    "verify": ("checks.verify", "verify"),
     "PgdError": ("errors", "PgdError"),
-    "fit": ("fitting", "fit"),
-    "FitResult": ("fitting", "FitResult"),
+    "fit": ("inference.fitting", "fit"),
+    "FitResult": ("inference.fitting", "FitResult"),
 }
 
 
