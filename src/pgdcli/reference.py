@@ -878,6 +878,7 @@ class _PdeModel:
 
         self.ops = []  # (kind 'mass'|'op', time key, time func, param factors, coef, R A Z, R A (for h))
         self.sources = []  # (time key, time func, param factors, coef, R-rows vector)
+        self.joint_sources = []  # (equation row, Joint): non-separable sources, evaluated from their trees
         for r, equation in enumerate(problem.equations):
             for monomial, sep in equation.polynomial.items():
                 if len(monomial) > 1:
@@ -887,6 +888,12 @@ class _PdeModel:
                         f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
                         "method-of-lines reference supports equations linear in the unknowns"
                     )
+                if sep.joints and monomial:
+                    raise SolverError(
+                        f"{problem.source}: equations[{r}]: the method-of-lines reference does not support a "
+                        f"non-separable coefficient of an unknown ('{sep.joints[0].function_text()}'); non-separable "
+                        f"sources are supported")
+                self.joint_sources += [(r, joint) for joint in sep.joints]
                 for term in sep.terms:
                     coef, tfunc, pf, sf = _term_parts(term, time, self.space)
                     values = np.ones(n)
@@ -945,6 +952,18 @@ class _PdeModel:
             h[:, s * n + B] = sla.lu_solve(lu, g.T).T
         return h
 
+    def joint_source(self, joints, params: Mapping[str, np.ndarray], S: int, t: float | None) -> np.ndarray:
+        """Non-separable sources at time t (None: steady or not timed), on the kept rows: (S m,)."""
+        n = self.grid.n
+        at = {name: params[name][:, None] for name in self.params}
+        at.update({name: self.grid.values[name][None, :] for name in self.space})
+        if t is not None:
+            at[self.time] = np.asarray(float(t))
+        full = np.zeros((S, self.q * n))
+        for r, joint in joints:
+            full[:, r * n:(r + 1) * n] += np.broadcast_to(joint.evaluate(**at), (S, n))
+        return full[:, self.rows].reshape(-1)
+
     def initial_grid(self, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
         """Initial values (S, q, n) at the grid nodes."""
         n = self.grid.n
@@ -986,6 +1005,12 @@ class _PdeSystem:
         for key, _, pf, coef, vec in model.sources:
             w = model._weights(pf, coef, params, S)
             src[key] = src.get(key, 0.0) + np.concatenate([w[i] * vec for i in range(S)])
+        self.params = params
+        self.timed_joints = [(r, j) for r, j in model.joint_sources if model.time in j.coordinates]
+        fixed = [(r, j) for r, j in model.joint_sources if model.time not in j.coordinates]
+        if fixed:
+            src[None] = src.get(None, 0.0) + model.joint_source(fixed, params, S, None)
+        self.mass_solve = None  # M^-1 applied to the timed sources when the operators are premultiplied
         self.bad = np.zeros(S, dtype=bool)
         self.bad_reason = ""
         self.keys = sorted(set(ops) | set(src), key=lambda k: (k is not None, repr(k)))
@@ -1008,13 +1033,15 @@ class _PdeSystem:
                 inv = sp.diags(1.0 / M.diagonal())
                 self.A = {k: (inv @ A).tocsr() for k, A in self.A.items()}
                 self.b = {k: inv @ b for k, b in self.b.items()}
+                self.mass_solve = inv.__matmul__
             else:
                 from scipy.sparse.linalg import splu
 
                 lu = splu(M.tocsc())
                 self.A = {k: sp.csr_matrix(lu.solve(A.toarray())) for k, A in self.A.items()}
                 self.b = {k: lu.solve(b) for k, b in self.b.items()}
-        self.constant = self.static and self.keys in ([], [None])
+                self.mass_solve = lu.solve
+        self.constant = self.static and self.keys in ([], [None]) and not self.timed_joints
 
     def _mass_check(self, M) -> None:
         m, S = self.model.m, self.S
@@ -1060,6 +1087,11 @@ class _PdeSystem:
             if w != 0.0:
                 b = self.b[k] if y.ndim == 1 else self.b[k][:, None]
                 out -= w * (self.A[k] @ y + b)
+        if self.timed_joints:
+            b = self.model.joint_source(self.timed_joints, self.params, self.S, t)
+            if self.mass_solve is not None:
+                b = self.mass_solve(b)
+            out -= b if y.ndim == 1 else b[:, None]
         if self.static:
             return out
         M = self._mass_at(t)

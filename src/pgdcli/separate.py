@@ -474,15 +474,13 @@ class JointTrain:
         self.timed = time in joint.tree_coordinates
         self.sizes = {p: self.nodes[p].size for p in params}
         self.fixed = None
+        # what the report says: the largest ranks and error over every separation made (updated in place)
+        self.report = {"coefficient": joint.function_text(), "coordinates": self.names + ([time] if self.timed else []),
+                       "terms": 0, "ranks": (), "error": 0.0, "method": ""}
+        if reports is not None:
+            reports.append(self.report)
         if not self.timed:
             self.fixed = self._separate(None)
-        elif len(self.names) > 1 and reports is not None:
-            self._separate(0.0)
-        if reports is not None:
-            sep = self.last
-            reports.append({"coefficient": joint.function_text(), "coordinates": self.names + ([time] if self.timed
-                            else []), "terms": sep.terms, "ranks": sep.ranks, "error": sep.error,
-                            "method": sep.method + (" at each time" if self.timed else "")})
 
     def _separate(self, t: float | None) -> list[np.ndarray]:
         joint = _bare(self.joint if t is None else self.joint.with_value(self.time, float(t)))
@@ -497,6 +495,11 @@ class JointTrain:
             self.last = Separation([v.reshape(1, -1, 1)], 0.0, "exact")
         else:
             self.last, _ = separate_joint(joint, sub, self.tolerance, where=self.where)
+        r = self.report
+        r["terms"] = max(r["terms"], self.last.terms)
+        r["ranks"] = tuple(max(a, b) for a, b in itertools.zip_longest(r["ranks"], self.last.ranks, fillvalue=0))
+        r["error"] = max(r["error"], self.last.error)
+        r["method"] = self.last.method + (" at each time" if self.timed else "")
         return _embedded(self.last.cores, self.names, self.params, self.sizes)
 
     def at(self, t: float) -> list[np.ndarray]:
