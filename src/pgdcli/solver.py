@@ -1116,7 +1116,11 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         once = partial(_checked_enrichment, tolerance=tol, relative_tolerance=rtol, max_modes=nmax,
                        callback=callback)
     with _blas_single_thread():
-        return solve_to_tolerance(problem, once, march=march)
+        result = solve_to_tolerance(problem, once, march=march)
+    rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
+    if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.second_order), named in pgd info
+        result.codebook.report["rates"] = ",".join(f"{rate}={x}" for rate, x in rates)
+    return result
 
 
 def _enrich(problem, residual_tolerance: float, nmax: int, callback, tolerance: float | None = None) -> SolveResult:
