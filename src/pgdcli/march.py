@@ -38,7 +38,7 @@ import numpy as np
 from .basis import Basis1D, _chebyshev_unit_nodes
 from .expressions import Separable, SepTerm, merge_to_function
 from .errors import SolverError
-from .separate import SEPARATION_FRACTION, JointTrain, separation_report_text
+from .separate import MAX_SEPARATION_RANK, SEPARATION_FRACTION, JointTrain, separation_report_text
 from .tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
@@ -293,6 +293,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
     separation is described in ``separations``.
     """
     delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)
+    cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
     tname = problem.time
     unknowns = [u.name for u in problem.unknowns]
     index = {u: i for i, u in enumerate(unknowns)}
@@ -338,7 +339,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
             joints = []
             for joint in sep.joints:
                 train = JointTrain(joint, tname, params, {p: bases[p].nodes for p in params}, delta,
-                                   where=f"{where}: equations[{eq.index}]: ", reports=separations)
+                                   where=f"{where}: equations[{eq.index}]: ", reports=separations, max_rank=cap)
                 joints.append(_JointPart(-joint.term.coef / dterm.coef,
                                          _time_ratio(dict(joint.term.factors).get(tname), dtime),
                                          _param_vectors(joint.term, params, bases, dterm), train))
@@ -350,7 +351,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
         terms = [tt_rank_one(_param_vectors(term, params, bases), term.coef) for term in u.initial.terms]
         for joint in u.initial.joints:
             train = JointTrain(joint, tname, params, {p: bases[p].nodes for p in params}, delta,
-                               where=f"{where}: unknowns.{u.name}.initial: ", reports=separations)
+                               where=f"{where}: unknowns.{u.name}.initial: ", reports=separations, max_rank=cap)
             terms.append(_JointPart(joint.term.coef, None, _param_vectors(joint.term, params, bases), train).at(0.0))
         if not terms:
             terms = [tt_rank_one([np.zeros(bases[p].nodes.size) for p in params])]

@@ -34,13 +34,17 @@ import numpy as np
 
 from .errors import SolverError
 
-__all__ = ["DENSE_LIMIT", "MAX_SEPARATION_RANK", "SEPARATION_FRACTION", "Separation", "SeparationRankError",
+__all__ = ["DENSE_LIMIT", "MAX_SEPARATION_RANK", "MAX_CANONICAL_TERMS", "JointTrain", "SEPARATION_FRACTION", "Separation", "SeparationRankError",
            "tt_svd", "tt_cross", "cp_from_tt", "separate_function", "nodal_terms", "separation_report_text"]
 
 #: Node tensors up to this many entries are separated from their full values (TT-SVD).
 DENSE_LIMIT = 2_000_000
-#: Cap on every rank of a separation: beyond it the coefficient is refused, naming the rank reached.
+#: Cap on every rank of a separation (and ``solver.max_rank`` if lower): beyond it the coefficient
+#: is refused, naming the rank reached.
 MAX_SEPARATION_RANK = 100
+#: Most Kronecker terms one coefficient may add to the linear solver's operator (the product of
+#: its tensor-train ranks): each term costs a matrix product per mode in every sweep.
+MAX_CANONICAL_TERMS = 400
 #: The coefficient's entries are separated to this fraction of the solver's tolerance (absolute):
 #: its error reaches the solution multiplied by about the time span times |u|, and a smooth
 #: coefficient's singular values fall exponentially, so a tenfold tighter bound costs 1-2 terms.
@@ -369,15 +373,17 @@ def separate_joint(joint, nodes: Mapping[str, np.ndarray], tolerance: float, *, 
                           f"{', '.join(names)}") from None
     except SeparationRankError as exc:
         raise SolverError(f"{where}the coefficient '{text}' does not separate on the nodes of {', '.join(names)}: "
-                          f"rank {exc.rank} reached (the cap) with error {exc.error * scale:.2g} > {tolerance:.2g}; "
-                          f"narrow the domains of {', '.join(names)} or split them into elements") from None
+                          f"rank {exc.rank} reached (the cap: solver.max_rank, at most {MAX_SEPARATION_RANK}) with "
+                          f"error {exc.error * scale:.2g}, asked {tolerance:.2g}; narrow the domains of "
+                          f"{', '.join(names)}") from None
     # the bound is on the whole part, the measured error is on the joint function alone
     separation.error *= scale
     return separation, names
 
 
 def nodal_terms(sep, nodes: Mapping[str, np.ndarray], tolerance: float, *, where: str = "",
-                reports: list | None = None) -> list[tuple[float, dict[str, np.ndarray]]]:
+                reports: list | None = None, max_rank: int = MAX_SEPARATION_RANK
+                ) -> list[tuple[float, dict[str, np.ndarray]]]:
     """A coefficient as ``[(coef, {coordinate: values at its nodes})]``, joints separated to ``tolerance``.
 
     Parameters
@@ -391,6 +397,14 @@ def nodal_terms(sep, nodes: Mapping[str, np.ndarray], tolerance: float, *, where
         Message prefix, e.g. ``"x.yaml: equations[1]: "``.
     reports : list, optional
         Receives one dict per joint: ``{"coefficient", "coordinates", "terms", "ranks", "error", "method"}``.
+    max_rank : int
+        Cap on every rank of a separation.
+
+    Raises
+    ------
+    SolverError
+        A joint not finite at a node, not separable within ``max_rank``, or whose canonical
+        expansion would exceed :data:`MAX_CANONICAL_TERMS` Kronecker terms.
     """
     out = []
     for term in sep.terms:
@@ -399,7 +413,13 @@ def nodal_terms(sep, nodes: Mapping[str, np.ndarray], tolerance: float, *, where
             values[name] = _one_coordinate_values(func, nodes[name], name)
         out.append((term.coef, values))
     for joint in sep.joints:
-        separation, names = separate_joint(joint, nodes, tolerance, where=where)
+        separation, names = separate_joint(joint, nodes, tolerance, where=where, max_rank=max_rank)
+        if separation.terms > MAX_CANONICAL_TERMS:
+            raise SolverError(f"{where}the coefficient '{joint.function_text()}' separates on the nodes of "
+                              f"{', '.join(names)} with tensor-train ranks {separation.ranks}, "
+                              f"{separation.terms} Kronecker terms for the linear solver (at most "
+                              f"{MAX_CANONICAL_TERMS}); use solver.method: march if the problem allows it, "
+                              f"or narrow the domains")
         base = {name: np.ones(x.size) for name, x in nodes.items()}
         for name, func in joint.term.factors:
             base[name] = _one_coordinate_values(func, nodes[name], name)
@@ -467,8 +487,9 @@ class JointTrain:
     """
 
     def __init__(self, joint, time: str, params: Sequence[str], nodes: Mapping[str, np.ndarray], tolerance: float,
-                 *, where: str = "", reports: list | None = None):
+                 *, where: str = "", reports: list | None = None, max_rank: int = MAX_SEPARATION_RANK):
         self.joint, self.time, self.params, self.tolerance, self.where = joint, time, list(params), tolerance, where
+        self.max_rank = max_rank
         self.nodes = {p: nodes[p] for p in params}
         self.names = [p for p in params if p in joint.tree_coordinates]
         self.timed = time in joint.tree_coordinates
@@ -494,7 +515,7 @@ class JointTrain:
                                   f"some nodes of {self.names[0]}{at}")
             self.last = Separation([v.reshape(1, -1, 1)], 0.0, "exact")
         else:
-            self.last, _ = separate_joint(joint, sub, self.tolerance, where=self.where)
+            self.last, _ = separate_joint(joint, sub, self.tolerance, where=self.where, max_rank=self.max_rank)
         r = self.report
         r["terms"] = max(r["terms"], self.last.terms)
         r["ranks"] = tuple(max(a, b) for a, b in itertools.zip_longest(r["ranks"], self.last.ranks, fillvalue=0))

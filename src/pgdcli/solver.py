@@ -46,7 +46,7 @@ import scipy.linalg
 
 from .basis import Basis1D
 from .errors import PgdError, SolverError
-from .separate import SEPARATION_FRACTION, nodal_terms, separation_report_text
+from .separate import MAX_SEPARATION_RANK, SEPARATION_FRACTION, nodal_terms, separation_report_text
 from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
 
 if TYPE_CHECKING:  # annotations only
@@ -377,11 +377,12 @@ class _SteadyOps:
     constant = load
 
 
-def _initial_lift(unknown, bases: dict[str, Basis1D], tolerance: float,
-                  reports: list) -> list[tuple[float, dict[str, np.ndarray]]]:
+def _initial_lift(unknown, bases: dict[str, Basis1D], tolerance: float, reports: list,
+                  source: str) -> list[tuple[float, dict[str, np.ndarray]]]:
     """The initial value's separated terms as ``(coef, {coordinate: nodal values})``."""
     return nodal_terms(unknown.initial, {c: b.nodes for c, b in bases.items()}, tolerance,
-                       where=f"unknowns.{unknown.name}.initial: ", reports=reports)
+                       where=f"{source}: unknowns.{unknown.name}.initial: ", reports=reports,
+                       max_rank=MAX_SEPARATION_RANK)
 
 
 def _dirichlet_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dict[str, np.ndarray]]]:
@@ -441,6 +442,7 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
     nodes = {c: b.nodes for c, b in bases.items()}
     delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)
     separations: list = []
+    cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
     params = [c.name for c in coords if c.name != tname]
     names = [STATE] + params
     if tname is None:
@@ -454,7 +456,7 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
         span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
         tau = {c.name: span * TAU_FRACTION for c in coords}
         _check_compatible_initial_values(problem, bases)
-        lifts = {u.name: _initial_lift(u, bases, delta, separations) for u in problem.unknowns}
+        lifts = {u.name: _initial_lift(u, bases, delta, separations, problem.source) for u in problem.unknowns}
     ops = {c: _CoordinateOps(c, bases[c], problem.coordinate(c).role, _boundary_kinds(problem, c), tau[c])
            for c in params}
 
@@ -480,7 +482,8 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
     for eq in problem.equations:
         r = eq.index
         for monomial, sep in eq.polynomial.items():
-            terms = nodal_terms(sep, nodes, delta, where=f"{problem.source}: equations[{r}]: ", reports=separations)
+            terms = nodal_terms(sep, nodes, delta, where=f"{problem.source}: equations[{r}]: ", reports=separations,
+                                max_rank=cap)
             if len(monomial) == 0:
                 for coef, vals in terms:
                     add_source(r, -coef, time.load(time_values(vals)), tested_values(vals))
