@@ -371,10 +371,17 @@ def test_a_coefficient_beyond_the_rank_cap_is_one_line_naming_it(tmp_path):
     assert not (tmp_path / "cap.h5").exists()
 
 
-def test_a_non_separable_coefficient_of_an_unknown_in_a_pde_is_refused_by_its_reference():
+@pytest.mark.slow
+def test_a_non_separable_coefficient_of_an_unknown_in_a_pde_against_a_method_of_lines():
     text = (USER / "heat_decaying_source.yaml").read_text().replace(
-        "D*der(u, x, 2) + exp(-k*x*t)*sin(pi*x)", "D*der(u, x, 2) - exp(-k*x*t)*u")
-    result = pgdcli.solve(pgdcli.parse_spec(text, source="h.yaml"))
-    assert result.accurate is None
-    assert any("method-of-lines reference does not support a non-separable coefficient of an unknown" in w
-               for w in result.warnings)
+        "D*der(u, x, 2) + exp(-k*x*t)*sin(pi*x)", "D*der(u, x, 2) - exp(-k*x*t)*u + sin(pi*x)")
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="absorption.yaml"))
+    assert result.converged and result.accurate, result.message
+    cb = result.codebook
+
+    def rhs_of(k, x, D):
+        D2 = (D @ D)[1:-1, 1:-1]
+        xi = x[1:-1]
+        return (lambda t, u: 0.5 * D2 @ u - np.exp(-k * xi * t) * u + np.sin(np.pi * xi)), None
+
+    assert _pde_check(cb, rhs_of, lambda x: np.zeros_like(x)) <= 1e-6

@@ -313,7 +313,7 @@ C2 = "\n  t: {domain: [0, 1], nodes: 4}\n  k: "
         (dict(equations="\n  - der(u) = 1/u"), "equations[0]: unknown 'u' in the denominator of '1/u'"),
         (dict(equations="\n  - der(u) = __import__('os')"), "equations[0]: call '__import__('os')' in 'der(u) = __import__('os')' is not allowed"),
         (dict(equations="\n  - u = 1"), "equations[0]: no time derivative in 'u = 1'"),
-        (dict(equations="\n  - der(u, t, 2) = -u"), "equations[0]: 'der(u, t, 2)' in 'der(u, t, 2) = -u': only first-order"),
+        (dict(equations="\n  - der(u, t, 2) = -u"), "equations[0]: der(u, t, 2) needs the initial rate of 'u': write its initial condition as {value: <x0>, rate: <v0>}"),
         (dict(unknowns="\n  u: {initial: 0}\n  v: {initial: 0}", equations="\n  - der(u) = v\n  - der(u) = u"),
          "equations: unknown 'v' never appears as der(v)"),
         # solver
