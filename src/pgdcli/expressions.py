@@ -2,8 +2,10 @@
 
 A PGD solver needs every coefficient of an equation as a sum of products of
 one-coordinate functions, ``sum_i c_i prod_j f_ij(x_j)``. This module turns the
-text of an expression or equation into exactly that form, or explains which
-term is not separable and why.
+text of an expression or equation into that form; a part that is not separable
+(``sin(w*t)``, ``1/(1 + a*b)``) is kept as an expression tree of its
+coordinates (:class:`Joint`), which the solvers separate numerically on their
+nodes (:mod:`pgdcli.separate`) and the references evaluate directly.
 
 The text never reaches ``eval``/``exec``: it is parsed with
 ``ast.parse(text, mode="eval")`` and the tree is walked against a whitelist of
@@ -17,8 +19,11 @@ Data model
     A function of one coordinate (or a constant) as a small expression tree.
 :class:`SepTerm`
     ``coef * prod_j f_j(x_j)``, at most one factor per coordinate.
+:class:`Joint`
+    ``SepTerm * g(x_a, x_b, ...)``: a function of two or more coordinates jointly,
+    kept as a tree with named coordinate leaves ``('coord', name)``.
 :class:`Separable`
-    A sum of :class:`SepTerm`.
+    A sum of :class:`SepTerm` (``terms``) plus non-separable parts (``joints``).
 :class:`Atom`, ``Monomial``
     An unknown or one of its derivatives; a sorted tuple of atoms.
 :class:`Polynomial`
@@ -1059,9 +1064,6 @@ class _Parser:
         what = what or _DISALLOWED_KINDS.get(type(node), f"{type(node).__name__} syntax")
         return self.error(f"{what} {self.quote(node)} is not allowed; {self.allowed()}")
 
-    def non_separable(self, node: ast.AST, why: str) -> ExpressionError:
-        return self.error(f"non-separable term {self.quote(node)}: {why}")
-
     # -- dispatch --------------------------------------------------------------------------
     def visit(self, node: ast.AST, context: _Context | None) -> Polynomial:
         if isinstance(node, ast.Constant):
@@ -1199,7 +1201,7 @@ class _Parser:
         return Polynomial(merged)
 
     def reciprocal(self, den: Separable, node: ast.BinOp) -> Separable:
-        """``1/den`` in separated form, or a non-separable error."""
+        """``1/den`` in separated form, or as a non-separable part (a joint) when it is not separable."""
         if len(den.terms) == 1 and not den.joints:
             term = den.terms[0]
             # 1/(c*f(k)*g(a)) = (1/c) * (1/f(k)) * (1/g(a))
@@ -1324,21 +1326,17 @@ class _Parser:
         Terms of two or more coordinates (and non-separable parts) go into one joint
         factor ``exp(rest)``, so ``exp(-k - a*t)`` is ``exp(-k)`` times a function of (a, t) only.
         """
-        groups: dict[str | None, list[SepTerm]] = {}
-        rest = Separable((), arg.joints)
-        for term in arg.terms:
-            if len(term.factors) > 1:
-                rest = rest + Separable((term,))
-                continue
-            key = term.factors[0][0] if term.factors else None
-            groups.setdefault(key, []).append(term)
+        log_base = 1.0 if base is None else math.log(base)
+        single = tuple(term for term in arg.terms if len(term.factors) <= 1)
+        rest = Separable(tuple(term for term in arg.terms if len(term.factors) > 1), arg.joints)
         if not rest.is_zero:
-            log_base = 1.0 if base is None else math.log(base)
             scaled = rest.tree() if base is None else _t_mul(_num(log_base), rest.tree())
             joint = _joint_of(("call", "exp", scaled))
-            return Polynomial.from_separable(self.exponential(Separable(arg.terms and tuple(
-                t for t in arg.terms if len(t.factors) <= 1)), node, base).coefficient(()) * joint)
-        log_base = 1.0 if base is None else math.log(base)
+            return Polynomial.from_separable(self.exponential(Separable(single), node, base).coefficient(()) * joint)
+        groups: dict[str | None, list[SepTerm]] = {}
+        for term in single:
+            key = term.factors[0][0] if term.factors else None
+            groups.setdefault(key, []).append(term)
         coef = 1.0
         factors = []
         for coordinate, terms in groups.items():

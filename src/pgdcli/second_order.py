@@ -46,8 +46,7 @@ def _substitute(polynomial: Polynomial, rates: Mapping[str, str], time: str) -> 
     return Polynomial({tuple(atom_of(a) for a in monomial): sep for monomial, sep in polynomial.items()})
 
 
-def reduce_to_first_order(equations: Sequence, rates: Mapping[str, str], time: str | None,
-                          source: str) -> tuple[list, list[str]]:
+def reduce_to_first_order(equations: Sequence, rates: Mapping[str, str], time: str | None) -> tuple[list, list[str]]:
     """The first-order system of equations with second time derivatives.
 
     Parameters
@@ -57,14 +56,12 @@ def reduce_to_first_order(equations: Sequence, rates: Mapping[str, str], time: s
     rates : mapping of str to str
         Second-order unknown -> its rate unknown (those declared with ``{value, rate}``).
     time : str or None
-    source : str
-        Message prefix.
 
     Returns
     -------
     (list of Equation, list of str)
         The rewritten equations followed by one ``der(x) = x_rate`` per second-order unknown,
-        and the problems found (messages ``(path, text)``) as one-line strings: empty when valid.
+        and the first problem found as a one-line ``"<key path>: <message>"`` (empty when valid).
     """
     errors: list[tuple[str, str]] = []
     seconds = {}

@@ -761,7 +761,7 @@ def _parse_equations(
         )
         equations.append(Equation(index, text, poly))
     if time is not None:  # der(x, t, 2): the first-order system with the rates
-        equations, errors = reduce_to_first_order(equations, rates, time, check.source)
+        equations, errors = reduce_to_first_order(equations, rates, time)
         if errors:
             raise check.error("", errors[0])
     if time is None:
