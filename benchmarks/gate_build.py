@@ -81,32 +81,43 @@ def time_vectorized(problem, points, times):
 SETTINGS = {"vanderpol": "  max_nodes: 65\n"}
 
 
-def row(name: str) -> str:
-    text = (PROBLEMS / f"{name}.yaml").read_text() + SETTINGS.get(name, "")
-    problem = pgdcli.parse_spec(text, source=f"{name}.yaml")
+def measure(problem) -> dict:
+    """Build the codebook, then fill its grid by a loop of solve_ivp and one vectorized call (seconds, sizes)."""
     started = time.perf_counter()
     result = pgdcli.solve(problem)
-    build = time.perf_counter() - started
-    cb = result.codebook
+    out = {"build": time.perf_counter() - started, "result": result, "cb": result.codebook}
     if not result.converged:
-        return f"| {name} | {build:.2f} s, refused: {result.message} | | | | |"
+        return out
+    cb = result.codebook
     with tempfile.TemporaryDirectory() as tmp:
-        size = cb.save(Path(tmp) / "cb.h5").stat().st_size
+        out["size"] = cb.save(Path(tmp) / "cb.h5").stat().st_size
     space = any(c.role == "space" for c in cb.coordinates)
     points, times = grid_points(cb, problem)
-    count = len(next(iter(points.values()))) if points else 1
+    out["count"] = count = len(next(iter(points.values()))) if points else 1
     with threadpool_limits(1, "blas"):
-        loop = time_loop(problem, points, times, space)
-        vector = float("nan") if space else time_vectorized(problem, points, times)
+        out["loop"] = time_loop(problem, points, times, space)
+        out["vector"] = float("nan") if space else time_vectorized(problem, points, times)
     grid_bytes = count * len(cb.unknown_names) * times.size * 8
     if space:
         grid_bytes *= int(np.prod([c.nodes for c in cb.coordinates if c.role == "space"]))
-    nodes = ", ".join(f"{c.name} {c.nodes}" + (f" ({len(c.breakpoints) - 1} el.)" if c.breakpoints and
-                                               c.role != "time" else "") for c in cb.coordinates)
-    vec = "n/a (PDE)" if space else f"{vector:.2f} s ({vector / build:.2g}x the build)"
-    return (f"| {name} | {build:.2f} s, error {cb.report['check_error']:.2g} (tolerance "
-            f"{cb.report['tolerance']:.0e}); nodes {nodes} | {loop:.2f} s ({loop / build:.2g}x the build) | {vec} | "
-            f"{size / 1024:.0f} KiB | {grid_bytes / 1024:.0f} KiB ({count} grid points) |")
+    out["grid_bytes"], out["space"] = grid_bytes, space
+    out["nodes"] = ", ".join(f"{c.name} {c.nodes}" + (f" ({len(c.breakpoints) - 1} el.)" if c.breakpoints and
+                                                      c.role != "time" else "") for c in cb.coordinates)
+    build, vector = out["build"], out["vector"]
+    out["vector_text"] = "n/a (PDE)" if space else f"{vector:.2f} s ({vector / build:.2g}x the build)"
+    out["build_text"] = (f"{build:.2f} s, error {cb.report['check_error']:.2g} (tolerance "
+                         f"{cb.report['tolerance']:.0e}); nodes {out['nodes']}")
+    out["loop_text"] = f"{out['loop']:.2f} s ({out['loop'] / build:.2g}x the build)"
+    return out
+
+
+def row(name: str) -> str:
+    text = (PROBLEMS / f"{name}.yaml").read_text() + SETTINGS.get(name, "")
+    m = measure(pgdcli.parse_spec(text, source=f"{name}.yaml"))
+    if not m["result"].converged:
+        return f"| {name} | {m['build']:.2f} s, refused: {m['result'].message} | | | | |"
+    return (f"| {name} | {m['build_text']} | {m['loop_text']} | {m['vector_text']} | {m['size'] / 1024:.0f} KiB | "
+            f"{m['grid_bytes'] / 1024:.0f} KiB ({m['count']} grid points) |")
 
 
 def main(names):
