@@ -348,6 +348,25 @@ def test_conduction_in_divergence_form_with_a_neumann_end_against_a_method_of_li
     assert _pde_check(cb, rhs_of, initial) <= 1e-6
 
 
+@pytest.mark.slow
+def test_x_dependent_conduction_on_linear_elements_against_a_method_of_lines():
+    text = (USER / "conduction_variable.yaml").read_text().replace(
+        "x: {domain: [0, 1]}", "x: {domain: [0, 1], discretization: linear}").replace("tolerance: 1e-6", "tolerance: 1e-4")
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="linear.yaml"))
+    assert result.converged, result.message
+    assert result.codebook.coordinate("x").discretization == "linear"
+
+    def rhs_of(a, x, D):
+        kx, D2 = 1 + a * x ** 2, D @ D
+
+        def full(u):
+            return np.r_[0.0, u, (0.5 - D[-1, 1:-1] @ u) / D[-1, -1]]
+
+        return (lambda t, u: (kx * (D2 @ full(u)) + 2 * a * x * (D @ full(u)))[1:-1]), full
+
+    assert _pde_check(result.codebook, rhs_of, lambda x: (np.sin(np.pi * x / 2) + 0.5 * x)[1:-1]) <= 1e-4
+
+
 def test_x_dependent_coefficient_of_der_u_x_2_is_accepted_by_the_linear_solver():
     problem = pgdcli.load_spec(USER / "conduction_variable.yaml")
     from pgdcli.solver import discretize

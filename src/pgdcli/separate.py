@@ -454,8 +454,9 @@ def separation_report_text(reports: Sequence[Mapping]) -> str:
         if key in seen:
             continue
         seen.add(key)
-        lines.append(f"{r['coefficient']} [{', '.join(r['coordinates'])}]: {r['terms']} terms"
-                     f" ({r['method']}, ranks {tuple(r['ranks'])}), error {r['error']:.2g}")
+        terms = f"{r['terms']} term" + ("s" if r["terms"] != 1 else "")
+        how = r["method"] + (f", ranks {tuple(r['ranks'])}" if r["ranks"] else "")
+        lines.append(f"{r['coefficient']} [{', '.join(r['coordinates'])}]: {terms} ({how}), error {r['error']:.2g}")
     return "; ".join(lines)
 
 
