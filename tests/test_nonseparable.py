@@ -404,3 +404,22 @@ def test_a_non_separable_coefficient_of_an_unknown_in_a_pde_against_a_method_of_
         return (lambda t, u: 0.5 * D2 @ u - np.exp(-k * xi * t) * u + np.sin(np.pi * xi)), None
 
     assert _pde_check(cb, rhs_of, lambda x: np.zeros_like(x)) <= 1e-6
+
+
+def test_a_non_separable_boundary_value_is_refused_naming_the_key():
+    text = (USER / "heat_decaying_source.yaml").read_text().replace("x: {low: 0, high: 0}",
+                                                                      "x: {low: 0, high: {gradient: 1/(1 + k*t)}}")
+    with pytest.raises(SpecError, match=r"unknowns.u.boundary.x.high: a boundary value must be a sum of products of "
+                                        r"one-coordinate functions; '1/\(1 \+ k\*t\)'"):
+        pgdcli.parse_spec(text, source="b.yaml")
+
+
+def test_a_non_separable_initial_value_is_separated_and_checked():
+    text = (USER / "saturating_relaxation.yaml").read_text().replace("u: {initial: 0}", "u: {initial: 1/(1 + a*b)}")
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="i.yaml"))
+    assert result.converged
+    cb = result.codebook
+    p = _random_points(cb, seed=8)
+    tau = 1 + p["a"] * p["b"]
+    exact = tau + (1 / tau - tau) * np.exp(-p["t"] / tau)
+    assert np.max(np.abs(cb(**p)["u"] - exact)) <= 1e-7

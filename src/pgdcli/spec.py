@@ -695,6 +695,9 @@ def _parse_boundary(check: _Checker, name: str, value: Any, *, coordinates: list
             if poly.unknowns:
                 raise check.error(spath, f"a boundary value must not depend on unknowns, got '{text}'")
             sep = poly.coefficient(())
+            if sep.joints:
+                raise check.error(spath, f"a boundary value must be a sum of products of one-coordinate functions; "
+                                         f"'{sep.joints[0].function_text()}' in '{text}' is not separable")
             if coord in sep.coordinates or (time is not None and time in sep.coordinates):
                 raise check.error(spath, f"a boundary value at the {side} end of {coord!r} may depend on the other "
                                          f"non-time coordinates only, got '{text}'")
