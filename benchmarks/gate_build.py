@@ -12,7 +12,8 @@ the codebook's own nodes (every parameter node, every time node), filled by
   ``t_eval`` = the time nodes; a random subset of at most 200 points is timed and the time scaled;
 - ONE vectorized ``solve_ivp`` call over all grid points (``pgdcli.reference``'s vectorized
   right-hand side), at the same tolerances (problems with space coordinates: a method-of-lines
-  sweep, timed on a subset of at most 8 parameter points and scaled; no vectorized call).
+  sweep, pgdcli's reference at its default tolerances on the codebook's space nodes, timed on a
+  subset of at most 8 parameter points and scaled; no vectorized call).
 
 Interpolated with the codebook's own bases, such a grid is as accurate as the codebook (its nodal
 values are the exact solution to the reference's accuracy), so the times compare like with like.
@@ -34,7 +35,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 import pgdcli
-from pgdcli.reference import solve_reference, solve_reference_vectorized
+from pgdcli.reference import solve_reference_pde, solve_reference_vectorized
 
 from _machine import machine_facts
 
@@ -54,8 +55,12 @@ def grid_points(cb, problem):
     return points, times
 
 
-def time_loop(problem, points, times, space: bool):
-    """Seconds for a loop of solve_ivp over all points (timed on a subset, scaled)."""
+def time_loop(problem, points, times, space: dict | None):
+    """Seconds for a loop of solve_ivp over all points (timed on a subset, scaled).
+
+    ``space``: for a PDE, each space coordinate's nodes (one method-of-lines solve per point, its
+    values on those nodes); None for an ODE.
+    """
     size = len(next(iter(points.values()))) if points else 1
     rng = np.random.default_rng(0)
     subset = rng.choice(size, min(size, 8 if space else LOOP_SAMPLE), replace=False)
@@ -63,7 +68,7 @@ def time_loop(problem, points, times, space: bool):
     for i in subset:
         one = {n: v[i:i + 1] for n, v in points.items()}
         if space:
-            solve_reference(problem, one, times, rtol=RTOL, atol=ATOL, jobs=1)
+            solve_reference_pde(problem, one, space, times, jobs=1)
         else:
             solve_reference_vectorized(problem, one, 1, times, rtol=RTOL, atol=ATOL)
     return (time.perf_counter() - started) * size / subset.size
@@ -95,7 +100,8 @@ def measure(problem) -> dict:
     points, times = grid_points(cb, problem)
     out["count"] = count = len(next(iter(points.values()))) if points else 1
     with threadpool_limits(1, "blas"):
-        out["loop"] = time_loop(problem, points, times, space)
+        nodes = {c.name: cb.coordinate(c.name).basis().nodes for c in cb.coordinates if c.role == "space"}
+        out["loop"] = time_loop(problem, points, times, nodes if space else None)
         out["vector"] = float("nan") if space else time_vectorized(problem, points, times)
     grid_bytes = count * len(cb.unknown_names) * times.size * 8
     if space:
