@@ -25,7 +25,7 @@ from gate_build import measure
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {"forced": ROOT / "problems" / "forced.yaml"}
 PROBLEMS.update({name: ROOT / "tests" / "user_problems" / f"{name}.yaml" for name in (
-    "decaying_forcing", "oscillator_rate", "saturating_relaxation", "duffing_forced", "heat_decaying_source",
+    "forced_natural", "forced_aux", "decaying_forcing", "oscillator_rate", "saturating_relaxation", "duffing_forced", "heat_decaying_source",
     "conduction_variable")})
 
 

@@ -247,6 +247,18 @@ def test_decaying_forcing_against_solve_ivp():
     assert cb.info()["method"] == "pgd" and "exp(-a*t)*sin(t*w) [a, t, w]" in cb.report["separated_coefficients"]
 
 
+def test_forced_aux_written_naturally_against_solve_ivp():
+    cb = _solved("forced_natural")
+    p = _random_points(cb, seed=9)
+
+    def rhs(t, y):
+        return np.stack([y[1], -y[0] - 0.2 * y[1] + np.sin(p["w"] * t)])
+
+    ref = _ode_reference(rhs, np.zeros((2, POINTS)), p["t"], 10.0)
+    got = cb(**p)
+    assert np.max(np.abs(got["x"] - ref[0])) <= 1e-6 and np.max(np.abs(got["x_rate"] - ref[1])) <= 1e-6
+
+
 def test_oscillator_with_a_rate_initial_condition_against_the_exact_solution():
     cb = _solved("oscillator_rate")
     p = _random_points(cb, seed=3)
