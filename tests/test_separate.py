@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from pgdcli.expressions import parse_expression
-from pgdcli.separate import (DENSE_LIMIT, JointTrain, SeparationRankError, cp_from_tt, nodal_terms, separate_function,
-                             tt_cross, tt_svd)
+from pgdcli.coefficients import JointTrain, nodal_terms
+from pgdcli.separate import DENSE_LIMIT, SeparationRankError, cp_from_tt, separate_function, tt_cross, tt_svd
 from pgdcli.errors import SolverError
 
 

@@ -449,7 +449,7 @@ class Joint:
 
     ``g`` depends on two or more coordinates and is kept as an expression tree
     (leaves ``('coord', name)``), evaluated vectorized by :meth:`evaluate`; the
-    solvers separate it numerically on their nodes (:mod:`pgdcli.separate`).
+    solvers separate it numerically on their nodes (:mod:`pgdcli.coefficients`).
     One-coordinate factors of other coordinates stay apart in ``term``, so that
     ``F*sin(w*t)`` is separated over (w, t) only.
 

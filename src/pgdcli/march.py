@@ -38,7 +38,8 @@ import numpy as np
 from .basis import Basis1D, _chebyshev_unit_nodes
 from .expressions import Separable, SepTerm, merge_to_function
 from .errors import SolverError
-from .separate import MAX_SEPARATION_RANK, SEPARATION_FRACTION, JointTrain, separation_report_text
+from .coefficients import SEPARATION_FRACTION, JointTrain, separation_report_text
+from .separate import MAX_SEPARATION_RANK
 from .tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
@@ -289,7 +290,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
     coefficient that is a single product of one-coordinate functions (it is
     divided out); together the equations must cover every unknown once.
     Non-separable coefficients are separated over the parameter nodes to
-    ``SEPARATION_FRACTION * tolerance`` (:class:`pgdcli.separate.JointTrain`); each
+    ``SEPARATION_FRACTION * tolerance`` (:class:`pgdcli.coefficients.JointTrain`); each
     separation is described in ``separations``.
     """
     delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)

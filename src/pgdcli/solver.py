@@ -46,7 +46,8 @@ import scipy.linalg
 
 from .basis import Basis1D
 from .errors import PgdError, SolverError
-from .separate import MAX_SEPARATION_RANK, SEPARATION_FRACTION, nodal_terms, separation_report_text
+from .coefficients import SEPARATION_FRACTION, nodal_terms, separation_report_text
+from .separate import MAX_SEPARATION_RANK
 from .separated import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
 
 if TYPE_CHECKING:  # annotations only
@@ -420,7 +421,7 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
 
     Time-dependent problems are lifted by the initial value (``u = u0 + v``, ``v(t0) = 0``);
     steady ones by the Dirichlet values (``u = g + v``, ``v = 0`` on Dirichlet ends).
-    Non-separable coefficients are separated on the nodes (:func:`pgdcli.separate.nodal_terms`)
+    Non-separable coefficients are separated on the nodes (:func:`pgdcli.coefficients.nodal_terms`)
     to ``SEPARATION_FRACTION * tolerance``; ``Discretization.separations`` says how.
 
     Parameters
