@@ -379,6 +379,16 @@ def test_x_dependent_conduction_on_linear_elements_against_a_method_of_lines():
     assert _pde_check(result.codebook, rhs_of, lambda x: (np.sin(np.pi * x / 2) + 0.5 * x)[1:-1]) <= 1e-4
 
 
+@pytest.mark.slow
+def test_wave_equation_second_order_in_time_against_the_exact_solution():
+    cb = _solved("string_wave")
+    p = _random_points(cb, seed=10)
+    x, c, t = p["x"], p["c"], p["t"]
+    got = cb(**p)
+    assert np.max(np.abs(got["u"] - np.sin(np.pi * x) * np.cos(np.pi * c * t))) <= 1e-6
+    assert np.max(np.abs(got["u_rate"] + np.pi * c * np.sin(np.pi * x) * np.sin(np.pi * c * t))) <= 1e-6
+
+
 def test_x_dependent_coefficient_of_der_u_x_2_is_accepted_by_the_linear_solver():
     problem = pgdcli.load_spec(USER / "conduction_variable.yaml")
     from pgdcli.solver import discretize
