@@ -1182,7 +1182,9 @@ def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float,
     kept = None
     attempts = []
     for _ in range(CHECK_ATTEMPTS):
-        result = _enrich(problem, target, max_modes, callback, tolerance)
+        # non-separable coefficients are separated to a share of the tolerance, tightened with the
+        # residual when the error at the nodes asks for another enrichment (as the march's target is)
+        result = _enrich(problem, target, max_modes, callback, min(tolerance, target))
         if not result.converged:
             if kept is None:
                 result.codebook.report["tolerance"] = float(tolerance)
