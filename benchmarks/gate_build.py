@@ -126,13 +126,18 @@ def row(name: str) -> str:
             f"{m['grid_bytes'] / 1024:.0f} KiB ({m['count']} grid points) |")
 
 
-def main(names):
+def print_table(names, row_of, first: str = "problem", last: str = "grid values") -> None:
+    """The machine (stderr), then the table's header and one row per problem (stdout, as they finish)."""
     print(f"machine: {machine_facts()}", file=sys.stderr)
-    print("| problem | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
-          "codebook's grid | one vectorized solve_ivp over it | codebook file | grid values |")
+    print(f"| {first} | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
+          f"codebook's grid | one vectorized solve_ivp over it | codebook file | {last} |")
     print("| --- | --- | --- | --- | --- | --- |")
     for name in names:
-        print(row(name), flush=True)
+        print(row_of(name), flush=True)
+
+
+def main(names):
+    print_table(names, row)
 
 
 if __name__ == "__main__":

@@ -19,8 +19,7 @@ from pathlib import Path
 
 import pgdcli
 
-from _machine import machine_facts
-from gate_build import measure
+from gate_build import measure, print_table
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {"forced": ROOT / "problems" / "forced.yaml"}
@@ -39,14 +38,5 @@ def row(name: str) -> str:
             f"{m['size'] / 1024:.0f} KiB, {m['count']} grid points | {separated} |")
 
 
-def main(names):
-    print(f"machine: {machine_facts()}", file=sys.stderr)
-    print("| problem (solver) | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
-          "codebook's grid | one vectorized solve_ivp over it | codebook file | non-separable coefficients |")
-    print("| --- | --- | --- | --- | --- | --- |")
-    for name in names:
-        print(row(name), flush=True)
-
-
 if __name__ == "__main__":
-    main(sys.argv[1:] or list(PROBLEMS))
+    print_table(sys.argv[1:] or list(PROBLEMS), row, "problem (solver)", "non-separable coefficients")
