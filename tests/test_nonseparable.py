@@ -429,6 +429,15 @@ def test_a_non_separable_coefficient_of_an_unknown_in_a_pde_against_a_method_of_
     assert _pde_check(cb, rhs_of, lambda x: np.zeros_like(x)) <= 1e-6
 
 
+def test_solve_json_and_table_say_how_many_terms(tmp_path):
+    result = _pgd("solve", USER / "saturating_relaxation.yaml", "-o", tmp_path / "s.h5", "--format", "json", "-q")
+    assert result.exit_code == 0, result.stderr
+    (line,) = json.loads(result.stdout)["separated_coefficients"]
+    assert line.startswith("1/(1 + a*b) [a, b]: ") and " terms (svd" in line
+    table = _pgd("solve", USER / "saturating_relaxation.yaml", "-o", tmp_path / "s.h5").stderr
+    assert "separated" in table and "1/(1 + a*b) [a, b]" in table
+
+
 def test_a_non_separable_boundary_value_is_refused_naming_the_key():
     text = (USER / "heat_decaying_source.yaml").read_text().replace("x: {low: 0, high: 0}",
                                                                       "x: {low: 0, high: {gradient: 1/(1 + k*t)}}")
