@@ -17,8 +17,8 @@ from click.testing import CliRunner
 import pgdcli
 from pgdcli import parse_spec
 from pgdcli.adapt import INACCURATE
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, InaccurateCodebookWarning
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, InaccurateCodebookWarning
 
 OSCILLATOR = """
 name: oscillator
@@ -180,7 +180,7 @@ solver:
 
 def test_relative_tolerance_relaxes_the_bound_where_the_solution_is_large():
     """error <= atol + rtol |u|: a coarse codebook that fails atol alone passes with a relative part."""
-    from pgdcli import check
+    from pgdcli.checks import check
 
     problem = parse_spec(DECAY, source="decay.yaml")
     strict = pgdcli.solve(problem)
@@ -326,7 +326,7 @@ def test_query_of_an_inaccurate_codebook_warns_in_one_line(tmp_path):
     spec.write_text(COARSE)
     out = tmp_path / "coarse.h5"
     CliRunner().invoke(cli, ["solve", str(spec), "-o", str(out), "--keep-inaccurate", "-q"])
-    res = subprocess.run([sys.executable, "-c", "from pgdcli._query import main; main()", "query", str(out),
+    res = subprocess.run([sys.executable, "-c", "from pgdcli.cli.query import main; main()", "query", str(out),
                           "--t", "1", "--k", "2"], capture_output=True, text=True)
     assert res.returncode == 0 and len(res.stdout.split()) == 2
     lines = res.stderr.strip().splitlines()
@@ -338,7 +338,7 @@ def test_pde_check_reuses_its_reference_for_the_same_nodes(monkeypatch):
     the codebook's values at the report's points are verify's own."""
     from conftest import PROBLEMS
 
-    from pgdcli import check, verification
+    from pgdcli.checks import check, verify as verification
 
     calls = []
     real = verification.verify
@@ -378,7 +378,7 @@ def test_codebook_at_a_steady_report_grid_is_verifys_own():
     """A steady problem (no time axis in the report): the values at the report's points are verify's."""
     from conftest import PROBLEMS
 
-    from pgdcli import check
+    from pgdcli.checks import check
 
     result = pgdcli.solve(pgdcli.load_spec(PROBLEMS / "poisson.yaml"))
     report = pgdcli.verify(result.codebook, samples=check.PDE_SAMPLES, times=check.PDE_TIMES,

@@ -15,9 +15,9 @@ from scipy.integrate import solve_ivp
 import pgdcli
 from click.testing import CliRunner
 
-from pgdcli.cli import cli
+from pgdcli.cli.main import cli
 from pgdcli.errors import SpecError
-from pgdcli.expressions import parse_expression
+from pgdcli.problem.expressions import parse_expression
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 USER = ROOT / "tests" / "user_problems"
@@ -111,7 +111,7 @@ def test_non_separable_coefficients_are_kept_and_evaluate_exactly(text, exact):
 
 
 def test_separable_factors_stay_outside_the_joint_function():
-    sep = _parse("F*k*sin(w*t)*u").coefficient((pgdcli.expressions.Atom("u"),))
+    sep = _parse("F*k*sin(w*t)*u").coefficient((pgdcli.problem.expressions.Atom("u"),))
     (joint,) = sep.joints
     assert joint.tree_coordinates == {"t", "w"}
     assert joint.term.coordinates == {"k"} and joint.term.coef == 2.0
@@ -392,7 +392,7 @@ def test_wave_equation_second_order_in_time_against_the_exact_solution():
 
 def test_x_dependent_coefficient_of_der_u_x_2_is_accepted_by_the_linear_solver():
     problem = pgdcli.load_spec(USER / "conduction_variable.yaml")
-    from pgdcli.solver import discretize
+    from pgdcli.driver import discretize
 
     disc = discretize(problem)
     assert disc.operator.n_terms >= 2

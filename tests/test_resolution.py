@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes
-from pgdcli.resolution import resolution_tails
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.checks.resolution import resolution_tails
 
 COORDS = (CoordinateInfo("x", (0.0, 1.0), 9, "chebyshev", "space"),
           CoordinateInfo("k", (1.0, 3.0), 7, "chebyshev", "parameter"),

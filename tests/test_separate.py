@@ -1,11 +1,11 @@
-"""pgdcli.separate: numerical separation of node tensors, checked against the functions themselves."""
+"""pgdcli.discretization.separate: numerical separation of node tensors, checked against the functions themselves."""
 
 import numpy as np
 import pytest
 
-from pgdcli.expressions import parse_expression
-from pgdcli.coefficients import JointTrain, nodal_terms
-from pgdcli.separate import DENSE_LIMIT, SeparationRankError, cp_from_tt, separate_function, tt_cross, tt_svd
+from pgdcli.problem.expressions import parse_expression
+from pgdcli.discretization.coefficients import JointTrain, nodal_terms
+from pgdcli.discretization.separate import DENSE_LIMIT, SeparationRankError, cp_from_tt, separate_function, tt_cross, tt_svd
 from pgdcli.errors import SolverError
 
 
@@ -79,7 +79,7 @@ def _rows(cores, index):
 
 
 def test_separate_function_uses_the_cross_beyond_the_dense_limit(monkeypatch):
-    import pgdcli.separate as separate
+    import pgdcli.discretization.separate as separate
 
     monkeypatch.setattr(separate, "DENSE_LIMIT", 1000)
     nodes = {"a": np.linspace(0, 1, 15), "b": np.linspace(0, 1, 16), "c": np.linspace(0, 1, 17)}
