@@ -29,6 +29,8 @@ import time as _time
 
 import numpy as np
 
+from .checks.resolution import chebyshev_decay
+
 __all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "solve_to_tolerance", "refined_nodes", "initial_nodes"]
 
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
@@ -96,6 +98,25 @@ def _predicted_nodes(c, ratio: float, past: list) -> int:
     return int(np.ceil(c.nodes + np.log(ratio / 0.25) / per_node))
 
 
+#: Slowest decay of the Chebyshev coefficients (per node, natural log) that a first prediction trusts:
+#: slower spectra (a sharp feature, or the pre-asymptotic start of one) are doubled and measured.
+MIN_DECAY = np.log(1.2)
+
+
+def _spectral_nodes(c, ratio: float, decay: float | None) -> int:
+    """Nodes at which the error ratio falls to a quarter, from the decay of the coefficients of one solve.
+
+    The first refinement of a coordinate has no earlier doubling to measure the
+    convergence by (:func:`_predicted_nodes`); the Chebyshev spectrum of the
+    codebook along the coordinate gives the rate instead
+    (:func:`pgdcli.resolution.chebyshev_decay`). At most two doublings at once,
+    so that a pre-asymptotic spectrum cannot ask for an oversized grid.
+    """
+    if decay is None or not decay >= MIN_DECAY or not ratio > 0.25:
+        return 0
+    return min(int(np.ceil(c.nodes + np.log(ratio / 0.25) / decay)), 4 * c.nodes - 3)
+
+
 def split_elements(problem, name: str, where: np.ndarray):
     """The problem with every element of ``name`` that holds a point of ``where`` cut in two."""
     c = problem.coordinate(name)
@@ -107,7 +128,7 @@ def split_elements(problem, name: str, where: np.ndarray):
     return dataclasses.replace(problem, coordinates=coords)
 
 
-def _refine(problem, check, names, history):
+def _refine(problem, check, names, history, decay=None):
     """More nodes (p) or more elements where the error is (h) for each named coordinate.
 
     A Chebyshev parameter goes on adding nodes while a doubling cuts its off-node
@@ -116,16 +137,19 @@ def _refine(problem, check, names, history):
     :data:`MAX_ELEMENT_NODES` per element; otherwise the feature is sharp, and the
     elements holding off-node points with too large an error are cut in two
     (chebfun's splitting, by the measured error instead of the tail).
-    Returns the refined problem and the coordinates that could not be refined.
+    ``decay`` (coordinate -> log rho of its Chebyshev spectrum) predicts the first
+    p-refinement of a coordinate. Returns the refined problem and the coordinates
+    that could not be refined.
     """
     cap = problem.solver.max_nodes
+    decay = decay or {}
     stuck = []
     for name in names:
         c = problem.coordinate(name)
         ratio = check.coordinate_ratio.get(name, 0.0)
         past = history.setdefault(name, [])
         slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN * ratio
-        predicted = _predicted_nodes(c, ratio, past)
+        predicted = _predicted_nodes(c, ratio, past) or (0 if past else _spectral_nodes(c, ratio, decay.get(name)))
         h_able = c.role == "parameter" and c.discretization == "chebyshev" and name in check.line_points
         if h_able and (slow or max(c.nodes, predicted) > MAX_ELEMENT_NODES):
             x, r = check.line_points[name]
@@ -230,7 +254,7 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
             refine = _largest_off_node(problem, check, march)
         if not refine:
             break
-        refined, stuck = _refine(problem, check, refine, history)
+        refined, stuck = _refine(problem, check, refine, history, chebyshev_decay(result.codebook))
         if stuck == refine:
             break
         if round_ == MAX_ROUNDS - 1:

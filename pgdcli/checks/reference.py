@@ -4,7 +4,10 @@ This module exists to check codebooks (``pgd verify``, plots): it must not
 share a code path with the PGD solver beyond the parsed spec, so that a bug in
 operator assembly cannot cancel out. It therefore never imports
 ``solver``, ``basis`` or ``separated``: the equations are evaluated pointwise
-from the parsed :class:`~pgdcli.problem.expressions.Polynomial` of each equation.
+from the parsed :class:`~pgdcli.problem.expressions.Polynomial` of each equation. Non-separable
+coefficients and sources (``sin(w*t)``, ``exp(-k*x*t)``) are evaluated from their expression
+trees at the samples (and space grid) at every call, never from the solvers' numerical
+separation, so the error gate and ``pgd verify`` check that separation too.
 
 Equation ``r`` reads (lhs - rhs = 0)
 

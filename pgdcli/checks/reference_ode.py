@@ -21,12 +21,21 @@ __all__ = ["solve_reference_vectorized"]
 # compiled right-hand side
 # ----------------------------------------------------------------------------------------------
 class CompiledCoefficient:
-    """A Separable coefficient at S parameter samples: ``static(p) + sum_i w_i(p) f_i(t)``."""
+    """A Separable coefficient at S parameter samples: ``static(p) + sum_i w_i(p) f_i(t) + sum_j g_j(t, p)``.
 
-    __slots__ = ("static", "timed", "is_static")
+    The non-separable parts ``g_j`` (joints) are evaluated from their expression trees
+    directly, at the samples and the time of each call: never from the solvers' separation.
+    """
+
+    __slots__ = ("static", "timed", "is_static", "joints", "params", "time", "S")
 
     def __init__(self, sep, time: str, params: Mapping[str, np.ndarray], S: int) -> None:
+        self.params, self.time, self.S = params, time, S
+        self.joints = [joint for joint in sep.joints if time in joint.coordinates]
         static = np.zeros(S)
+        for joint in sep.joints:
+            if time not in joint.coordinates:
+                static = static + np.broadcast_to(joint.evaluate(**params), (S,))
         timed: dict = {}
         for term in sep.terms:
             weight = np.full(S, term.coef)
@@ -47,7 +56,7 @@ class CompiledCoefficient:
                     timed[key] = (time_func, weight)
         self.static = static
         self.timed = list(timed.values())
-        self.is_static = not self.timed
+        self.is_static = not self.timed and not self.joints
 
     def at(self, t: float) -> np.ndarray:
         if self.is_static:
@@ -55,6 +64,10 @@ class CompiledCoefficient:
         out = self.static
         for func, weight in self.timed:
             out = out + weight * float(func(t))
+        if self.joints:
+            values = {**self.params, self.time: np.asarray(float(t))}
+            for joint in self.joints:
+                out = out + np.broadcast_to(joint.evaluate(**values), (self.S,))
         return out
 
 

@@ -39,6 +39,10 @@ def info(codebook, fmt):
     console.print("modes: " + ", ".join(
         f"{u} {v['modes']}" if v.get("representation") != "tensor-train" else f"{u} tensor train, ranks {tuple(v['ranks'])}"
         for u, v in summary["unknowns"].items()))
+    if summary.get("rates"):
+        console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
+    for line in summary.get("separated_coefficients", []):
+        console.print(f"separated coefficient: {line}", markup=False)
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("accurate") is False:

@@ -70,6 +70,7 @@ class Unknown:
     initial: Separable
     initial_text: str
     boundary: dict = field(default_factory=dict, hash=False, compare=False)
+    rate_of: str | None = None  # the rate unknown of a second-order unknown (pgdcli.problem.second_order): its name
 
 
 @dataclass(frozen=True)

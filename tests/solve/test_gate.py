@@ -385,3 +385,45 @@ def test_codebook_at_a_steady_report_grid_is_verifys_own():
                            max_corners=check.PDE_CORNERS, jobs=1, rtol=1e-12, atol=1e-12)
     assert report.time is None and report.codebook_values["u"].ndim == 3  # (S, X, Y)
     np.testing.assert_array_equal(check.on_report_grid(result.codebook, report)["u"], report.codebook_values["u"])
+
+
+
+def test_a_second_march_starts_from_the_target_learned():
+    """The RMS target that met the tolerance at the nodes is carried to the next solve (the next
+    round of the automatic resolution) instead of being found again by a second march."""
+    from pathlib import Path
+
+    from pgdcli.driver import CHECK_FIRST, _checked_march
+
+    text = (Path(__file__).parent / "user_problems" / "sir.yaml").read_text()
+    for name in ("t", "b", "g", "I0"):  # a coarse grid: the march's own error at the nodes decides
+        text = text.replace(f"  {name}: {{domain:", f"  {name}: {{nodes: 9, domain:")
+    problem = parse_spec(text, source="sir.yaml")
+    learned: dict = {}
+    first = _checked_march(problem, tolerance=1e-6, learned=learned)
+    attempts = first.codebook.report["march_attempts"]
+    assert attempts.shape[0] >= 2 and attempts[0, 0] == CHECK_FIRST * 1e-6  # it had to tighten
+    assert first.check.node_ratio <= 1.0 and learned["march_target"] == attempts[-1, 0]
+    second = _checked_march(problem, tolerance=1e-6, learned=learned)
+    assert second.codebook.report["march_attempts"].tolist() == [[attempts[-1, 0], second.check.error]]
+    assert second.check.node_ratio <= 1.0
+
+
+def test_a_second_enrichment_starts_from_the_residual_learned():
+    """heat1d needs a residual a decade below its tolerance: found once, then carried to the next solve."""
+    from conftest import PROBLEMS
+
+    from pgdcli.driver import _checked_enrichment
+
+    problem = pgdcli.load_spec(PROBLEMS / "heat1d.yaml")
+    opts = problem.solver
+    learned: dict = {}
+    first = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
+                                max_modes=opts.max_modes, learned=learned)
+    attempts = first.codebook.report["enrichment_attempts"]
+    assert attempts.shape[0] == 2 and attempts[0, 0] == opts.tolerance
+    assert learned["residual"] == attempts[-1, 0] < opts.tolerance
+    second = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
+                                 max_modes=opts.max_modes, learned=learned)
+    assert second.codebook.report["enrichment_attempts"][:, 0].tolist() == [learned["residual"]]
+    assert second.accurate is not False and second.check.node_ratio <= 1.0
