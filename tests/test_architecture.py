@@ -18,7 +18,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "pgdcli"
 # problem -> discretization -> tensors <- algorithms <- driver -> codebook <- checks <- cli
 LOWER = {
     "problem": set(),
-    "discretization": {"problem"},
+    "discretization": {"problem", "tensors"},  # a problem becomes separated operators
     "tensors": set(),
     "codebook": {"discretization", "tensors"},
     "algorithms": {"problem", "discretization", "tensors", "codebook"},

@@ -2,6 +2,9 @@
 differentiation matrices, barycentric interpolation, the tensor grid, the linear operator of a
 problem and its boundary elimination. Written here from scratch so that it shares nothing with the
 PGD solver's weak-form discretization (pgdcli.discretization).
+
+Over 400 lines: ``PdeModel`` and ``PdeSystem`` are the one linear operator of a problem and its
+time-dependent assembly; ``PdeModel.__init__`` (146 lines) still assembles every term in one pass.
 """
 
 from __future__ import annotations

@@ -1,5 +1,8 @@
 """The method-of-lines reference of problems with space coordinates (BDF/Radau with the exact
 Jacobian, or sparse LU for steady problems) on the collocation grid of :mod:`.collocation`.
+
+Over 400 lines: the method-of-lines integration, its failure isolation and the interpolation
+to the asked points are one path; the collocation itself is in :mod:`.collocation`.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ __all__ = ["PdeReferenceResult", "solve_reference_pde"]
 # ----------------------------------------------------------------------------------------------
 # Strong-form Chebyshev-Gauss-Lobatto collocation, written here from scratch (nodes,
 # differentiation matrices, barycentric interpolation) so that it shares nothing with the PGD
-# solver's weak-form discretization in pgdcli.discretization.basis / pgdcli.driver.
+# solver's weak-form discretization in pgdcli.discretization.basis / pgdcli.discretization.linear.
 
 # unknowns per vectorized solve_ivp call (samples integrated together as one block-diagonal system);
 # the error norm of solve_ivp is an RMS over the state, so few samples share one call

@@ -19,7 +19,9 @@ from pgdcli import Codebook, load_spec, parse_spec, solve
 from pgdcli.errors import SolverError
 from pgdcli.tensors.cp import CPTensor
 from pgdcli import driver as solver
-from pgdcli.driver import STATE, SolveResult, discretize, residual_norm
+from pgdcli.algorithms.enrichment import residual_norm
+from pgdcli.driver import SolveResult
+from pgdcli.discretization.linear import STATE, discretize
 
 N_POINTS = 1000
 SEEDS = {"parametric": 101, "spring": 202, "relaxation": 303}
@@ -379,18 +381,18 @@ def test_update_fallback_reports_the_residual_of_what_it_keeps(monkeypatch):
     # the solver falls back to projecting and updating mode by mode (each update checked with one
     # sweep step from the projection's partial sweeps). Force the fallback at every enrichment and
     # compare the residual it reports with a full orthogonal sweep of the state it leaves.
-    from pgdcli import driver as solver
+    from pgdcli.algorithms import enrichment
 
     checked = []
-    one_pass, sweep = solver._update_all, solver._update_sweep
+    one_pass, sweep = enrichment._update_all, enrichment._update_sweep
 
     def checked_sweep(state, res, suffixes):
         out = sweep(state, res, suffixes)
         checked.append((out, state.residual_norm(), state.source.norm()))
         return out
 
-    monkeypatch.setattr(solver, "_update_all", lambda state, previous: one_pass(state, 0.0))
-    monkeypatch.setattr(solver, "_update_sweep", checked_sweep)
+    monkeypatch.setattr(enrichment, "_update_all", lambda state, previous: one_pass(state, 0.0))
+    monkeypatch.setattr(enrichment, "_update_sweep", checked_sweep)
     result = solver._enrich(load_spec(PROBLEMS / "relaxation.yaml"), 1e-10, 100, None)  # one enrichment
     assert result.converged, result.message
     assert len(checked) == result.n_modes

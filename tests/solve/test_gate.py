@@ -395,7 +395,7 @@ def test_a_second_march_starts_from_the_target_learned():
 
     from pgdcli.driver import CHECK_FIRST, _checked_march
 
-    text = (Path(__file__).parent / "user_problems" / "sir.yaml").read_text()
+    text = (Path(__file__).resolve().parents[1] / "user_problems" / "sir.yaml").read_text()
     for name in ("t", "b", "g", "I0"):  # a coarse grid: the march's own error at the nodes decides
         text = text.replace(f"  {name}: {{domain:", f"  {name}: {{nodes: 9, domain:")
     problem = parse_spec(text, source="sir.yaml")

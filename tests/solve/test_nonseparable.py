@@ -392,7 +392,7 @@ def test_wave_equation_second_order_in_time_against_the_exact_solution():
 
 def test_x_dependent_coefficient_of_der_u_x_2_is_accepted_by_the_linear_solver():
     problem = pgdcli.load_spec(USER / "conduction_variable.yaml")
-    from pgdcli.driver import discretize
+    from pgdcli.discretization.linear import discretize
 
     disc = discretize(problem)
     assert disc.operator.n_terms >= 2

@@ -1,0 +1,493 @@
+"""Discretization of a linear problem for the PGD enrichment: separated operator, source and lifts.
+
+The problem ``sum_s A_rs(x) du_s/dt + B_rs(x) u_s = f_r(x)`` with ``u_s(t0) = u0_s``
+is lifted (``u = u0 + v``, ``v(t0) = 0``) and discretized coordinate by
+coordinate (:mod:`pgdcli.discretization.basis`), which turns it into one tensor equation
+``A v = F`` over the modes ``(field, x_1, ..., x_d)``. The *field* mode, of size
+the number of unknowns, carries the coupling between equations, so coupled
+linear systems are solved as one separated problem.
+
+Before the enrichment the time rows are multiplied by the inverse of the
+discrete ``d/dt`` (an integration matrix) and every mode by the square roots of
+its quadrature weights: the residual minimized is then the L2 norm of the
+*integrated* equation (u - u0 - int rhs), which is well conditioned and close
+to the error itself, so the tolerance means what it says.
+
+Over 400 lines: the per-coordinate operators, the time operators, the lifts and :func:`discretize`
+belong together (one weak form); :func:`discretize` (108 lines) is still one assembly loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SolverError
+from ..tensors.cp import CPTensor, SeparatedOperator
+from .basis import Basis1D
+from .coefficients import SEPARATION_FRACTION, nodal_terms
+from .coordinates import coordinate_infos
+from .separate import MAX_SEPARATION_RANK
+
+__all__ = ["STATE", "Discretization", "discretize"]
+
+
+STATE = "<state>"
+# Space preconditioner (M + tau K)^-1 with tau = TAU_FRACTION * (time span): smaller tau keeps
+# the residual norm closer to the error (measured on heat2d_source: error 3.0e-6 at tau = T,
+# 6.8e-7 at T/10, 1.6e-7 at T/100 for the same residual), larger tau converges in fewer modes.
+# The gap is widest early: a spatial frequency lambda is weighted by about
+# (1 + kappa lambda t) / (1 + tau lambda) in the integrated residual, so while kappa t < tau the
+# high frequencies count up to tau lambda times less than in the error. Measured on heat2d_source
+# (tolerance 3e-8, 36 time nodes) against the method-of-lines reference, worst error over
+# x, y in [0.8, 1]^2 and t < 0.02 at kappa = 0.1, q = 2: 1.2e-6 at T/100 (106 modes), 5.9e-7 at
+# 0.003 T (120), 4.8e-7 at T/1000 (124); 6.2e-6 at T/10 (81 modes, interior points). heat2d and
+# heat1d keep their modes and accuracy.
+TAU_FRACTION = 0.003
+
+
+# ----------------------------------------------------------------------------------------------
+# discretization: problem -> separated operator and source
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class Discretization:
+    """The discrete separated system of a problem.
+
+    Mode 0 is the *state* mode: the unknowns stacked over the free time nodes
+    (size ``q * (n_t - 1)``), so each rank-one term carries its own time
+    function for every unknown while the parameter factors are shared; the
+    coupling between equations lives in this mode's matrices. Modes 1.. are
+    the other coordinates in spec order. A steady problem (``time`` None) has
+    a state mode of size ``q``: one weight per unknown.
+
+    Attributes
+    ----------
+    names : list of str
+        ``STATE`` then the parameter coordinate names.
+    bases : dict
+        Coordinate name -> :class:`~pgdcli.discretization.basis.Basis1D`.
+    operator : SeparatedOperator
+        Preconditioned operator; ``terms[k][j]`` of shape (n_j, n_j).
+    source : CPTensor
+        Preconditioned right-hand side.
+    lift : dict
+        Unknown name -> CPTensor over all coordinates (spec order), in nodal
+        values: the initial value (time factor 1), or for a steady problem the
+        Dirichlet values on the boundary nodes (zero inside).
+    unknowns : list of str
+    coordinates : list of str
+        All coordinate names in spec order.
+    time : str or None
+        None for a steady problem.
+    """
+
+    names: list[str]
+    bases: dict[str, Basis1D]
+    operator: SeparatedOperator
+    source: CPTensor
+    lift: dict[str, CPTensor]
+    unknowns: list[str]
+    coordinates: list[str]
+    time: str | None
+    trial: dict = field(default_factory=dict)  # coordinate -> trial node indices (Dirichlet ends removed)
+    separations: list = field(default_factory=list)  # per non-separable coefficient: how it was separated
+
+    def nodal_factors(self, factors: list[np.ndarray]) -> dict[str, list[np.ndarray]]:
+        """Solver factors -> per unknown, nodal mode matrices over the coordinates (spec order)."""
+        free = 1 if self.time is None else self.bases[self.time].nodes.size - 1
+        state = factors[0].reshape(len(self.unknowns), free, -1)
+        params = {}
+        for name, f in zip(self.names[1:], factors[1:]):
+            if name in self.trial:  # Dirichlet ends: the lift carries the value, v vanishes there
+                full = np.zeros((self.bases[name].nodes.size, f.shape[1]))
+                full[self.trial[name]] = f
+                f = full
+            params[name] = f
+        out = {}
+        for s, u in enumerate(self.unknowns):
+            if self.time is None:  # the unknown's weight goes into the first coordinate's modes
+                first = self.coordinates[0]
+                out[u] = [params[c] * state[s] if c == first else params[c] for c in self.coordinates]
+                continue
+            tf = np.vstack([np.zeros((1, state.shape[2])), state[s]])  # v(t0) = 0
+            out[u] = [tf if c == self.time else params[c] for c in self.coordinates]
+        return out
+
+
+def _factor_values(term, basis_of: dict[str, Basis1D]) -> dict[str, np.ndarray]:
+    """Values at the nodes of every coordinate factor of a SepTerm (absent coordinates: ones)."""
+    values = {name: np.ones(b.nodes.size) for name, b in basis_of.items()}
+    for coord, func in term.factors:
+        nodes = basis_of[coord].nodes
+        v = np.broadcast_to(np.asarray(func(nodes), dtype=float), nodes.shape)
+        if not np.all(np.isfinite(v)):
+            raise SolverError(f"coefficient {func} is not finite at some nodes of coordinate {coord!r}")
+        values[coord] = np.array(v)
+    return values
+
+
+def _merge_terms(terms: list[tuple[np.ndarray, ...]]) -> list[tuple[np.ndarray, ...]]:
+    """Sum Kronecker terms that differ in at most one mode (fewer terms, cheaper sweeps)."""
+    merged: list[list[np.ndarray]] = []
+    for term in terms:
+        for other in merged:
+            differ = [j for j, (a, b) in enumerate(zip(term, other)) if not np.array_equal(a, b)]
+            if len(differ) <= 1:
+                if differ:
+                    other[differ[0]] = other[differ[0]] + term[differ[0]]
+                else:
+                    other[0] = 2.0 * other[0]
+                break
+        else:
+            merged.append(list(term))
+    return [tuple(t) for t in merged]
+
+
+class _CoordinateOps:
+    """The 1D pieces of one non-time coordinate: test/trial nodes, matrices, left preconditioner.
+
+    Parameters are collocated (diagonal matrices). Space coordinates are in weak form with
+    the basis's quadrature: mass ``W``, stiffness ``K`` (Chebyshev ``D^T W D``; linear
+    elements the exact tridiagonal one), advection ``int f phi_i phi_j'`` (Chebyshev: exact
+    Gauss-Legendre; linear elements: f at the element midpoints); a Dirichlet
+    end drops its node from the trial and test functions (the lift carries the value), a
+    gradient (Neumann) end enters as a boundary flux. Every matrix is returned already
+    multiplied by the left preconditioner: ``1/sqrt(w)`` for parameters, and
+    ``sqrt(W) (M + tau K)^-1`` for space, which keeps the stiff operator bounded in the
+    minimal-residual normal equations (their conditioning is squared).
+    """
+
+    def __init__(self, name: str, basis: Basis1D, role: str, ends: tuple[str, str] | None, tau: float):
+        self.name, self.basis = name, basis
+        n = basis.nodes.size
+        w = basis.weights
+        self.space = role == "space"
+        keep = np.ones(n, dtype=bool)
+        if self.space and ends is not None:
+            keep[0] = ends[0] != "value"
+            keep[-1] = ends[1] != "value"
+        self.test = self.trial = np.flatnonzero(keep)
+        self.w = w
+        self.interp = None
+        if not self.space:
+            self.left = np.diag(1.0 / np.sqrt(w))
+            return
+        if basis.kind == "chebyshev":
+            # exact Galerkin integrals: Gauss-Legendre with n + 1 points integrates the products
+            # of two degree n - 1 polynomials exactly (Clenshaw-Curtis at the nodes would alias
+            # and converge only algebraically, measured)
+            xg, wg = np.polynomial.legendre.leggauss(n + 1)
+            low, high = basis.domain
+            self.quad_w = wg * (high - low) / 2.0
+            self.interp = basis.interpolation_matrix(low + (xg + 1.0) * (high - low) / 2.0)  # (n + 1, n)
+            self.interp_d = self.interp @ basis.derivative
+            self.derivative = basis.derivative
+            self.stiffness = self.interp_d.T @ (self.quad_w[:, None] * self.interp_d)
+            mass = self.interp.T @ (self.quad_w[:, None] * self.interp)
+        else:
+            h = np.diff(basis.nodes)
+            k = np.zeros((n, n))
+            for e, he in enumerate(h):
+                k[e:e + 2, e:e + 2] += np.array([[1.0, -1.0], [-1.0, 1.0]]) / he
+            self.derivative = None
+            self.interp = None
+            self.stiffness = k
+            self.h = h
+            mass = np.diag(w)  # lumped: second order, like the elements themselves
+        t = self.test
+        self.left = np.sqrt(w[t])[:, None] * np.linalg.inv(mass[np.ix_(t, t)] + tau * self.stiffness[np.ix_(t, t)])
+
+    def _rows(self, full: np.ndarray) -> np.ndarray:
+        return self.left @ full[self.test]
+
+    def _weighted(self, f: np.ndarray) -> np.ndarray:
+        """Quadrature weights times ``f`` at the quadrature points (f interpolated from the nodes)."""
+        return self.quad_w * (self.interp @ f)
+
+    def mass(self, f: np.ndarray) -> np.ndarray:
+        """``f u`` tested: (test, all nodes)."""
+        if not self.space or self.interp is None:
+            return self._rows(np.diag(self.w * f))
+        return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp))
+
+    def first(self, f: np.ndarray) -> np.ndarray:
+        """``f du/dx`` tested: (test, all nodes)."""
+        if self.derivative is not None:
+            return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp_d))
+        # hat functions: on element e, phi_j' = -+1/h and int phi_i = h/2, with f at the midpoint
+        n = self.basis.nodes.size
+        mid = 0.5 * (f[:-1] + f[1:])
+        a = np.zeros((n, n))
+        for e, fe in enumerate(mid):
+            a[e:e + 2, e:e + 2] += 0.5 * fe * np.array([[-1.0, 1.0], [-1.0, 1.0]])
+        return self._rows(a)
+
+    def second(self, f: np.ndarray) -> np.ndarray:
+        """``f d2u/dx2`` tested (weak form, boundary fluxes apart): (test, all nodes).
+
+        ``int f u'' phi = [f u' phi] - int f u' phi' - int f' u' phi``: a stiffness weighted by
+        ``f`` and an advection by ``f'`` (Chebyshev: the derivative of f's interpolant, both
+        integrals by the Gauss rule; linear elements: f at the element midpoints, f' the slope
+        of f on each element, second order).
+        """
+        if self.derivative is not None:
+            stiffness = self.interp_d.T @ (self._weighted(f)[:, None] * self.interp_d)
+            return self._rows(-stiffness) - self.first(self.derivative @ f)
+        n = self.basis.nodes.size
+        k = np.zeros((n, n))
+        a = np.zeros((n, n))
+        for e, he in enumerate(self.h):
+            k[e:e + 2, e:e + 2] += 0.5 * (f[e] + f[e + 1]) * np.array([[1.0, -1.0], [-1.0, 1.0]]) / he
+            a[e:e + 2, e:e + 2] += 0.5 * (f[e + 1] - f[e]) / he * np.array([[-1.0, 1.0], [-1.0, 1.0]])
+        return self._rows(-k - a)
+
+    def load(self, f: np.ndarray) -> np.ndarray:
+        """A source ``f`` tested: (test,)."""
+        if not self.space or self.interp is None:
+            return self.left @ (self.w * f)[self.test]
+        return self.left @ (self.interp.T @ self._weighted(f))[self.test]
+
+    def flux(self, side: int) -> np.ndarray:
+        """``[du/dx phi]`` at one end: +phi(high), -phi(low), tested: (test,)."""
+        e = np.zeros(self.basis.nodes.size)
+        e[0 if side == 0 else -1] = -1.0 if side == 0 else 1.0
+        return self.left @ e[self.test]
+
+
+def _boundary_kinds(problem, coord: str) -> tuple[str, str] | None:
+    kinds = {tuple(b.kind for b in u.boundary[coord]) for u in problem.unknowns if coord in u.boundary}
+    if len(kinds) > 1:
+        raise SolverError(f"{problem.source}: unknowns: every unknown needs the same kinds of boundary conditions "
+                          f"on {coord!r} (value or gradient at each end), found {sorted(kinds)}")
+    return kinds.pop() if kinds else None
+
+
+def _check_compatible_initial_values(problem, bases) -> None:
+    """A Dirichlet value must equal the initial value there: the lift u0 carries it for all times."""
+    rng = np.random.default_rng(0)
+    for u in problem.unknowns:
+        for coord, ends in u.boundary.items():
+            for side, bc in enumerate(ends):
+                if bc.kind != "value":
+                    continue
+                others = {c.name: rng.uniform(*c.domain, 16) for c in problem.coordinates
+                          if c.name not in (coord, problem.time)}
+                at = {**others, coord: np.full(16, problem.coordinate(coord).domain[side])}
+                initial = np.broadcast_to(u.initial.evaluate(**at), (16,)) if u.initial.terms else np.zeros(16)
+                value = np.broadcast_to(bc.value.evaluate(**others), (16,)) if bc.value.terms else np.zeros(16)
+                scale = max(1.0, float(np.max(np.abs(value))))
+                if np.max(np.abs(initial - value)) > 1e-9 * scale:
+                    end = ("low", "high")[side]
+                    raise SolverError(
+                        f"{problem.source}: unknowns.{u.name}: the initial value '{u.initial_text}' does not satisfy "
+                        f"the boundary condition {coord} {end} = '{bc.text}' (they must agree at t = "
+                        f"{problem.time_coordinate.domain[0]:g})")
+
+
+class _TimeOps:
+    """The time direction of the state mode: free nodes, the d/dt and mass rows, preconditioned.
+
+    The rows are multiplied by ``sqrt(weights) (d/dt)^-1``, so the residual is the L2 norm of
+    the time-integrated equation (see the module docstring).
+    """
+
+    def __init__(self, basis: Basis1D):
+        self.basis = basis
+        nt = basis.nodes.size
+        self.size = nt - 1  # v(t0) = 0: the first node is not free
+        integrate = np.linalg.inv(basis.time_stiffness(np.ones(nt))[:, 1:])
+        self.left = np.sqrt(basis.time_weights())[:, None] * integrate
+
+    def operator(self, values: np.ndarray, is_der: bool) -> np.ndarray:
+        """``c(t) du/dt`` or ``c(t) u`` on the free nodes: (size, size)."""
+        full = self.basis.time_stiffness(values) if is_der else self.basis.time_mass(values)
+        return self.left @ full[:, 1:]
+
+    def load(self, values: np.ndarray) -> np.ndarray:
+        """A source ``f(t)``: (size,)."""
+        return self.left @ self.basis.time_load(values)
+
+    def constant(self, values: np.ndarray) -> np.ndarray:
+        """``c(t) w`` for a ``w`` constant in time (the lift): (size,)."""
+        return self.left @ (self.basis.time_mass(values) @ np.ones(self.basis.nodes.size))
+
+
+class _SteadyOps:
+    """The time direction of a steady problem: none (one entry per unknown, no weight)."""
+
+    size = 1
+
+    def operator(self, values, is_der: bool) -> np.ndarray:
+        return np.ones((1, 1))
+
+    def load(self, values) -> np.ndarray:
+        return np.ones(1)
+
+    constant = load
+
+
+def _initial_lift(unknown, bases: dict[str, Basis1D], tolerance: float, reports: list,
+                  source: str) -> list[tuple[float, dict[str, np.ndarray]]]:
+    """The initial value's separated terms as ``(coef, {coordinate: nodal values})``."""
+    return nodal_terms(unknown.initial, {c: b.nodes for c, b in bases.items()}, tolerance,
+                       where=f"{source}: unknowns.{unknown.name}.initial: ", reports=reports,
+                       max_rank=MAX_SEPARATION_RANK)
+
+
+def _dirichlet_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dict[str, np.ndarray]]]:
+    """A discrete lift of the Dirichlet values: the value on the boundary nodes, zero inside.
+
+    Each term is a cardinal vector at one end of its coordinate times the value's factors, so
+    the lift is separated whatever the value depends on. A node on the Dirichlet ends of two
+    coordinates (a corner) takes the value of the coordinate listed first: the later
+    coordinate's terms vanish there.
+    """
+    terms = []
+    masks: dict[str, np.ndarray] = {}  # earlier Dirichlet coordinates -> 0 on their Dirichlet ends
+    for coord, ends in unknown.boundary.items():
+        n = bases[coord].nodes.size
+        mask = np.ones(n)
+        for side, bc in enumerate(ends):
+            if bc.kind != "value":
+                continue
+            end = 0 if side == 0 else n - 1
+            mask[end] = 0.0
+            for g in bc.value.terms:
+                vals = _factor_values(g, bases)
+                vals[coord] = np.zeros(n)
+                vals[coord][end] = 1.0
+                for other, m in masks.items():
+                    vals[other] = vals[other] * m
+                terms.append((g.coef, vals))
+        if np.any(mask == 0.0):
+            masks[coord] = mask
+    return terms
+
+
+def discretize(problem, *, tolerance: float | None = None) -> Discretization:
+    """Assemble the separated operator, source and lift of a linear problem.
+
+    Time-dependent problems are lifted by the initial value (``u = u0 + v``, ``v(t0) = 0``);
+    steady ones by the Dirichlet values (``u = g + v``, ``v = 0`` on Dirichlet ends).
+    Non-separable coefficients are separated on the nodes (:func:`pgdcli.discretization.coefficients.nodal_terms`)
+    to ``SEPARATION_FRACTION * tolerance``; ``Discretization.separations`` says how.
+
+    Parameters
+    ----------
+    problem : pgdcli.problem.spec.Problem
+    tolerance : float, optional
+        The solver's tolerance (default ``problem.solver.tolerance``).
+
+    Returns
+    -------
+    Discretization
+    """
+    coords = list(problem.coordinates)
+    tname = problem.time
+    unknowns = [u.name for u in problem.unknowns]
+    q = len(unknowns)
+    index = {name: s for s, name in enumerate(unknowns)}
+    bases = {info.name: info.basis() for info in coordinate_infos(problem, march=False)}
+    nodes = {c: b.nodes for c, b in bases.items()}
+    delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)
+    separations: list = []
+    cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
+    params = [c.name for c in coords if c.name != tname]
+    names = [STATE] + params
+    if tname is None:
+        time = _SteadyOps()
+        # tau = L^2 makes (M + tau K)^-1 K bounded above and below in each space coordinate,
+        # so the residual tracks the error (there is no time integration to do it)
+        tau = {c.name: (c.domain[1] - c.domain[0]) ** 2 for c in coords}
+        lifts = {u.name: _dirichlet_lift(u, bases) for u in problem.unknowns}
+    else:
+        time = _TimeOps(bases[tname])
+        span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
+        tau = {c.name: span * TAU_FRACTION for c in coords}
+        _check_compatible_initial_values(problem, bases)
+        lifts = {u.name: _initial_lift(u, bases, delta, separations, problem.source) for u in problem.unknowns}
+    ops = {c: _CoordinateOps(c, bases[c], problem.coordinate(c).role, _boundary_kinds(problem, c), tau[c])
+           for c in params}
+
+    def unit(r: int) -> np.ndarray:
+        e = np.zeros(q)
+        e[r] = 1.0
+        return e
+
+    def time_values(vals: dict[str, np.ndarray]):
+        return None if tname is None else vals[tname]
+
+    op_terms: list[tuple[np.ndarray, ...]] = []
+    src_w: list[float] = []
+    src_f: list[list[np.ndarray]] = []
+
+    def add_source(r: int, coef: float, time_vec: np.ndarray, vectors: dict[str, np.ndarray]):
+        src_w.append(coef)
+        src_f.append([np.kron(unit(r), time_vec)] + [vectors[c] for c in params])
+
+    def tested_values(vals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {c: ops[c].load(vals[c]) for c in params}
+
+    for eq in problem.equations:
+        r = eq.index
+        for monomial, sep in eq.polynomial.items():
+            terms = nodal_terms(sep, nodes, delta, where=f"{problem.source}: equations[{r}]: ", reports=separations,
+                                max_rank=cap)
+            if len(monomial) == 0:
+                for coef, vals in terms:
+                    add_source(r, -coef, time.load(time_values(vals)), tested_values(vals))
+                continue
+            if len(monomial) != 1:
+                raise SolverError(f"equations[{r}]: nonlinear term; the linear solver needs equations linear in the unknowns")
+            atom = monomial[0]
+            s = index[atom.unknown]
+            is_der = atom.order == 1 and atom.coordinate == tname
+            space_der = atom.order > 0 and atom.coordinate != tname
+            for term_coef, vals in terms:
+                coupling = np.zeros((q, q))
+                coupling[r, s] = term_coef
+                full = {}
+                for c in params:
+                    if space_der and c == atom.coordinate:
+                        if atom.order == 2:
+                            full[c] = ops[c].second(vals[c])
+                        else:
+                            full[c] = ops[c].first(vals[c])
+                    else:
+                        full[c] = ops[c].mass(vals[c])
+                op_terms.append((np.kron(coupling, time.operator(time_values(vals), is_der)),)
+                                + tuple(full[c][:, ops[c].trial] for c in params))
+                if not is_der:
+                    # the lift (constant in time) moves to the right-hand side
+                    for coef, lvals in lifts[atom.unknown]:
+                        add_source(r, -term_coef * coef, time.constant(time_values(vals)),
+                                   {c: full[c] @ lvals[c] for c in params})
+                if space_der and atom.order == 2:
+                    # weak form: the boundary flux [du/dx phi] of gradient ends is known data
+                    c = atom.coordinate
+                    for side, bc in enumerate(problem.unknowns[s].boundary.get(c, ())):
+                        if bc.kind != "gradient":
+                            continue
+                        for g in bc.value.terms:
+                            gvals = _factor_values(g, bases)
+                            vectors = {p: ops[p].load(vals[p] * gvals[p]) for p in params if p != c}
+                            # [f u' phi] at that end: the coefficient's value there times the gradient
+                            vectors[c] = vals[c][0 if side == 0 else -1] * ops[c].flux(side)
+                            add_source(r, -term_coef * g.coef, time.constant(time_values(vals)), vectors)
+
+    if not op_terms:
+        raise SolverError("the equations have no term in the unknowns")
+    op_terms = _merge_terms(op_terms)
+    sizes = [m.shape[0] for m in op_terms[0]]
+    source = CPTensor(np.array(src_w), [np.column_stack([f[j] for f in src_f]) if src_f else np.zeros((sizes[j], 0))
+                                        for j in range(len(names))])
+    lift = {}
+    for u in unknowns:
+        ws = [coef for coef, _ in lifts[u]]
+        lift[u] = CPTensor(
+            np.array(ws), [np.column_stack([vals[c.name] for _, vals in lifts[u]]) if ws
+                           else np.zeros((bases[c.name].nodes.size, 0)) for c in coords])
+    trial = {c: ops[c].trial for c in params if ops[c].trial.size != bases[c].nodes.size}
+    return Discretization(names, bases, SeparatedOperator(tuple(op_terms)), source, lift, unknowns,
+                          [c.name for c in coords], tname, trial, separations)
