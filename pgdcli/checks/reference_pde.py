@@ -366,12 +366,7 @@ def solve_reference_pde(
         boundary values, invalid samples, points outside the domain, times before the start, an
         unknown method or invalid tolerances.
     """
-    if method not in PDE_METHODS:
-        raise SolverError(f"method {method!r}: the method-of-lines reference is stiff; use one of "
-                          f"{', '.join(PDE_METHODS)}")
-    check_tolerances(rtol, atol)
-    if isinstance(jobs, bool) or int(jobs) < 1:
-        raise SolverError(f"jobs must be at least 1, got {jobs}")
+    _check_settings(method, rtol, atol, jobs)
     space = [c.name for c in space_coordinates(problem)]
     if not space:
         raise SolverError(f"{problem.source}: the problem has no space coordinate; use solve_reference")
@@ -447,16 +442,21 @@ def solve_reference_pde(
                               method=method, rtol=float(rtol), atol=float(atol), times=times)
 
 
-def solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, chunk_size, progress,
-                           max_evaluations, space_nodes) -> ReferenceResult:
-    """:func:`solve_reference` for a problem with space coordinates: samples over all non-time
-    coordinates; one method-of-lines solve per distinct point of the sampled (non-space) ones."""
+def _check_settings(method, rtol, atol, jobs) -> None:
+    """The method-of-lines reference's method (stiff: BDF or Radau), tolerances and jobs."""
     if method not in PDE_METHODS:
         raise SolverError(f"method {method!r}: the method-of-lines reference is stiff; use one of "
                           f"{', '.join(PDE_METHODS)}")
     check_tolerances(rtol, atol)
     if isinstance(jobs, bool) or int(jobs) < 1:
         raise SolverError(f"jobs must be at least 1, got {jobs}")
+
+
+def solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, chunk_size, progress,
+                           max_evaluations, space_nodes) -> ReferenceResult:
+    """:func:`solve_reference` for a problem with space coordinates: samples over all non-time
+    coordinates; one method-of-lines solve per distinct point of the sampled (non-space) ones."""
+    _check_settings(method, rtol, atol, jobs)
     names = [c.name for c in problem.parameter_coordinates]
     arrays, S = checked_params(params, names, problem.time, [])
     space = [c.name for c in space_coordinates(problem)]

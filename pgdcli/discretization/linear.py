@@ -14,7 +14,7 @@ its quadrature weights: the residual minimized is then the L2 norm of the
 to the error itself, so the tolerance means what it says.
 
 Over 400 lines: the per-coordinate operators, the time operators, the lifts and :func:`discretize`
-belong together (one weak form); :func:`discretize` (108 lines) is still one assembly loop.
+belong together (one weak form); :func:`discretize` reads as its steps (time and lifts, one term, the tensors).
 """
 
 from __future__ import annotations
@@ -385,50 +385,17 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
     """
     coords = list(problem.coordinates)
     tname = problem.time
-    unknowns = [u.name for u in problem.unknowns]
-    q = len(unknowns)
-    index = {name: s for s, name in enumerate(unknowns)}
     bases = {info.name: info.basis() for info in coordinate_infos(problem, march=False)}
     nodes = {c: b.nodes for c, b in bases.items()}
     delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)
     separations: list = []
     cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
     params = [c.name for c in coords if c.name != tname]
-    names = [STATE] + params
-    if tname is None:
-        time = _SteadyOps()
-        # tau = L^2 makes (M + tau K)^-1 K bounded above and below in each space coordinate,
-        # so the residual tracks the error (there is no time integration to do it)
-        tau = {c.name: (c.domain[1] - c.domain[0]) ** 2 for c in coords}
-        lifts = {u.name: _dirichlet_lift(u, bases) for u in problem.unknowns}
-    else:
-        time = _TimeOps(bases[tname])
-        span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
-        tau = {c.name: span * TAU_FRACTION for c in coords}
-        _check_compatible_initial_values(problem, bases)
-        lifts = {u.name: _initial_lift(u, bases, delta, separations, problem.source) for u in problem.unknowns}
+    time, tau, lifts = _time_and_lifts(problem, bases, delta, separations)
     ops = {c: _CoordinateOps(c, bases[c], problem.coordinate(c).role, _boundary_kinds(problem, c), tau[c])
            for c in params}
-
-    def unit(r: int) -> np.ndarray:
-        e = np.zeros(q)
-        e[r] = 1.0
-        return e
-
-    def time_values(vals: dict[str, np.ndarray]):
-        return None if tname is None else vals[tname]
-
-    op_terms: list[tuple[np.ndarray, ...]] = []
-    src_w: list[float] = []
-    src_f: list[list[np.ndarray]] = []
-
-    def add_source(r: int, coef: float, time_vec: np.ndarray, vectors: dict[str, np.ndarray]):
-        src_w.append(coef)
-        src_f.append([np.kron(unit(r), time_vec)] + [vectors[c] for c in params])
-
-    def tested_values(vals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        return {c: ops[c].load(vals[c]) for c in params}
-
+    asm = _Assembly(len(problem.unknowns), params, ops, time, tname)
+    index = {u.name: s for s, u in enumerate(problem.unknowns)}
     for eq in problem.equations:
         r = eq.index
         for monomial, sep in eq.polynomial.items():
@@ -436,58 +403,115 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
                                 max_rank=cap)
             if len(monomial) == 0:
                 for coef, vals in terms:
-                    add_source(r, -coef, time.load(time_values(vals)), tested_values(vals))
+                    asm.add_source(r, -coef, time.load(asm.time_values(vals)), asm.tested_values(vals))
                 continue
             if len(monomial) != 1:
                 raise SolverError(f"equations[{r}]: nonlinear term; the linear solver needs equations linear in the unknowns")
             atom = monomial[0]
-            s = index[atom.unknown]
-            is_der = atom.order == 1 and atom.coordinate == tname
-            space_der = atom.order > 0 and atom.coordinate != tname
             for term_coef, vals in terms:
-                coupling = np.zeros((q, q))
-                coupling[r, s] = term_coef
-                full = {}
-                for c in params:
-                    if space_der and c == atom.coordinate:
-                        if atom.order == 2:
-                            full[c] = ops[c].second(vals[c])
-                        else:
-                            full[c] = ops[c].first(vals[c])
-                    else:
-                        full[c] = ops[c].mass(vals[c])
-                op_terms.append((np.kron(coupling, time.operator(time_values(vals), is_der)),)
-                                + tuple(full[c][:, ops[c].trial] for c in params))
-                if not is_der:
-                    # the lift (constant in time) moves to the right-hand side
-                    for coef, lvals in lifts[atom.unknown]:
-                        add_source(r, -term_coef * coef, time.constant(time_values(vals)),
-                                   {c: full[c] @ lvals[c] for c in params})
-                if space_der and atom.order == 2:
-                    # weak form: the boundary flux [du/dx phi] of gradient ends is known data
-                    c = atom.coordinate
-                    for side, bc in enumerate(problem.unknowns[s].boundary.get(c, ())):
-                        if bc.kind != "gradient":
-                            continue
-                        for g in bc.value.terms:
-                            gvals = _factor_values(g, bases)
-                            vectors = {p: ops[p].load(vals[p] * gvals[p]) for p in params if p != c}
-                            # [f u' phi] at that end: the coefficient's value there times the gradient
-                            vectors[c] = vals[c][0 if side == 0 else -1] * ops[c].flux(side)
-                            add_source(r, -term_coef * g.coef, time.constant(time_values(vals)), vectors)
-
-    if not op_terms:
+                _add_linear_term(asm, problem, r, index[atom.unknown], atom, term_coef, vals, lifts, bases)
+    if not asm.op_terms:
         raise SolverError("the equations have no term in the unknowns")
-    op_terms = _merge_terms(op_terms)
+    return _discretization(problem, asm, bases, lifts, separations)
+
+
+def _time_and_lifts(problem, bases: dict[str, Basis1D], delta: float, separations: list):
+    """The time operators (steady: none), the preconditioner's tau per coordinate, and the lift terms."""
+    coords = list(problem.coordinates)
+    tname = problem.time
+    if tname is None:
+        # tau = L^2 makes (M + tau K)^-1 K bounded above and below in each space coordinate,
+        # so the residual tracks the error (there is no time integration to do it)
+        tau = {c.name: (c.domain[1] - c.domain[0]) ** 2 for c in coords}
+        return _SteadyOps(), tau, {u.name: _dirichlet_lift(u, bases) for u in problem.unknowns}
+    span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
+    tau = {c.name: span * TAU_FRACTION for c in coords}
+    _check_compatible_initial_values(problem, bases)
+    lifts = {u.name: _initial_lift(u, bases, delta, separations, problem.source) for u in problem.unknowns}
+    return _TimeOps(bases[tname]), tau, lifts
+
+
+class _Assembly:
+    """The separated operator terms and source terms of :func:`discretize`, as they are collected."""
+
+    def __init__(self, q: int, params: list[str], ops: dict, time, tname: str | None) -> None:
+        self.q, self.params, self.ops, self.time, self.tname = q, params, ops, time, tname
+        self.op_terms: list[tuple[np.ndarray, ...]] = []
+        self.src_w: list[float] = []
+        self.src_f: list[list[np.ndarray]] = []
+
+    def unit(self, r: int) -> np.ndarray:
+        e = np.zeros(self.q)
+        e[r] = 1.0
+        return e
+
+    def time_values(self, vals: dict[str, np.ndarray]):
+        return None if self.tname is None else vals[self.tname]
+
+    def add_source(self, r: int, coef: float, time_vec: np.ndarray, vectors: dict[str, np.ndarray]) -> None:
+        self.src_w.append(coef)
+        self.src_f.append([np.kron(self.unit(r), time_vec)] + [vectors[c] for c in self.params])
+
+    def tested_values(self, vals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {c: self.ops[c].load(vals[c]) for c in self.params}
+
+
+def _add_linear_term(asm: _Assembly, problem, r: int, s: int, atom, term_coef: float, vals: dict, lifts: dict,
+                     bases: dict[str, Basis1D]) -> None:
+    """One separated term ``term_coef * prod_c vals[c]`` of unknown ``s`` (or its derivative) in equation ``r``:
+    its operator term, the lift moved to the right-hand side, and the known boundary flux of gradient ends."""
+    ops, params, time, tname = asm.ops, asm.params, asm.time, asm.tname
+    is_der = atom.order == 1 and atom.coordinate == tname
+    space_der = atom.order > 0 and atom.coordinate != tname
+    coupling = np.zeros((asm.q, asm.q))
+    coupling[r, s] = term_coef
+    full = {}
+    for c in params:
+        if space_der and c == atom.coordinate:
+            if atom.order == 2:
+                full[c] = ops[c].second(vals[c])
+            else:
+                full[c] = ops[c].first(vals[c])
+        else:
+            full[c] = ops[c].mass(vals[c])
+    asm.op_terms.append((np.kron(coupling, time.operator(asm.time_values(vals), is_der)),)
+                        + tuple(full[c][:, ops[c].trial] for c in params))
+    if not is_der:
+        # the lift (constant in time) moves to the right-hand side
+        for coef, lvals in lifts[atom.unknown]:
+            asm.add_source(r, -term_coef * coef, time.constant(asm.time_values(vals)),
+                           {c: full[c] @ lvals[c] for c in params})
+    if space_der and atom.order == 2:
+        # weak form: the boundary flux [du/dx phi] of gradient ends is known data
+        c = atom.coordinate
+        for side, bc in enumerate(problem.unknowns[s].boundary.get(c, ())):
+            if bc.kind != "gradient":
+                continue
+            for g in bc.value.terms:
+                gvals = _factor_values(g, bases)
+                vectors = {p: ops[p].load(vals[p] * gvals[p]) for p in params if p != c}
+                # [f u' phi] at that end: the coefficient's value there times the gradient
+                vectors[c] = vals[c][0 if side == 0 else -1] * ops[c].flux(side)
+                asm.add_source(r, -term_coef * g.coef, time.constant(asm.time_values(vals)), vectors)
+
+
+def _discretization(problem, asm: _Assembly, bases: dict[str, Basis1D], lifts: dict, separations: list
+                    ) -> Discretization:
+    """The collected terms as separated tensors: operator, source, lift per unknown, trial nodes."""
+    coords = list(problem.coordinates)
+    unknowns = [u.name for u in problem.unknowns]
+    names = [STATE] + asm.params
+    op_terms = _merge_terms(asm.op_terms)
     sizes = [m.shape[0] for m in op_terms[0]]
-    source = CPTensor(np.array(src_w), [np.column_stack([f[j] for f in src_f]) if src_f else np.zeros((sizes[j], 0))
-                                        for j in range(len(names))])
+    src_f = asm.src_f
+    source = CPTensor(np.array(asm.src_w), [np.column_stack([f[j] for f in src_f]) if src_f
+                                            else np.zeros((sizes[j], 0)) for j in range(len(names))])
     lift = {}
     for u in unknowns:
         ws = [coef for coef, _ in lifts[u]]
         lift[u] = CPTensor(
             np.array(ws), [np.column_stack([vals[c.name] for _, vals in lifts[u]]) if ws
                            else np.zeros((bases[c.name].nodes.size, 0)) for c in coords])
-    trial = {c: ops[c].trial for c in params if ops[c].trial.size != bases[c].nodes.size}
+    trial = {c: asm.ops[c].trial for c in asm.params if asm.ops[c].trial.size != bases[c].nodes.size}
     return Discretization(names, bases, SeparatedOperator(tuple(op_terms)), source, lift, unknowns,
-                          [c.name for c in coords], tname, trial, separations)
+                          [c.name for c in coords], problem.time, trial, separations)
