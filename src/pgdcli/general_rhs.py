@@ -1,0 +1,131 @@
+"""The general terms of the march's right-hand side, evaluated on the tensor-train state by cross.
+
+An equation ``a(t, p) der(u) + sum_m c_m(t, p) m(u) + sum_g c_g(t, p) g(t, p, u) = 0``
+keeps its polynomial monomials ``m`` on the march's exact path (Hadamard
+products and rounding, :func:`pgdcli.march.evaluate_rhs`); the monomials that
+hold a general atom (:mod:`pgdcli.general`: ``sin(th)``, ``abs(v)*v``,
+``sqrt(vx**2 + vy**2)*vx``) are gathered per unknown into one function
+
+    G_s(t, p) = -sum_g c_g(t, p) g(t, p, u(t, p)) / a(t, p)
+
+on the parameter grid, which :func:`pgdcli.cross.tt_cross` approximates in
+tensor-train form from its values at the fibres it selects: each value needs
+only the state's entries there (:func:`pgdcli.cross.tt_values_at`) and the
+expression trees evaluated pointwise. The cross of one stage starts from the
+index sets of the previous one (the function changes little between stages).
+
+A cross that does not converge (a rank at the cap, no convergence in its
+sweeps: a kink such as ``abs`` at 0) is counted and its first message kept for
+the report; the march goes on with its train, and the error gate measures the
+codebook. A function that is not finite at a grid point (``sqrt`` of a
+negative value, ``1/0``: a trial step too long, or an equation undefined there)
+gives a train of NaN, which the march's step control rejects.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .cross import tt_cross, tt_values_at
+from .general import evaluate, is_general, tree_names, tree_of
+from .tt import TT
+
+__all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries"]
+
+#: Share of the stage rounding's RMS budget given to the cross.
+CROSS_SHARE = 0.5
+
+
+def general_monomials(polynomial) -> list:
+    """The monomials of a polynomial that hold a general atom (they leave the exact path)."""
+    return [monomial for monomial in polynomial if any(is_general(atom) for atom in monomial)]
+
+
+class GeneralPart:
+    """``G_s(t, p)`` of one unknown: its general monomials, evaluated by cross on the state.
+
+    Parameters
+    ----------
+    monomials : sequence of (tuple of Atom, Separable)
+        The general monomials of the equation and their coefficients (lhs - rhs form).
+    der_term : SepTerm
+        The coefficient ``a`` of ``der(u_s)``, a single product.
+    unknowns : sequence of str
+        The march's unknowns, in state order.
+    params : sequence of str
+        The tensor-train modes (non-time coordinates).
+    nodes : mapping of str to ndarray
+        The grid nodes of every mode.
+    time : str
+    """
+
+    def __init__(self, monomials: Sequence, der_term, unknowns: Sequence[str], params: Sequence[str],
+                 nodes: Mapping[str, np.ndarray], time: str):
+        self.monomials = [(sep, [tree_of(a) if is_general(a) else ("name", a.unknown) for a in monomial])
+                          for monomial, sep in monomials]
+        self.der_term = der_term
+        names = set().union(*(tree_names(tree) for _, trees in self.monomials for tree in trees))
+        self.needed = [(name, i) for i, name in enumerate(unknowns) if name in names]
+        self.params, self.nodes, self.time = list(params), nodes, time
+        self.right_sets = None  # warm start of the next cross
+
+    def values(self, t: float, state: Sequence[TT], indices: np.ndarray) -> np.ndarray:
+        """``G_s(t, p)`` at grid multi-indices, shape (P, d) -> (P,)."""
+        values: dict[str, np.ndarray | float] = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
+        values[self.time] = t
+        for name, i in self.needed:
+            values[name] = tt_values_at(state[i], indices)
+        total = np.zeros(indices.shape[0])
+        with np.errstate(all="ignore"):
+            for sep, trees in self.monomials:
+                term = sep.evaluate(**values)
+                for tree in trees:
+                    term = term * evaluate(tree, values)
+                total = total + term
+            return -total / self.der_term.evaluate(**values)
+
+    def at(self, t: float, state: Sequence[TT], tolerance: float, max_rank: int, stats: dict | None) -> TT:
+        """The tensor train of ``G_s`` at time t, to a root-mean-square ``tolerance`` over the grid.
+
+        Parameters
+        ----------
+        t : float
+        state : list of TT
+            The stage value of every unknown.
+        tolerance : float
+            RMS accuracy asked of the cross.
+        max_rank : int
+        stats : dict, optional
+            Counters updated in place: ``cross``, ``cross_failed``, ``cross_evaluations``,
+            ``cross_rank`` (largest), ``cross_message`` (the first failure).
+        """
+        shape = state[0].shape
+        result = tt_cross(lambda idx: self.values(t, state, idx), shape, tolerance, max_rank=max_rank,
+                          right_sets=self.right_sets, rng=np.random.default_rng(11))
+        if stats is not None:
+            stats["cross"] = stats.get("cross", 0) + 1
+            stats["cross_evaluations"] = stats.get("cross_evaluations", 0) + result.evaluations
+            stats["cross_rank"] = max(stats.get("cross_rank", 0), max(result.train.ranks, default=1))
+            if not result.converged:
+                stats["cross_failed"] = stats.get("cross_failed", 0) + 1
+                stats.setdefault("cross_message", f"at t = {t:.6g}: {result.message}")
+        if not np.isfinite(result.change) and result.message.endswith("not finite at some grid points"):
+            return TT([np.full((1, n, 1), np.nan) for n in shape])
+        if result.right_sets:
+            self.right_sets = result.right_sets
+        return result.train
+
+
+def report_entries(stats: dict) -> dict:
+    """The march report's entries about the crosses (empty without general terms)."""
+    if not stats.get("cross"):
+        return {}
+    return {
+        "cross_evaluations": int(stats.get("cross_evaluations", 0)),
+        "crosses": int(stats["cross"]),
+        "crosses_not_converged": int(stats.get("cross_failed", 0)),
+        "cross_max_rank": int(stats.get("cross_rank", 0)),
+        "cross_failure": str(stats.get("cross_message", "")),
+    }
