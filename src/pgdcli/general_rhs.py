@@ -29,10 +29,14 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .cross import tt_cross, tt_values_at
-from .general import evaluate, is_general, tree_names, tree_of
+from .general import evaluate, is_general, render, tree_names, tree_of
 from .tt import TT
 
-__all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries"]
+__all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries", "underflow_hint"]
+
+#: Functions whose derivatives jump: DOP853's error control needs ever smaller steps where their
+#: argument crosses its kink at some node of the parameter grid (every node marches with one step).
+NON_SMOOTH = ("abs",)
 
 #: Share of the stage rounding's RMS budget given to the cross.
 CROSS_SHARE = 0.5
@@ -112,10 +116,35 @@ class GeneralPart:
                 stats["cross_failed"] = stats.get("cross_failed", 0) + 1
                 stats.setdefault("cross_message", f"at t = {t:.6g}: {result.message}")
         if not np.isfinite(result.change) and result.message.endswith("not finite at some grid points"):
+            if stats is not None:
+                stats["cross_nonfinite"] = stats.get("cross_nonfinite", 0) + 1
             return TT([np.full((1, n, 1), np.nan) for n in shape])
         if result.right_sets:
             self.right_sets = result.right_sets
         return result.train
+
+
+def underflow_hint(parts: Sequence, stats: dict) -> str:
+    """Why the march's steps may have shrunk to nothing, from its general terms ('' if none applies)."""
+    parts = [part for part in parts or () if part is not None]
+    if not parts:
+        return ""
+    if stats.get("cross_nonfinite"):
+        return ("; or a function of the unknowns is undefined there: its values were not finite "
+                f"{stats['cross_nonfinite']} times, e.g. sqrt or log of a negative number, or a division by zero")
+    kinks = sorted({render(tree) for part in parts for _, trees in part.monomials for tree in trees
+                    if _calls(tree, NON_SMOOTH)})
+    if kinks:
+        return (f"; or not smooth: {', '.join(kinks)} has a kink where its argument is 0, and every node of the "
+                "parameter grid marches with the same steps")
+    return ""
+
+
+def _calls(tree: tuple, names: Sequence[str]) -> bool:
+    """True if the tree calls one of the functions."""
+    if tree[0] == "call":
+        return tree[1] in names or _calls(tree[2], names)
+    return tree[0] not in ("num", "name") and any(_calls(child, names) for child in tree[1:])
 
 
 def report_entries(stats: dict) -> dict:

@@ -38,7 +38,7 @@ import numpy as np
 from .basis import Basis1D, _chebyshev_unit_nodes
 from .expressions import Separable, SepTerm, merge_to_function
 from .errors import SolverError
-from .general_rhs import CROSS_SHARE, GeneralPart, general_monomials, report_entries
+from .general_rhs import CROSS_SHARE, GeneralPart, general_monomials, report_entries, underflow_hint
 from .tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
@@ -534,7 +534,8 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             raise MarchFailure(f"max_steps={max_steps} reached", t, y)
         h = min(h, t_final - t)
         if h < MIN_STEP * span:
-            raise MarchFailure("step size underflow (the solution blows up or is stiff)", t, y)
+            raise MarchFailure("step size underflow (the solution blows up or is stiff" + underflow_hint(system.general, stats)
+                               + ")", t, y)
         err = np.inf
         try:
             with np.errstate(over="ignore", invalid="ignore"):

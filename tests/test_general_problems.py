@@ -1,0 +1,64 @@
+"""Functions of the unknowns in the march (issue 14): shipped and new-user problems against solve_ivp.
+
+Each spec is written the natural way (``sin(th)``, ``v*sqrt(vx**2 + vy**2)``, ``exp(-a*x)``,
+``s/(km + s)``) without node counts; its codebook must be within the spec's tolerance at 300
+random points of the domain against solve_ivp (DOP853, rtol = atol = 1e-12) of right-hand sides
+written here in numpy, sharing nothing with pgdcli.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import pgdcli
+
+ROOT = Path(__file__).resolve().parent.parent
+GRAV = 9.81
+
+PROBLEMS = {
+    "problems/pendulum.yaml": (lambda t, y, p: [y[1], -GRAV / p["L"] * np.sin(y[0])],
+                               lambda p: [p["th0"], 0.0]),
+    "problems/drag.yaml": (lambda t, y, p: [y[2], y[3], -p["k"] * y[2] * np.hypot(y[2], y[3]),
+                                            -GRAV - p["k"] * y[3] * np.hypot(y[2], y[3])],
+                           lambda p: [0.0, 0.0, 20 * np.cos(p["a"]), 20 * np.sin(p["a"])]),
+    "tests/user_problems/damped_pendulum.yaml": (lambda t, y, p: [y[1], -4 * np.sin(y[0]) - p["c"] * y[1]],
+                                                 lambda p: [p["th0"], 0.0]),
+    "tests/user_problems/morse.yaml": (lambda t, y, p: [y[1], -4 * p["a"] * (np.exp(-p["a"] * y[0])
+                                                                             - np.exp(-2 * p["a"] * y[0]))],
+                                       lambda p: [p["x0"], 0.0]),
+    "tests/user_problems/michaelis.yaml": (lambda t, y, p: [-p["vmax"] * y[0] / (p["km"] + y[0]),
+                                                            p["vmax"] * y[0] / (p["km"] + y[0])],
+                                           lambda p: [1.0, 0.0]),
+}
+
+
+def worst_error(name: str, cb, samples: int = 300, seed: int = 14) -> float:
+    rhs, initial = PROBLEMS[name]
+    rng = np.random.default_rng(seed)
+    t0, t1 = cb.coordinate("t").domain
+    params = [c for c in cb.coordinates if c.role != "time"]
+    worst = 0.0
+    for _ in range(samples):
+        p = {c.name: rng.uniform(*c.domain) for c in params}
+        t = rng.uniform(t0, t1)
+        sol = solve_ivp(lambda s, y: rhs(s, y, p), (t0, t1), initial(p), method="DOP853", rtol=1e-12, atol=1e-12,
+                        t_eval=[t])
+        got = cb(t=t, **p)
+        worst = max(worst, max(abs(float(got[u]) - sol.y[i, 0]) for i, u in enumerate(cb.unknown_names)))
+    return worst
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(PROBLEMS))
+def test_within_tolerance_at_random_points(name):
+    problem = pgdcli.load_spec(ROOT / name)
+    assert all(c.auto for c in problem.coordinates)  # written without node counts
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    assert result.codebook.report["method"] == "march"
+    assert result.codebook.report["crosses"] > 0
+    assert worst_error(name, result.codebook) <= problem.solver.tolerance
