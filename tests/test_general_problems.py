@@ -62,3 +62,18 @@ def test_within_tolerance_at_random_points(name):
     assert result.codebook.report["method"] == "march"
     assert result.codebook.report["crosses"] > 0
     assert worst_error(name, result.codebook) <= problem.solver.tolerance
+
+
+@pytest.mark.parametrize("name, term", [("fisher", "x is a space coordinate"), ("burgers", "x is a space coordinate")])
+def test_nonlinear_pdes_are_refused_with_the_reason(name, term, tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / f"{name}.h5"
+    run = subprocess.run([sys.executable, "-m", "pgdcli.cli", "solve", str(ROOT / "problems" / f"{name}.yaml"),
+                          "-o", str(out), "-q"], capture_output=True, text=True)
+    assert run.returncode == 2
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("Error: ") and "nonlinear PDEs are not supported yet" in lines[0]
+    assert term in lines[0] and "Traceback" not in run.stderr  # the march marches ODEs only
+    assert not out.exists()
