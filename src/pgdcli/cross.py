@@ -186,7 +186,8 @@ def _supercore_indices(left: np.ndarray, n1: int, n2: int, right: np.ndarray) ->
 
 def tt_cross(function: Callable[[np.ndarray], np.ndarray], shape: Sequence[int], tolerance: float, *,
              max_rank: int = 200, max_sweeps: int = 12, rng: np.random.Generator | None = None,
-             right_sets: list | None = None, dense_limit: int = 4096) -> CrossResult:
+             right_sets: list | None = None, dense_limit: int = 4096,
+             full: Callable[[], np.ndarray] | None = None) -> CrossResult:
     """Tensor-train approximation of a function on a grid from values at chosen fibres.
 
     Parameters
@@ -208,6 +209,9 @@ def tt_cross(function: Callable[[np.ndarray], np.ndarray], shape: Sequence[int],
         Right index sets of an earlier cross of a similar function (warm start).
     dense_limit : int
         Grids of at most this many points are evaluated whole (TT-SVD).
+    full : callable, optional
+        ``full()`` returns the whole tensor, shape ``shape`` (a faster way than ``function`` on
+        every index, used by the whole-grid path).
 
     Returns
     -------
@@ -216,9 +220,12 @@ def tt_cross(function: Callable[[np.ndarray], np.ndarray], shape: Sequence[int],
     shape = tuple(int(n) for n in shape)
     d = len(shape)
     size = int(np.prod(shape, dtype=float))
-    if d <= 2 or size <= dense_limit:
-        grid = np.stack([g.ravel() for g in np.meshgrid(*[np.arange(n) for n in shape], indexing="ij")], axis=1)
-        values = np.asarray(function(grid), dtype=float).reshape(shape)
+    if d == 1 or size <= dense_limit:
+        if full is not None:
+            values = np.asarray(full(), dtype=float).reshape(shape)
+        else:
+            grid = np.stack([g.ravel() for g in np.meshgrid(*[np.arange(n) for n in shape], indexing="ij")], axis=1)
+            values = np.asarray(function(grid), dtype=float).reshape(shape)
         if not np.all(np.isfinite(values)):
             return CrossResult(TT([np.zeros((1, n, 1)) for n in shape]), False, np.inf, size, 0,
                                "the function is not finite at some grid points")

@@ -40,11 +40,28 @@ NON_SMOOTH = ("abs",)
 
 #: Share of the stage rounding's RMS budget given to the cross.
 CROSS_SHARE = 0.5
+#: Grids of at most this many nodes are evaluated whole and compressed by TT-SVD instead of a cross
+#: (benchmarks/general_rhs.py measures both) ...
+DENSE_LIMIT = 4096
+#: ... and so are grids of at most this many times the values of one cross sweep, (d - 1) r^2 n^2
+#: with the rank r of the last cross: a cross takes 2-4 sweeps (measured on a 3-parameter drag
+#: problem, 17^3 nodes, rank 10: the cross asked 2.5x the values of the whole grid, and took 2.5x
+#: the time of the march with whole-grid evaluation).
+SWEEPS_PER_CROSS = 4
+
+
+#: Evaluate the whole right-hand side of an unknown with general terms by cross (its polynomial
+#: monomials too) instead of only the general monomials (benchmarks/general_rhs.py measures both).
+WHOLE_RHS = False
 
 
 def general_monomials(polynomial) -> list:
-    """The monomials of a polynomial that hold a general atom (they leave the exact path)."""
-    return [monomial for monomial in polynomial if any(is_general(atom) for atom in monomial)]
+    """The monomials of an equation the cross evaluates: those holding a general atom (the rest keep
+    the exact path), or with :data:`WHOLE_RHS` all but the time derivative when there is one."""
+    general = [monomial for monomial in polynomial if any(is_general(atom) for atom in monomial)]
+    if WHOLE_RHS and general:
+        return [monomial for monomial in polynomial if all(atom.order == 0 for atom in monomial)]
+    return general
 
 
 class GeneralPart:
@@ -74,14 +91,20 @@ class GeneralPart:
         self.needed = [(name, i) for i, name in enumerate(unknowns) if name in names]
         self.params, self.nodes, self.time = list(params), nodes, time
         self.right_sets = None  # warm start of the next cross
+        self.rank = 4  # the rank of the last cross: its cost
 
-    def values(self, t: float, state: Sequence[TT], indices: np.ndarray) -> np.ndarray:
-        """``G_s(t, p)`` at grid multi-indices, shape (P, d) -> (P,)."""
-        values: dict[str, np.ndarray | float] = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
+    def values(self, t: float, state: Sequence[TT], indices: np.ndarray | None) -> np.ndarray:
+        """``G_s(t, p)`` at grid multi-indices, shape (P, d) -> (P,); None: the whole grid, shape ``state[0].shape``."""
+        if indices is None:  # broadcast the nodes over the grid, the unknowns from the whole trains
+            d = len(self.params)
+            values = {p: self.nodes[p].reshape([-1 if j == k else 1 for j in range(d)])
+                      for k, p in enumerate(self.params)}
+            values.update({name: state[i].full() for name, i in self.needed})
+        else:
+            values = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
+            values.update({name: tt_values_at(state[i], indices) for name, i in self.needed})
         values[self.time] = t
-        for name, i in self.needed:
-            values[name] = tt_values_at(state[i], indices)
-        total = np.zeros(indices.shape[0])
+        total = np.zeros(state[0].shape if indices is None else indices.shape[0])
         with np.errstate(all="ignore"):
             for sep, trees in self.monomials:
                 term = sep.evaluate(**values)
@@ -106,8 +129,12 @@ class GeneralPart:
             ``cross_rank`` (largest), ``cross_message`` (the first failure).
         """
         shape = state[0].shape
+        sweep = (len(shape) - 1) * self.rank ** 2 * max(shape) ** 2
         result = tt_cross(lambda idx: self.values(t, state, idx), shape, tolerance, max_rank=max_rank,
-                          right_sets=self.right_sets, rng=np.random.default_rng(11))
+                          right_sets=self.right_sets, rng=np.random.default_rng(11),
+                          dense_limit=max(DENSE_LIMIT, SWEEPS_PER_CROSS * sweep),
+                          full=lambda: self.values(t, state, None))
+        self.rank = max(result.train.ranks, default=1)
         if stats is not None:
             stats["cross"] = stats.get("cross", 0) + 1
             stats["cross_evaluations"] = stats.get("cross_evaluations", 0) + result.evaluations
