@@ -30,6 +30,9 @@ PROBLEMS = {
     "tests/user_problems/morse.yaml": (lambda t, y, p: [y[1], -4 * p["a"] * (np.exp(-p["a"] * y[0])
                                                                              - np.exp(-2 * p["a"] * y[0]))],
                                        lambda p: [p["x0"], 0.0]),
+    "tests/user_problems/drag3.yaml": (lambda t, y, p: [-p["k"] * y[0] * np.hypot(y[0], y[1]),
+                                                        -GRAV - p["k"] * y[1] * np.hypot(y[0], y[1])],
+                                       lambda p: [p["v0"] * np.cos(p["a"]), p["v0"] * np.sin(p["a"])]),
     "tests/user_problems/michaelis.yaml": (lambda t, y, p: [-p["vmax"] * y[0] / (p["km"] + y[0]),
                                                             p["vmax"] * y[0] / (p["km"] + y[0])],
                                            lambda p: [1.0, 0.0]),
