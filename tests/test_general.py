@@ -119,3 +119,22 @@ equations: ["der(u) = -sqrt(u)"]
     result = pgdcli.solve(pgdcli.parse_spec(spec, source="s.yaml"))
     assert not result.converged
     assert "not finite" in result.message and "sqrt or log of a negative number" in result.message
+
+
+def test_march_reports_its_crosses_and_pgd_info_prints_them(tmp_path):
+    from click.testing import CliRunner
+
+    from pgdcli.cli import cli
+
+    spec = PENDULUM.replace("[0, 2]", "[0, 1]").replace(", nodes: 5", "") + "solver: {tolerance: 1e-5}\n"
+    problem = pgdcli.parse_spec(spec, source="p.yaml")
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    cb = result.codebook
+    assert cb.report["crosses"] > 0 and cb.report["crosses_not_converged"] == 0
+    path = tmp_path / "p.h5"
+    cb.save(path)
+    info = cb.info(path)["crosses"]
+    assert info["count"] == cb.report["crosses"] and info["evaluations"] > 0
+    run = CliRunner().invoke(cli, ["info", str(path)])
+    assert "functions of the unknowns:" in run.stderr + run.stdout
