@@ -80,3 +80,20 @@ def test_nonlinear_pdes_are_refused_with_the_reason(name, term, tmp_path):
     assert len(lines) == 1 and lines[0].startswith("Error: ") and "nonlinear PDEs are not supported yet" in lines[0]
     assert term in lines[0] and "Traceback" not in run.stderr  # the march marches ODEs only
     assert not out.exists()
+
+
+def test_verify_checks_a_codebook_with_functions_of_the_unknowns(tmp_path):
+    problem = pgdcli.load_spec(ROOT / "problems" / "drag.yaml")
+    result = pgdcli.solve(problem)
+    path = tmp_path / "drag.h5"
+    result.codebook.save(path)
+    report = pgdcli.verify(path, samples=32, seed=5, jobs=1)
+    assert report.passed(max_error=1e-6)
+    # and it is not vacuous: the same verify fails a codebook of the drag-free problem
+    free = pgdcli.parse_spec((ROOT / "problems" / "drag.yaml").read_text().replace("k*vx*sqrt", "0*k*vx*sqrt")
+                             .replace("- k*vy*sqrt", "- 0*k*vy*sqrt"), source="free.yaml")
+    wrong = pgdcli.solve(free).codebook
+    wrong.spec_text = (ROOT / "problems" / "drag.yaml").read_text()  # the drag-free codebook, labelled drag
+    wrong_path = tmp_path / "wrong.h5"
+    wrong.save(wrong_path)
+    assert not pgdcli.verify(wrong_path, samples=32, seed=5, jobs=1).passed(max_error=1e-6)
