@@ -27,6 +27,8 @@ PROBLEMS = {
                            lambda p: [0.0, 0.0, 20 * np.cos(p["a"]), 20 * np.sin(p["a"])]),
     "tests/user_problems/damped_pendulum.yaml": (lambda t, y, p: [y[1], -4 * np.sin(y[0]) - p["c"] * y[1]],
                                                  lambda p: [p["th0"], 0.0]),
+    "tests/user_problems/driven_pendulum.yaml": (lambda t, y, p: [y[1], -4 * np.sin(y[0] - 0.3 * np.sin(p["W"] * t))
+                                                                  - 0.2 * y[1]], lambda p: [p["th0"], 0.0]),
     "tests/user_problems/morse.yaml": (lambda t, y, p: [y[1], -4 * p["a"] * (np.exp(-p["a"] * y[0])
                                                                              - np.exp(-2 * p["a"] * y[0]))],
                                        lambda p: [p["x0"], 0.0]),
