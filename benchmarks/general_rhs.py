@@ -2,7 +2,7 @@
 
     pip install -e '.[benchmark]'                 # teneva, for the black-box TT-cross column
     python benchmarks/general_rhs.py              # every problem below (~5 min on 2 cores)
-    python benchmarks/general_rhs.py pendulum     # some of them
+    python benchmarks/general_rhs.py pendulum     # some of them (--no-paths: without the second table)
 
 For each problem (no node counts; ``sin(th)``, ``v*sqrt(vx**2 + vy**2)``, ``exp(-a*x)``,
 ``s/(km + s)`` in its equations), the build of the codebook, ``pgdcli.solve`` (automatic
@@ -20,6 +20,10 @@ such a grid is as accurate as the codebook):
   to 1e-8 and 1e-10 until its max error over the whole grid (against the vectorized call) meets the
   tolerance; the time of that run is reported, with its solve_ivp points. Each cross may ask at most
   4 times as many values as the whole tensor has (``m``; values of points already solved are free).
+
+A second table builds a 3- and a 4-parameter problem three ways: general terms on the whole grid
+(the default up to about 4 parameters), by TT-cross always, and the whole right-hand side (its
+polynomial monomials too) by the default path.
 
 The scipy runs use one BLAS thread, as the solver does. The machine is shared: every comparison is
 made within this run; benchmarks/README.md quotes the printed table.
@@ -139,6 +143,43 @@ def row(name: str) -> str:
             f"{loop:.2f} s ({loop / build:.2g}x the build) | {vector:.2f} s ({vector / build:.2g}x) | {cross} |")
 
 
+#: A 4-parameter damped pendulum (about 45 000 grid nodes): where the cross could pay off.
+PENDULUM4 = """
+coordinates:
+  t: {domain: [0, 1]}
+  L: {domain: [0.5, 2]}
+  th0: {domain: [0.1, 1.5]}
+  w0: {domain: [-1, 1]}
+  c: {domain: [0.1, 0.5]}
+constants: {grav: 9.81}
+unknowns: {th: {initial: th0}, w: {initial: w0}}
+equations: ["der(th) = w", "der(w) = -(grav/L)*sin(th) - c*w"]
+solver: {tolerance: 1e-6}
+"""
+
+
+def evaluation_paths():
+    """The march's ways of evaluating general terms, side by side: whole grid, TT-cross, whole right-hand side."""
+    from pgdcli import general_rhs
+
+    print("\n| problem | whole grid (default) | TT-cross always | whole right-hand side by the default path |")
+    print("| --- | --- | --- | --- |")
+    defaults = (general_rhs.DENSE_LIMIT, general_rhs.SWEEPS_PER_CROSS, general_rhs.WHOLE_RHS)
+    for name, problem in (("drag3", pgdcli.load_spec(PROBLEMS["drag3"])),
+                          ("pendulum, 4 parameters", pgdcli.parse_spec(PENDULUM4, source="pendulum4.yaml"))):
+        cells = []
+        for dense, sweeps, whole in (defaults, (0, 0, False), (defaults[0], defaults[1], True)):
+            general_rhs.DENSE_LIMIT, general_rhs.SWEEPS_PER_CROSS, general_rhs.WHOLE_RHS = dense, sweeps, whole
+            started = time.perf_counter()
+            result = pgdcli.solve(problem)
+            wall = time.perf_counter() - started
+            rep = result.codebook.report
+            cells.append(f"{wall:.1f} s, error {rep['check_error']:.2g}, {rep['cross_evaluations']:.3g} values, "
+                         f"ranks <= {rep['cross_max_rank']}")
+        general_rhs.DENSE_LIMIT, general_rhs.SWEEPS_PER_CROSS, general_rhs.WHOLE_RHS = defaults
+        print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
+
+
 def main(names):
     print(f"machine: {machine_facts()}", file=sys.stderr)
     print("| problem | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
@@ -146,7 +187,9 @@ def main(names):
     print("| --- | --- | --- | --- | --- |")
     for name in names:
         print(row(name), flush=True)
+    if "--no-paths" not in sys.argv:
+        evaluation_paths()
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or list(PROBLEMS))
+    main([a for a in sys.argv[1:] if not a.startswith("--")] or list(PROBLEMS))

@@ -44,9 +44,9 @@ CROSS_SHARE = 0.5
 #: (benchmarks/general_rhs.py measures both) ...
 DENSE_LIMIT = 4096
 #: ... and so are grids of at most this many times the values of one cross sweep, (d - 1) r^2 n^2
-#: with the rank r of the last cross: a cross takes 2-4 sweeps (measured on a 3-parameter drag
-#: problem, 17^3 nodes, rank 10: the cross asked 2.5x the values of the whole grid, and took 2.5x
-#: the time of the march with whole-grid evaluation).
+#: with the rank r of the last cross: a cross takes 2-4 sweeps (benchmarks/general_rhs.py: on a
+#: 3-parameter drag problem, 17^3 nodes, rank 10, the cross asked 2.5x the values of the whole
+#: grid and the build took 2.2x as long; on a 4-parameter pendulum 2.2x too).
 SWEEPS_PER_CROSS = 4
 
 
