@@ -99,3 +99,28 @@ def test_verify_checks_a_codebook_with_functions_of_the_unknowns(tmp_path):
     wrong_path = tmp_path / "wrong.h5"
     wrong.save(wrong_path)
     assert not pgdcli.verify(wrong_path, samples=32, seed=5, jobs=1).passed(max_error=1e-6)
+
+
+@pytest.mark.slow
+def test_march_with_the_cross_forced_meets_the_tolerance(monkeypatch):
+    # up to ~4 parameters the march evaluates general terms on the whole grid; force the TT-cross
+    from pgdcli import general_rhs
+
+    monkeypatch.setattr(general_rhs, "DENSE_LIMIT", 0)
+    monkeypatch.setattr(general_rhs, "SWEEPS_PER_CROSS", 0)
+    messages = []
+    cross = general_rhs.tt_cross
+
+    def recorded(*args, **kwargs):
+        result = cross(*args, **kwargs)
+        messages.append(result.message)
+        return result
+
+    monkeypatch.setattr(general_rhs, "tt_cross", recorded)
+    name = "tests/user_problems/drag3.yaml"
+    problem = pgdcli.load_spec(ROOT / name)
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    assert messages and all(m.startswith("converged in") for m in messages)  # DMRG crosses, no whole grids
+    assert result.codebook.report["crosses_not_converged"] == 0
+    assert worst_error(name, result.codebook) <= problem.solver.tolerance
