@@ -300,12 +300,12 @@ GRID_TIME_NODES = 16  # time nodes of the brute-force alternatives and of the gr
 
 def bench_coupled(rows: list, work: Path) -> None:
     import pgdcli
-    import pgdcli.march  # noqa: F401  (imports outside the timed builds)
-    import pgdcli.solver  # noqa: F401
+    import pgdcli.algorithms.march  # noqa: F401  (imports outside the timed builds)
+    import pgdcli.driver  # noqa: F401
 
     problem = pgdcli.load_spec(COUPLED)
     coords = {c.name: c for c in problem.coordinates}
-    from pgdcli.basis import make_basis
+    from pgdcli.discretization.basis import make_basis
 
     # the time nodes of the comparison (loop outputs, grid size): 16 Chebyshev nodes, what a
     # global time basis needs here; the codebook's own time nodes follow its slabs (steps)
@@ -411,7 +411,7 @@ def bench_coupled(rows: list, work: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
     import pgdcli
-    from pgdcli.basis import make_basis
+    from pgdcli.discretization.basis import make_basis
 
     text = RIGID.read_text()
     problem = pgdcli.parse_spec(text, source=str(RIGID))

@@ -39,8 +39,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 import pgdcli
-from pgdcli.reference import solve_reference_vectorized
-from pgdcli.tt import TT, tt_sum
+from pgdcli.checks.reference import solve_reference_vectorized
+from pgdcli.tensors.tt import TT, tt_sum
 
 from _machine import machine_facts
 from gate_build import RTOL, ATOL, grid_points, time_loop, time_vectorized
@@ -160,7 +160,7 @@ solver: {tolerance: 1e-6}
 
 def evaluation_paths():
     """The march's ways of evaluating general terms, side by side: whole grid, TT-cross, whole right-hand side."""
-    from pgdcli import general_rhs
+    from pgdcli.algorithms import general_rhs
 
     print("\n| problem | whole grid (default) | TT-cross always | whole right-hand side by the default path |")
     print("| --- | --- | --- | --- |")

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pgdcli.cross import maxvol, tt_cross, tt_from_full, tt_values_at
-from pgdcli.tt import TT
+from pgdcli.tensors.cross import maxvol, tt_cross, tt_from_full, tt_values_at
+from pgdcli.tensors.tt import TT
 
 
 def grid_function(shape, f):

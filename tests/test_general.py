@@ -11,9 +11,9 @@ from scipy.integrate import solve_ivp
 
 import pgdcli
 from pgdcli.errors import PgdError
-from pgdcli.expressions import Atom, parse_equation
-from pgdcli.general import build_tree, evaluate, has_general, is_general, render, tree_names, tree_of
-from pgdcli.reference import solve_reference
+from pgdcli.problem.expressions import Atom, parse_equation
+from pgdcli.problem.general import build_tree, evaluate, has_general, is_general, render, tree_names, tree_of
+from pgdcli.checks.reference import solve_reference
 
 KW = dict(coordinates=["t", "L", "k"], constants={"g": 9.81}, unknowns=["th", "w", "u", "v"], time="t", where="e")
 
@@ -124,7 +124,7 @@ equations: ["der(u) = -sqrt(u)"]
 def test_march_reports_its_crosses_and_pgd_info_prints_them(tmp_path):
     from click.testing import CliRunner
 
-    from pgdcli.cli import cli
+    from pgdcli.cli.main import cli
 
     spec = PENDULUM.replace("[0, 2]", "[0, 1]").replace(", nodes: 5", "") + "solver: {tolerance: 1e-5}\n"
     problem = pgdcli.parse_spec(spec, source="p.yaml")

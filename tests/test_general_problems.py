@@ -75,7 +75,7 @@ def test_nonlinear_pdes_are_refused_with_the_reason(name, term, tmp_path):
     import sys
 
     out = tmp_path / f"{name}.h5"
-    run = subprocess.run([sys.executable, "-m", "pgdcli.cli", "solve", str(ROOT / "problems" / f"{name}.yaml"),
+    run = subprocess.run([sys.executable, "-m", "pgdcli.cli.main", "solve", str(ROOT / "problems" / f"{name}.yaml"),
                           "-o", str(out), "-q"], capture_output=True, text=True)
     assert run.returncode == 2
     lines = [line for line in run.stderr.splitlines() if line.strip()]
@@ -104,7 +104,7 @@ def test_verify_checks_a_codebook_with_functions_of_the_unknowns(tmp_path):
 @pytest.mark.slow
 def test_march_with_the_cross_forced_meets_the_tolerance(monkeypatch):
     # up to ~4 parameters the march evaluates general terms on the whole grid; force the TT-cross
-    from pgdcli import general_rhs
+    from pgdcli.algorithms import general_rhs
 
     monkeypatch.setattr(general_rhs, "DENSE_LIMIT", 0)
     monkeypatch.setattr(general_rhs, "SWEEPS_PER_CROSS", 0)
