@@ -29,6 +29,9 @@ PROBLEMS = {
                                                  lambda p: [p["th0"], 0.0]),
     "tests/user_problems/driven_pendulum.yaml": (lambda t, y, p: [y[1], -4 * np.sin(y[0] - 0.3 * np.sin(p["W"] * t))
                                                                   - 0.2 * y[1]], lambda p: [p["th0"], 0.0]),
+    "tests/user_problems/pendulum_natural.yaml": (lambda t, y, p: [y[1], -GRAV / p["L"] * np.sin(y[0])
+                                                                   + 0.3 * np.sin(p["L"] * t) * np.cos(y[0])],
+                                                  lambda p: [p["th0"], 0.0]),
     "tests/user_problems/morse.yaml": (lambda t, y, p: [y[1], -4 * p["a"] * (np.exp(-p["a"] * y[0])
                                                                              - np.exp(-2 * p["a"] * y[0]))],
                                        lambda p: [p["x0"], 0.0]),
