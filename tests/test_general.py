@@ -138,3 +138,18 @@ def test_march_reports_its_crosses_and_pgd_info_prints_them(tmp_path):
     assert info["count"] == cb.report["crosses"] and info["evaluations"] > 0
     run = CliRunner().invoke(cli, ["info", str(path)])
     assert "functions of the unknowns:" in run.stderr + run.stdout
+
+
+def test_single_trajectory_with_a_function_of_the_unknown():
+    spec = """
+coordinates: {t: {domain: [0, 3]}}
+unknowns: {u: {initial: 1}}
+equations: ["der(u) = -sin(u) + exp(-u)*t"]
+solver: {tolerance: 1e-8}
+"""
+    result = pgdcli.solve(pgdcli.parse_spec(spec, source="one.yaml"))
+    assert result.accurate, result.message
+    ts = np.linspace(0, 3, 301)
+    sol = solve_ivp(lambda t, y: [-np.sin(y[0]) + np.exp(-y[0]) * t], (0, 3), [1.0], method="DOP853", rtol=1e-12,
+                    atol=1e-12, t_eval=ts)
+    assert np.max(np.abs(result.codebook(t=ts)["u"] - sol.y[0])) <= 1e-8
