@@ -46,6 +46,7 @@ import scipy.linalg
 
 from .discretization.basis import Basis1D
 from .errors import PgdError, SolverError
+from .problem.general import has_general
 from .discretization.coefficients import SEPARATION_FRACTION, nodal_terms, separation_report_text
 from .discretization.separate import MAX_SEPARATION_RANK
 from .tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
@@ -1334,7 +1335,7 @@ def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveRe
 
 def _use_march(problem) -> bool:
     """``method: auto`` marches nonlinear problems and enriches linear ones."""
-    nonlinear = any(eq.polynomial.degree >= 2 for eq in problem.equations)
+    nonlinear = any(eq.polynomial.degree >= 2 or has_general(eq.polynomial) for eq in problem.equations)
     method = getattr(problem.solver, "method", "auto")
     if method == "pgd" and nonlinear:
         raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "

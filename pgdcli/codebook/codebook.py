@@ -944,6 +944,10 @@ class Codebook:
         }
         if "roundings_exact" in rep:
             out["roundings"] = {k: int(rep[f"roundings_{k}"]) for k in ("exact", "sketched", "redone")}
+        if "crosses" in rep:  # functions of the unknowns, by cross approximation (pgdcli.algorithms.general_rhs)
+            out["crosses"] = {"count": int(rep["crosses"]), "not_converged": int(rep["crosses_not_converged"]),
+                              "evaluations": int(rep["cross_evaluations"]), "max_rank": int(rep["cross_max_rank"]),
+                              "failure": str(rep["cross_failure"])}
         if "check_error" in rep:
             def finite(key):  # JSON has no NaN: an unchecked march gives None
                 v = float(rep[key])
