@@ -64,6 +64,27 @@ def _window_of(basis, x: np.ndarray) -> np.ndarray:
     return np.zeros(x.size, dtype=int)
 
 
+def _local_rows(basis, x: np.ndarray, lo: int, width: int) -> np.ndarray:
+    """Cardinal rows of ``x`` (shape (P,), all in the window starting at node ``lo``) on that
+    window's nodes only, shape (P, width): the arithmetic of the basis's own interpolation rows.
+    """
+    if width == basis.nodes.size:
+        return basis.interpolation_matrix(x)
+    nodes = basis.nodes[lo:lo + width]
+    if basis.kind == "linear":
+        theta = (x - nodes[0]) / (nodes[1] - nodes[0])
+        return np.column_stack([1.0 - theta, theta])
+    diff = x[:, None] - nodes
+    exact = diff == 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = basis.bary / diff
+    hit = exact.any(axis=1)
+    if hit.any():
+        c[hit] = exact[hit]
+    c /= c.sum(axis=1, keepdims=True)
+    return c
+
+
 class _Train:
     """Unknowns that share a core order: their cores unfolded and stacked for block products."""
 
@@ -119,7 +140,8 @@ class _Train:
         Parameters
         ----------
         rows : list of ndarray
-            Per coordinate (codebook order), the cardinal rows of the block, shape (P, n_j).
+            Per coordinate (codebook order), the cardinal rows of the block, shape (P, n_j);
+            for the train's first coordinate only their window's columns, shape (P, w).
         window : int
 
         Returns
@@ -127,7 +149,7 @@ class _Train:
         list of ndarray, each shape (P,)
         """
         lo = int(self.starts[window])
-        local = rows[self.order[0]][:, lo:lo + self.width]  # (P, w): the row vanishes elsewhere
+        local = rows[self.order[0]]  # (P, w): the row vanishes outside the window
         p = local.shape[0]
         if self.pair is not None:
             second = rows[self.order[1]]
@@ -203,11 +225,13 @@ class TTBatch:
                 bounds.extend((int(a), int(min(a + train.block, hi))) for a in range(int(lo), int(hi), train.block))
             targets = [out.get(u) for u in train.names]
 
-            def run(todo, train=train, order=order, window=window, targets=targets):
+            def run(todo, train=train, order=order, window=window, targets=targets, first=first):
                 for lo, hi in todo:
                     idx = order[lo:hi]
-                    rows = [b.interpolation_matrix(x[idx]) for b, x in zip(self.bases, flat)]
-                    for target, values in zip(targets, train.contract(rows, int(window[lo]))):
+                    k = int(window[lo])
+                    rows = [_local_rows(b, x[idx], int(train.starts[k]), train.width) if j == first
+                            else b.interpolation_matrix(x[idx]) for j, (b, x) in enumerate(zip(self.bases, flat))]
+                    for target, values in zip(targets, train.contract(rows, k)):
                         if target is not None:
                             target[idx] = values
 
