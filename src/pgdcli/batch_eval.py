@@ -28,6 +28,8 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from .basis import barycentric_rows
+
 __all__ = ["TTBatch"]
 
 # Points per block: the block's (points, r0 r1) slice products stay near the second-level cache
@@ -74,15 +76,7 @@ def _local_rows(basis, x: np.ndarray, lo: int, width: int) -> np.ndarray:
     if basis.kind == "linear":
         theta = (x - nodes[0]) / (nodes[1] - nodes[0])
         return np.column_stack([1.0 - theta, theta])
-    diff = x[:, None] - nodes
-    exact = diff == 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = basis.bary / diff
-    hit = exact.any(axis=1)
-    if hit.any():
-        c[hit] = exact[hit]
-    c /= c.sum(axis=1, keepdims=True)
-    return c
+    return barycentric_rows(x, nodes, basis.bary)
 
 
 class _Train:
