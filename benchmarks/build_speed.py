@@ -49,7 +49,7 @@ machine may be shared and noisy: timings are medians where repeated, and every c
 within this run.
 
 Issue 15 rows (``--issue15`` runs only these): the rigid body with 10 nodes per IC at
-``solver.tolerance: 1e-6`` beside one vectorized ``solve_ivp`` over its 10^6 grid ICs at
+``solver.tolerance: 1e-6`` (if the error gate refuses it: 8 nodes, then 10 nodes at 1e-5) beside one vectorized ``solve_ivp`` over its 10^6 grid ICs at
 rtol = atol = 1e-10 (target: build >= 5x faster, codebook <= 1% of that grid); where the
 build's time goes (seconds inside the march's right-hand sides, its stage/state combinations,
 the randomized and the exact roundings, measured by wrapping those functions); coupled with
@@ -589,8 +589,6 @@ def build_split(problem):
     finally:
         for name, func in originals.items():
             setattr(march, name, func)
-    if not result.converged:
-        raise SystemExit(f"build failed: {result.message}")
     return elapsed, result, spent
 
 
@@ -606,11 +604,20 @@ def bench_issue15(rows: list, work: Path, quick: bool) -> None:
     import pgdcli
     from pgdcli.basis import make_basis
 
-    # rigid body, 10 nodes per IC, tolerance 1e-6, beside one vectorized solve_ivp at 1e-10 on its grid
-    label = "rigid_body, 6 ICs x 10 nodes, tol 1e-6"
-    problem = with_nodes(RIGID, 8, 10, 1e-6)
-    print(f"issue 15: {label}: building", file=sys.stderr)
-    elapsed, result, spent = build_split(problem)
+    # rigid body, 10 nodes per IC, tolerance 1e-6, beside one vectorized solve_ivp at 1e-10 on its grid;
+    # if the error gate refuses that codebook, the row says so and the shipped 8 nodes are tried, then
+    # 10 nodes at the shipped tolerance 1e-5
+    for nodes, tolerance in ((10, 1e-6), (8, 1e-6), (10, 1e-5)):
+        label = f"rigid_body, 6 ICs x {nodes} nodes, tol {tolerance:g}"
+        problem = with_nodes(RIGID, 8, nodes, tolerance)
+        print(f"issue 15: {label}: building", file=sys.stderr)
+        elapsed, result, spent = build_split(problem)
+        if result.converged:
+            break
+        rows.append((label, "build (1 BLAS thread), one run: REFUSED by the error gate", fmt_time(elapsed),
+                     " ".join(result.message.split())[:200], "", "", None))
+    else:
+        return
     cb = result.codebook
     rep = cb.report
     rows.append((label, "build (1 BLAS thread), one run", fmt_time(elapsed), split_text(elapsed, result, spent),
@@ -644,6 +651,8 @@ def bench_issue15(rows: list, work: Path, quick: bool) -> None:
     problem = with_nodes(COUPLED, 20, 40)
     print(f"issue 15: {label}: building", file=sys.stderr)
     elapsed, result, spent = build_split(problem)
+    if not result.converged:
+        raise SystemExit(f"build failed: {result.message}")
     rows.append((label, "build (1 BLAS thread), one run", fmt_time(elapsed), split_text(elapsed, result, spent),
                  "", "", None))
     coords = {c.name: c for c in problem.coordinates}
@@ -665,6 +674,10 @@ def bench_issue15(rows: list, work: Path, quick: bool) -> None:
     label = "rigid_body10 (10-D: + I1, I2, I3; 10 nodes each), tol 1e-5"
     print(f"issue 15: {label}: building", file=sys.stderr)
     elapsed, result, spent = build_split(pgdcli.load_spec(RIGID10))
+    if not result.converged:
+        rows.append((label, "build (1 BLAS thread), one run: NOT converged", fmt_time(elapsed),
+                     " ".join(result.message.split())[:200], "", "<= 120 s", False))
+        return
     cb = result.codebook
     rep = cb.report
     rows.append((label, "build (1 BLAS thread), one run", fmt_time(elapsed), split_text(elapsed, result, spent),
