@@ -54,9 +54,10 @@ rtol = atol = 1e-10 (target: build >= 5x faster, codebook <= 1% of that grid); w
 build's time goes (seconds inside the march's right-hand sides, its stage/state combinations,
 the randomized and the exact roundings, measured by wrapping those functions); coupled with
 40 nodes per IC beside one vectorized ``solve_ivp`` over its 64,000 ICs (target: no slower);
-and the 10-D ``problems/rigid_body10.yaml`` (three moments of inertia as coordinates too):
-build time (target <= 120 s), the error gate's measured error and ``pgdcli.verify`` at 200
-points.
+and, with ``--ten``, the 10-D ``benchmarks/rigid_body10.yaml`` (three moments of inertia as
+coordinates too): build time (target <= 120 s), the error gate's measured error and
+``pgdcli.verify`` at 200 points (on 2026-11-24 its build had not finished after 25 minutes on
+the shared machine: not shipped in problems/).
 
 The printed table (Markdown) is what benchmarks/README.md quotes.
 """
@@ -80,7 +81,7 @@ from _machine import machine_facts  # benchmarks/ is on sys.path when a script r
 ROOT = Path(__file__).resolve().parents[1]
 COUPLED = ROOT / "problems" / "coupled.yaml"
 RIGID = ROOT / "problems" / "rigid_body.yaml"
-RIGID10 = ROOT / "problems" / "rigid_body10.yaml"
+RIGID10 = ROOT / "benchmarks" / "rigid_body10.yaml"  # not shipped: no build in reasonable time yet
 LOOP_SUBSET = 400
 TOLERANCES = (1e-8, 1e-12)
 REFERENCE_TOL = 1e-12
@@ -594,13 +595,12 @@ def build_split(problem):
 
 def split_text(elapsed: float, result, spent: dict) -> str:
     rep = result.codebook.report
-    march_wall = float(rep.get("wall_time", float("nan")))
-    return (f"march {march_wall:.1f} s of {elapsed:.1f} s ({marches(rep)}, {rep['steps']} steps); inside it: "
+    return (f"{marches(rep)}, {rep['steps']} steps; inside the marches: "
             f"right-hand sides {spent['rhs']:.1f} s, stage/state combinations {spent['combine']:.1f} s; "
             f"randomized roundings {spent['sketched']:.1f} s, exact {spent['exact']:.1f} s (in both)")
 
 
-def bench_issue15(rows: list, work: Path, quick: bool) -> None:
+def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> None:
     import pgdcli
     from pgdcli.basis import make_basis
 
@@ -668,7 +668,7 @@ def bench_issue15(rows: list, work: Path, quick: bool) -> None:
     del result
     gc.collect()
 
-    if quick:
+    if quick or not ten:
         return
     # the 10-D rigid body: nobody brute-forces 10^9 grid points
     label = "rigid_body10 (10-D: + I1, I2, I3; 10 nodes each), tol 1e-5"
@@ -728,6 +728,7 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="skip the rigid-body brute-force grid and the rigid body at tolerance 1e-6")
     parser.add_argument("--issue15", action="store_true", help="only the rows of issue 15 (see the docstring)")
+    parser.add_argument("--ten", action="store_true", help="also build the 10-D benchmarks/rigid_body10.yaml (long)")
     args = parser.parse_args(argv)
     rows: list = _EchoRows()
     started = time.perf_counter()
@@ -737,7 +738,7 @@ def main(argv=None) -> None:
         if not args.issue15:
             bench_coupled(rows, work)
             bench_rigid_body(rows, work, args.quick)
-        bench_issue15(rows, work, args.quick)
+        bench_issue15(rows, work, args.quick, args.ten)
     print(f"Machine: {machine_before}\n")
     print_table(rows)
     missed = [r for r in rows if r[6] is False]
