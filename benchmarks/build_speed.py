@@ -312,12 +312,12 @@ GRID_TIME_NODES = 16  # time nodes of the brute-force alternatives and of the gr
 
 def bench_coupled(rows: list, work: Path) -> None:
     import pgdcli
-    import pgdcli.march  # noqa: F401  (imports outside the timed builds)
-    import pgdcli.solver  # noqa: F401
+    import pgdcli.algorithms.march  # noqa: F401  (imports outside the timed builds)
+    import pgdcli.driver  # noqa: F401
 
     problem = pgdcli.load_spec(COUPLED)
     coords = {c.name: c for c in problem.coordinates}
-    from pgdcli.basis import make_basis
+    from pgdcli.discretization.basis import make_basis
 
     # the time nodes of the comparison (loop outputs, grid size): 16 Chebyshev nodes, what a
     # global time basis needs here; the codebook's own time nodes follow its slabs (steps)
@@ -423,7 +423,7 @@ def bench_coupled(rows: list, work: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
     import pgdcli
-    from pgdcli.basis import make_basis
+    from pgdcli.discretization.basis import make_basis
 
     text = RIGID.read_text()
     problem = pgdcli.parse_spec(text, source=str(RIGID))
@@ -555,7 +555,7 @@ def with_nodes(path: Path, old: int, new: int, tolerance: float | None = None):
 def build_split(problem):
     """``solve(problem)`` (1 BLAS thread, one run) and the seconds spent inside the march's parts."""
     import pgdcli
-    import pgdcli.march as march
+    import pgdcli.algorithms.march as march
 
     spent = {"rhs": 0.0, "combine": 0.0, "sketched": 0.0, "exact": 0.0}
     originals = {name: getattr(march, name) for name in
@@ -602,7 +602,7 @@ def split_text(elapsed: float, result, spent: dict) -> str:
 
 def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> None:
     import pgdcli
-    from pgdcli.basis import make_basis
+    from pgdcli.discretization.basis import make_basis
 
     # rigid body, 10 nodes per IC, tolerance 1e-6, beside one vectorized solve_ivp at 1e-10 on its grid;
     # if the error gate refuses that codebook, the row says so and the shipped 8 nodes are tried, then

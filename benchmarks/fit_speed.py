@@ -4,7 +4,7 @@ Part 1, fit speed. For each problem the codebook is solved once (the offline cos
 apart), synthetic data are made by the independent reference (solve_ivp DOP853, 1e-12) at known
 coordinates plus Gaussian noise, and the same ``scipy.optimize.least_squares`` (trust-region
 reflective, bounds = the codebook's domains, ``x_scale='jac'``, ftol = xtol = gtol = 1e-12), from
-the same starts (the box centre then scrambled Sobol points: ``pgdcli.fitting.sobol_starts``),
+the same starts (the box centre then scrambled Sobol points: ``pgdcli.inference.fitting.sobol_starts``),
 fits the same data with two models:
 
 - pgdcli: the codebook, Jacobian from ``Codebook.gradient`` (``pgdcli.fit(..., check=False)``);
@@ -84,7 +84,7 @@ CASES = {
 
 
 def _data(name, problem):
-    from pgdcli.reference import solve_reference
+    from pgdcli.checks.reference import solve_reference
 
     truth, times, observed, noise, _, _ = CASES[name]
     ref = solve_reference(problem, {k: np.array([v]) for k, v in truth.items()}, times)
@@ -96,7 +96,7 @@ def _scipy_fit(name, cb, data, starts, free):
     from scipy.integrate import solve_ivp
     from scipy.optimize import least_squares
 
-    from pgdcli.fitting import sobol_starts
+    from pgdcli.inference.fitting import sobol_starts
 
     _, times, observed, _, rhs, y0 = CASES[name]
     index = [cb.unknown_names.index(u) for u in observed]
@@ -122,7 +122,7 @@ def _floor_fit(cb, res, starts):
     residual linearized at its estimate, a precomputed matrix), i.e. what no model can undercut."""
     from scipy.optimize import least_squares
 
-    from pgdcli.fitting import sobol_starts
+    from pgdcli.inference.fitting import sobol_starts
 
     free = list(res.estimate)
     x_star = np.array([res.estimate[n] for n in free])
@@ -147,7 +147,7 @@ def _median_time(fn, repeats):
 
 def fit_rows(names, repeats, starts):
     import pgdcli
-    from pgdcli.spec import load_spec
+    from pgdcli.problem.spec import load_spec
 
     rows, books = [], {}
     for name in names:
@@ -196,7 +196,7 @@ void loop_f(int n, const float *x, float *out) {{
 
 
 def _compile(cb, directory: Path, flags: list[str]):
-    from pgdcli.export import export
+    from pgdcli.codebook.export import export
 
     files, _ = export(cb, "c", force=True)
     ((header, text),) = files.items()

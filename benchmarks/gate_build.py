@@ -10,7 +10,7 @@ the codebook's own nodes (every parameter node, every time node), filled by
 
 - a Python loop of ``solve_ivp`` (DOP853, rtol = atol = 1e-10), one call per grid point with
   ``t_eval`` = the time nodes; a random subset of at most 200 points is timed and the time scaled;
-- ONE vectorized ``solve_ivp`` call over all grid points (``pgdcli.reference``'s vectorized
+- ONE vectorized ``solve_ivp`` call over all grid points (``pgdcli.checks.reference``'s vectorized
   right-hand side), at the same tolerances (problems with space coordinates: a method-of-lines
   sweep, timed on a subset of at most 8 parameter points and scaled; no vectorized call).
 
@@ -34,7 +34,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 import pgdcli
-from pgdcli.reference import solve_reference, solve_reference_vectorized
+from pgdcli.checks.reference import solve_reference, solve_reference_vectorized
 
 from _machine import machine_facts
 

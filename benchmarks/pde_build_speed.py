@@ -2,7 +2,7 @@
 
 Solves problems/heat2d.yaml (x, y space; t; kappa, g, q parameters) into a codebook (median of 3
 builds) and, in the same run, times the alternative a user would otherwise run: one method-of-lines
-solve (``pgdcli.reference.solve_reference_pde``: strong-form Chebyshev collocation on the same
+solve (``pgdcli.checks.reference.solve_reference_pde``: strong-form Chebyshev collocation on the same
 number of nodes per space coordinate as the codebook, BDF at rtol 1e-8) per point of the
 parameter grid (the codebook's kappa x g x q nodes), storing the solution at the codebook's time
 nodes. A seeded subset of the grid is timed and scaled (printed). Both are checked against the
@@ -34,9 +34,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--subset", type=int, default=8, help="grid points timed for the sweep (default 8)")
     options = parser.parse_args()
-    sys.path.insert(0, str(ROOT / "src"))
+    sys.path.insert(0, str(ROOT))
     import pgdcli
-    from pgdcli.reference import solve_reference_pde
+    from pgdcli.checks.reference import solve_reference_pde
 
     problem = pgdcli.load_spec(ROOT / "problems" / "heat2d.yaml")
     builds, result = [], None

@@ -168,8 +168,8 @@ def cli_env(bytecode_cache: str | None) -> dict:
 # measurements
 # ----------------------------------------------------------------------------------------------
 def measure_in_process(name: str, path: Path, rows: list, quick: bool) -> None:
-    import pgdcli.codebook as codebook_module
-    from pgdcli.codebook import Codebook
+    import pgdcli.codebook.codebook as codebook_module
+    from pgdcli.codebook.codebook import Codebook
     from threadpoolctl import threadpool_limits
 
     cb = Codebook.load(path)
@@ -250,7 +250,7 @@ def unchunked_evaluation(cb, points):
 
 
 def measure_cli(name: str, path: Path, rows: list, quick: bool, workdir: Path) -> None:
-    from pgdcli.codebook import Codebook
+    from pgdcli.codebook.codebook import Codebook
 
     cb = Codebook.load(path)
     label = f"{name} ({len(cb.coordinates)} coords)"
@@ -263,7 +263,7 @@ def measure_cli(name: str, path: Path, rows: list, quick: bool, workdir: Path) -
     if os.environ.get("PYTHONDONTWRITEBYTECODE"):  # as this environment runs it: every module compiled
         configs.insert(0, ("no bytecode cache, as this environment", cli_env(None)))
     # the same query through the click command (what `pgd query` ran before the lean path)
-    through_click = [sys.executable, "-c", "import sys; from pgdcli.cli import cli; "
+    through_click = [sys.executable, "-c", "import sys; from pgdcli.cli.main import cli; "
                      "cli.main(sys.argv[1:], prog_name='pgd')"] + query[1:]
     for env_label, env in configs:
         medians = interleaved({"base": base, "pgd": query, "click": through_click}, runs, env)

@@ -78,7 +78,7 @@ def _batch(fn, points, repeats: int = 5) -> float:
 
 def rowwise_before(cb, points: dict) -> dict:
     """The tensor-train batch algorithm before issue 15 (pgdcli <= 2026-11-24), same thread policy."""
-    import pgdcli.codebook as codebook_module
+    import pgdcli.codebook.codebook as codebook_module
 
     flat = [np.clip(points[c.name], *c.domain) for c in cb.coordinates]
     size = flat[0].size
@@ -121,9 +121,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="coupled and logistic only")
     options = parser.parse_args()
-    sys.path.insert(0, str(ROOT / "src"))
+    sys.path.insert(0, str(ROOT))
     import pgdcli
-    import pgdcli.codebook as codebook_module
+    import pgdcli.codebook.codebook as codebook_module
     from scipy.interpolate import RegularGridInterpolator
 
     names = ["coupled", "logistic"] + ([] if options.quick else ["rigid_body"])

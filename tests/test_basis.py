@@ -1,4 +1,4 @@
-"""1D bases (pgdcli.basis) against closed forms, numpy.polynomial and scipy.
+"""1D bases (pgdcli.discretization.basis) against closed forms, numpy.polynomial and scipy.
 
 Every reference here is independent of pgdcli: closed-form integrals and
 derivatives, numpy's Chebyshev series, np.interp, scipy's trapezoid, and the
@@ -14,7 +14,7 @@ import pytest
 from numpy.polynomial import Chebyshev
 from scipy.integrate import trapezoid
 
-from pgdcli.basis import KINDS, ChebyshevBasis, LinearBasis, make_basis
+from pgdcli.discretization.basis import KINDS, ChebyshevBasis, LinearBasis, make_basis
 
 EPS = np.finfo(float).eps
 

@@ -1,4 +1,4 @@
-"""The tensor-train batch path (pgdcli.batch_eval) against an independent contraction.
+"""The tensor-train batch path (pgdcli.codebook.batch_eval) against an independent contraction.
 
 The reference here contracts each point on its own: the dense cardinal row of every
 coordinate (``basis.interpolation_matrix``, all nodes) times each core, left to right
@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import pgdcli.codebook as codebook_module
-from pgdcli.batch_eval import TTBatch
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+import pgdcli.codebook.codebook as codebook_module
+from pgdcli.codebook.batch_eval import TTBatch
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
 
 
 def _reference(cb: Codebook, points: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

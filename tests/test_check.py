@@ -1,4 +1,4 @@
-"""The march's tolerance as a checked bound: pgdcli.check and the retry loop in pgdcli.solve.
+"""The march's tolerance as a checked bound: pgdcli.checks.check and the retry loop in pgdcli.solve.
 
 The measured error is checked against exact solutions (never against itself), and
 the shipped nonlinear problems' codebooks against the tolerance of their specs at
@@ -17,9 +17,10 @@ from click.testing import CliRunner
 from conftest import PROBLEMS
 
 import pgdcli
-from pgdcli import check, load_spec, parse_spec, solver
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, FieldTT
+from pgdcli import driver as solver, load_spec, parse_spec
+from pgdcli.checks import check
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, FieldTT
 
 
 def exact_logistic(t, r, u0):

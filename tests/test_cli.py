@@ -1,4 +1,4 @@
-"""The ``pgd`` command line (pgdcli.cli) through click's CliRunner.
+"""The ``pgd`` command line (pgdcli.cli.main) through click's CliRunner.
 
 click >= 8.2 keeps stdout and stderr apart in ``Result.stdout`` / ``Result.stderr``.
 Expected query output is built from the in-process Codebook and ``repr`` of
@@ -16,8 +16,8 @@ from click.testing import CliRunner
 from conftest import PROBLEMS
 
 import pgdcli
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook
 
 
 @pytest.fixture
@@ -424,7 +424,7 @@ def test_help_content(runner):
 
 
 def test_points_file_with_a_repeated_column_is_an_error(tmp_path):
-    from pgdcli.cli import cli
+    from pgdcli.cli.main import cli
 
     cb_path = tmp_path / "p.h5"
     import pgdcli

@@ -1,4 +1,4 @@
-"""Codebook evaluation and HDF5 files (pgdcli.codebook)."""
+"""Codebook evaluation and HDF5 files (pgdcli.codebook.codebook)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import codebook_points
 
-from pgdcli.codebook import FORMAT_NAME, FORMAT_VERSION, Codebook, CoordinateInfo, FieldModes
+from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, Codebook, CoordinateInfo, FieldModes
 from pgdcli.errors import CodebookError, QueryError
 
 EPS = np.finfo(float).eps

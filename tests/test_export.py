@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
-from pgdcli.export import ExportError, export, layout
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+from pgdcli.codebook.export import ExportError, export, layout
 
 CC = shutil.which("cc") or shutil.which("gcc")
 GLSLANG = shutil.which("glslangValidator")
@@ -106,7 +106,7 @@ def test_c_clamps_and_reports_out_of_domain_and_nan(tmp_path):
 
 
 def _json_eval(lay, x):
-    """An evaluator of the JSON layout written from its schema (pgdcli.export's docstring), numpy only."""
+    """An evaluator of the JSON layout written from its schema (pgdcli.codebook.export's docstring), numpy only."""
     rows = []
     for c, v in zip(lay["coordinates"], x):
         nodes = np.array(c["nodes"])

@@ -1,4 +1,4 @@
-"""Tests of pgdcli.expressions: safe parsing into separated (sum-of-products) form."""
+"""Tests of pgdcli.problem.expressions: safe parsing into separated (sum-of-products) form."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pgdcli.errors import ExpressionError, SpecError
-from pgdcli.expressions import (
+from pgdcli.problem.expressions import (
     MAX_TERMS,
     Atom,
     Func1D,
@@ -379,7 +379,7 @@ def test_parsing_never_calls_eval_or_exec(monkeypatch):
 
 def test_package_sources_do_not_call_eval_exec_or_compile():
     for name in ("expressions.py", "spec.py"):
-        source = (pathlib.Path(__file__).parents[1] / "src" / "pgdcli" / name).read_text()
+        source = (pathlib.Path(__file__).parents[1] / "pgdcli" / "problem" / name).read_text()
         for node in ast.walk(ast.parse(source)):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
                 assert node.func.id not in {"eval", "exec", "compile", "__import__"}, (name, node.func.id)

@@ -10,10 +10,10 @@ from click.testing import CliRunner
 from conftest import PROBLEMS
 
 import pgdcli
-from pgdcli.cli import cli
-from pgdcli.fitting import FitError, read_data
-from pgdcli.reference import solve_reference
-from pgdcli.spec import load_spec
+from pgdcli.cli.main import cli
+from pgdcli.inference.fitting import FitError, read_data
+from pgdcli.checks.reference import solve_reference
+from pgdcli.problem.spec import load_spec
 
 
 def synthetic(name, truth, times, observed, noise, seed=0, extra=None):

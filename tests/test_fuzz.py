@@ -24,11 +24,11 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import pgdcli.solver
-from pgdcli import _query
-from pgdcli.cli import cli
+import pgdcli.driver
+from pgdcli.cli import query as _query
+from pgdcli.cli.main import cli
 from pgdcli.errors import PgdError, SolverError
-from pgdcli.spec import parse_spec
+from pgdcli.problem.spec import parse_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"
@@ -135,7 +135,7 @@ def test_solve_cli_on_hostile_specs(tmp_path_factory, monkeypatch, data):
     def stub(problem, **kwargs):
         raise SolverError("fuzz stub: not solving")
 
-    monkeypatch.setattr(pgdcli.solver, "solve", stub)
+    monkeypatch.setattr(pgdcli.driver, "solve", stub)
     work = tmp_path_factory.mktemp("solve")
     spec = work / "fuzz.yaml"
     spec.write_bytes(data)

@@ -17,8 +17,8 @@ from click.testing import CliRunner
 import pgdcli
 from pgdcli import parse_spec
 from pgdcli.adapt import INACCURATE
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, InaccurateCodebookWarning
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, InaccurateCodebookWarning
 
 OSCILLATOR = """
 name: oscillator
@@ -180,7 +180,7 @@ solver:
 
 def test_relative_tolerance_relaxes_the_bound_where_the_solution_is_large():
     """error <= atol + rtol |u|: a coarse codebook that fails atol alone passes with a relative part."""
-    from pgdcli import check
+    from pgdcli.checks import check
 
     problem = parse_spec(DECAY, source="decay.yaml")
     strict = pgdcli.solve(problem)
@@ -326,7 +326,7 @@ def test_query_of_an_inaccurate_codebook_warns_in_one_line(tmp_path):
     spec.write_text(COARSE)
     out = tmp_path / "coarse.h5"
     CliRunner().invoke(cli, ["solve", str(spec), "-o", str(out), "--keep-inaccurate", "-q"])
-    res = subprocess.run([sys.executable, "-c", "from pgdcli._query import main; main()", "query", str(out),
+    res = subprocess.run([sys.executable, "-c", "from pgdcli.cli.query import main; main()", "query", str(out),
                           "--t", "1", "--k", "2"], capture_output=True, text=True)
     assert res.returncode == 0 and len(res.stdout.split()) == 2
     lines = res.stderr.strip().splitlines()
@@ -338,7 +338,7 @@ def test_pde_check_reuses_its_reference_for_the_same_nodes(monkeypatch):
     the codebook's values at the report's points are verify's own."""
     from conftest import PROBLEMS
 
-    from pgdcli import check, verification
+    from pgdcli.checks import check, verify as verification
 
     calls = []
     real = verification.verify
@@ -378,10 +378,52 @@ def test_codebook_at_a_steady_report_grid_is_verifys_own():
     """A steady problem (no time axis in the report): the values at the report's points are verify's."""
     from conftest import PROBLEMS
 
-    from pgdcli import check
+    from pgdcli.checks import check
 
     result = pgdcli.solve(pgdcli.load_spec(PROBLEMS / "poisson.yaml"))
     report = pgdcli.verify(result.codebook, samples=check.PDE_SAMPLES, times=check.PDE_TIMES,
                            max_corners=check.PDE_CORNERS, jobs=1, rtol=1e-12, atol=1e-12)
     assert report.time is None and report.codebook_values["u"].ndim == 3  # (S, X, Y)
     np.testing.assert_array_equal(check.on_report_grid(result.codebook, report)["u"], report.codebook_values["u"])
+
+
+
+def test_a_second_march_starts_from_the_target_learned():
+    """The RMS target that met the tolerance at the nodes is carried to the next solve (the next
+    round of the automatic resolution) instead of being found again by a second march."""
+    from pathlib import Path
+
+    from pgdcli.driver import CHECK_FIRST, _checked_march
+
+    text = (Path(__file__).parent / "user_problems" / "sir.yaml").read_text()
+    for name in ("t", "b", "g", "I0"):  # a coarse grid: the march's own error at the nodes decides
+        text = text.replace(f"  {name}: {{domain:", f"  {name}: {{nodes: 9, domain:")
+    problem = parse_spec(text, source="sir.yaml")
+    learned: dict = {}
+    first = _checked_march(problem, tolerance=1e-6, learned=learned)
+    attempts = first.codebook.report["march_attempts"]
+    assert attempts.shape[0] >= 2 and attempts[0, 0] == CHECK_FIRST * 1e-6  # it had to tighten
+    assert first.check.node_ratio <= 1.0 and learned["march_target"] == attempts[-1, 0]
+    second = _checked_march(problem, tolerance=1e-6, learned=learned)
+    assert second.codebook.report["march_attempts"].tolist() == [[attempts[-1, 0], second.check.error]]
+    assert second.check.node_ratio <= 1.0
+
+
+def test_a_second_enrichment_starts_from_the_residual_learned():
+    """heat1d needs a residual a decade below its tolerance: found once, then carried to the next solve."""
+    from conftest import PROBLEMS
+
+    from pgdcli.driver import _checked_enrichment
+
+    problem = pgdcli.load_spec(PROBLEMS / "heat1d.yaml")
+    opts = problem.solver
+    learned: dict = {}
+    first = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
+                                max_modes=opts.max_modes, learned=learned)
+    attempts = first.codebook.report["enrichment_attempts"]
+    assert attempts.shape[0] == 2 and attempts[0, 0] == opts.tolerance
+    assert learned["residual"] == attempts[-1, 0] < opts.tolerance
+    second = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
+                                 max_modes=opts.max_modes, learned=learned)
+    assert second.codebook.report["enrichment_attempts"][:, 0].tolist() == [learned["residual"]]
+    assert second.accurate is not False and second.check.node_ratio <= 1.0

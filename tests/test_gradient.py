@@ -1,4 +1,4 @@
-"""Codebook.gradient and pgdcli.gradient: exact derivatives of the interpolants."""
+"""Codebook.gradient and pgdcli.codebook.gradient: exact derivatives of the interpolants."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from conftest import codebook_points, exact_relaxation
 
-from pgdcli.basis import make_basis
+from pgdcli.discretization.basis import make_basis
 from pgdcli.errors import QueryError
-from pgdcli.gradient import derivative_matrix
+from pgdcli.codebook.gradient import derivative_matrix
 
 
 # ----------------------------------------------------------------------------------------------
@@ -134,7 +134,7 @@ def test_gradient_errors_are_query_errors(solved):
                                         ("coupled", "c")])
 def test_trajectory_model_equals_evaluate_and_gradient(solved, name, axis):
     """Along one coordinate (first, middle or last core of the train) at a point of the others."""
-    from pgdcli.gradient import TrajectoryModel
+    from pgdcli.codebook.gradient import TrajectoryModel
 
     cb = solved(name).codebook
     rng = np.random.default_rng(8)

@@ -22,12 +22,12 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-import pgdcli.cli as cli_module
-from pgdcli import stream
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, FieldModes
+import pgdcli.cli.main as cli_module
+from pgdcli.cli import stream
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, FieldModes
 from pgdcli.errors import SpecError
-from pgdcli.spec import MAX_SPEC_NODES, load_spec, parse_spec
+from pgdcli.problem.spec import MAX_SPEC_NODES, load_spec, parse_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"
@@ -209,12 +209,12 @@ def test_missing_directories_are_created_by_solve_and_plot(codebook_path, tmp_pa
 
 
 def test_unwritable_output_is_found_before_the_solve(tmp_path, monkeypatch):
-    import pgdcli.solver
+    import pgdcli.driver
 
     def never(*args, **kwargs):
         raise AssertionError("the solver ran")
 
-    monkeypatch.setattr(pgdcli.solver, "solve", never)
+    monkeypatch.setattr(pgdcli.driver, "solve", never)
     blocker = tmp_path / "afile"
     blocker.write_text("x")
     assert_one_error(invoke("solve", PROBLEMS / "parametric.yaml", "-o", blocker / "x.h5", "-q"), 2, "afile")
@@ -265,10 +265,10 @@ def test_internal_error_has_its_own_status_and_one_line(monkeypatch):
 
 
 def test_internal_error_on_the_lean_query_path(codebook_path):
-    code = ("import sys, pgdcli.stream as s\n"
+    code = ("import sys, pgdcli.cli.stream as s\n"
             "def boom(*a, **k):\n    raise ZeroDivisionError('inside')\n"
             "s.format_chunk = boom\n"
-            "from pgdcli._query import main\n"
+            "from pgdcli.cli.query import main\n"
             f"main(['query', {str(codebook_path('spring'))!r}, '--t', '1', '--k', '2', '--c', '0.3'])\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 70 and proc.stdout == ""
@@ -366,7 +366,7 @@ def test_verify_pde_defaults_visit_every_element_of_a_linear_parameter(tmp_path)
     """A wrong nodal value of a linear coordinate changes the codebook on two elements only:
     the default sample (one Sobol point per element) still finds it."""
     from pgdcli import solve
-    from pgdcli.verification import default_samples
+    from pgdcli.checks.verify import default_samples
 
     text = (PROBLEMS / "heat1d.yaml").read_text()
     text = text.replace("kappa: {domain: [0.1, 1], nodes: 16}",

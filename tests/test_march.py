@@ -1,4 +1,4 @@
-"""Nonlinear problems through the separated time march (pgdcli.march, issue 3).
+"""Nonlinear problems through the separated time march (pgdcli.algorithms.march, issue 3).
 
 References are independent of pgdcli: scipy's solve_ivp (DOP853, rtol = atol =
 1e-12) for the coupled system, the closed form for the logistic and
@@ -20,10 +20,10 @@ from scipy.integrate import solve_ivp
 
 import pgdcli
 from pgdcli import load_spec, parse_spec
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, FieldTT
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, FieldTT
 from pgdcli.errors import SolverError
-from pgdcli.march import WATCH_AGREE, compile_system
+from pgdcli.algorithms.march import WATCH_AGREE, compile_system
 
 EPS = np.finfo(float).eps
 
@@ -391,8 +391,8 @@ class _Grid:
 
 def _watch_run(times, biggest, t_final):
     """Feed _BlowupWatch accepted steps ending at ``times`` with constant states of max |u| ``biggest``."""
-    from pgdcli.march import _BlowupWatch
-    from pgdcli.tt import tt_constant
+    from pgdcli.algorithms.march import _BlowupWatch
+    from pgdcli.tensors.tt import tt_constant
 
     watch = _BlowupWatch(_Grid(), [tt_constant(biggest(0.0), _Grid.shape)], t_final)
     sizes = []
@@ -432,7 +432,7 @@ def test_blowup_watch_predicts_a_pole_and_not_an_exponential():
 
 
 def test_blowup_confirmation_needs_agreement_and_room_before_the_end():
-    from pgdcli.march import _confirmed
+    from pgdcli.algorithms.march import _confirmed
 
     assert _confirmed(0.9, 0.95, 0.951, 1.0)  # spread 0.001 <= 0.1 x 0.05, and 0.952 < 1
     assert not _confirmed(0.9, 0.95, 0.96, 1.0)  # spread 0.01 > 0.005: not converged yet

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 
 import pgdcli
 from conftest import codebook_points, assert_solved
-from pgdcli.cli import cli
+from pgdcli.cli.main import cli
 from pgdcli.errors import SolverError, SpecError
 
 # the convergence studies below solve to a residual of 1e-11, below what the gate's method-of-lines
@@ -158,10 +158,10 @@ def test_query_prints_a_space_profile(heat1d, tmp_path):
 
 
 def test_2d_problem_without_closed_form_matches_the_method_of_lines_reference():
-    # independent reference: strong-form Chebyshev collocation + BDF (pgdcli.reference), no shared code.
+    # independent reference: strong-form Chebyshev collocation + BDF (pgdcli.checks.reference), no shared code.
     # All times, from right after the source switches on (where the error peaks, at the smallest
     # diffusivity and largest source), plus that worst corner of the parameter domain.
-    from pgdcli.reference import solve_reference_pde
+    from pgdcli.checks.reference import solve_reference_pde
 
     problem = pgdcli.load_spec("problems/heat2d_source.yaml")
     result = pgdcli.solve(problem)

@@ -1,4 +1,4 @@
-"""Tests of pgdcli.plot and ``pgd plot`` (issue 5).
+"""Tests of pgdcli.plot.figures and ``pgd plot`` (issue 5).
 
 The data handed to matplotlib is checked against the codebook (not pixels):
 mode curves at the nodes are the stored mode matrices, solution curves and maps
@@ -28,9 +28,9 @@ import pytest
 from click.testing import CliRunner
 from scipy.linalg import subspace_angles
 
-from pgdcli import plot as P
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook
+from pgdcli.plot import figures as P
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook
 from pgdcli.errors import PgdError, QueryError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -365,8 +365,8 @@ def test_reference_failures_become_nan_and_messages(plot_codebooks):
 
 
 def test_real_reference_agrees_with_the_exact_solution(plot_codebooks):
-    """The default reference (pgdcli.reference, solve_ivp) is wired with the right parameters."""
-    pytest.importorskip("pgdcli.reference")
+    """The default reference (pgdcli.checks.reference, solve_ivp) is wired with the right parameters."""
+    pytest.importorskip("pgdcli.checks.reference")
     for name in ("relaxation", "spring"):
         cb, path = plot_codebooks[name]
         ref = P.reference_solver(cb, source=str(path))
@@ -381,8 +381,8 @@ def test_real_reference_agrees_with_the_exact_solution(plot_codebooks):
 
 def test_codebook_with_time_as_the_only_coordinate(tmp_path):
     """No parameters: one curve, error along time, the reference called with no parameters."""
-    pytest.importorskip("pgdcli.reference")
-    from pgdcli.codebook import CoordinateInfo, FieldModes
+    pytest.importorskip("pgdcli.checks.reference")
+    from pgdcli.codebook.codebook import CoordinateInfo, FieldModes
 
     c = CoordinateInfo("t", (0.0, 2.0), 14, "chebyshev", "time")
     nodes = c.basis().nodes
@@ -522,7 +522,7 @@ def test_cli_needs_no_display_and_no_pyplot(plot_codebooks, tmp_path):
     """A fresh process without DISPLAY: the image is written and pyplot is never imported."""
     _, path = plot_codebooks["parametric"]
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MPLBACKEND")}
-    code = ("import sys; from pgdcli.cli import main\n"
+    code = ("import sys; from pgdcli.cli.main import main\n"
             "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
             "assert 'matplotlib.pyplot' not in sys.modules\n")
     out = tmp_path / "m.png"
@@ -541,7 +541,7 @@ def march_codebooks(tmp_path_factory):
     """name -> (Codebook, Path): the nonlinear problems solved once per module (~1 s each), saved and
     loaded back, so the report arrays are those read from the file."""
     from pgdcli import load_spec, solve
-    from pgdcli.codebook import FieldTT
+    from pgdcli.codebook.codebook import FieldTT
 
     directory = tmp_path_factory.mktemp("march-codebooks")
     out = {}
@@ -562,7 +562,7 @@ def _small_tt_codebook() -> Codebook:
     below its 7 nodes; q (the last core) has 3 nodes, below its rank 5; t has
     9 nodes below its core's 3 * 4 columns.
     """
-    from pgdcli.codebook import CoordinateInfo, FieldTT
+    from pgdcli.codebook.codebook import CoordinateInfo, FieldTT
 
     coords = [CoordinateInfo("t", (0.0, 2.0), 9, "chebyshev", "time"),
               CoordinateInfo("p", (-1.0, 3.0), 7, "linear", "parameter"),

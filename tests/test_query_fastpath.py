@@ -1,7 +1,7 @@
-"""The lean ``pgd query`` (pgdcli._query) and the fast evaluation paths of Codebook.
+"""The lean ``pgd query`` (pgdcli.cli.query) and the fast evaluation paths of Codebook.
 
 ``pgd query`` runs without click when it can (the console script's entry point is
-``pgdcli._query:main``). These tests hold it to three things:
+``pgdcli.cli.query:main``). These tests hold it to three things:
 
 - byte-identical output: for plain / csv / json, lists, ranges, ``--field``,
   ``--points`` (file and stdin), the lean path prints exactly what the
@@ -28,11 +28,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import pgdcli.codebook as codebook_module
-from pgdcli import batch_eval
-from pgdcli import _query
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes
+import pgdcli.codebook.codebook as codebook_module
+from pgdcli.codebook import batch_eval
+from pgdcli.cli import query as _query
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
 from pgdcli.errors import QueryError
 
 SPRING_CASES = [
@@ -59,7 +59,7 @@ POINTS_CSV = "t,k,c\n0.5,2,0.3\n1.7,3.9,0.1\n4,1,0.5\n\n0,2.5,0.2\n"
 # helpers
 # ----------------------------------------------------------------------------------------------
 def _lean(argv, monkeypatch, stdin_text=None):
-    """Run pgdcli._query.run in-process: (exit status or None, stdout, stderr)."""
+    """Run pgdcli.cli.query.run in-process: (exit status or None, stdout, stderr)."""
     out, err = io.StringIO(), io.StringIO()
     monkeypatch.setattr(sys, "stdout", out)
     monkeypatch.setattr(sys, "stderr", err)
@@ -274,7 +274,7 @@ def test_lean_query_imports(codebook_path):
     path = codebook_path("spring")
     code = (
         "import sys, io\n"
-        "from pgdcli import _query\n"
+        "from pgdcli.cli import query as _query\n"
         "sys.stdout = io.StringIO()\n"
         f"assert _query.run(['query', {str(path)!r}, '--t', '0:4:9', '--k', '2', '--c', '0.3']) == 0\n"
         "sys.stdout = sys.__stdout__\n"
@@ -471,7 +471,7 @@ def test_blas_limit_is_restored_after_batches(solved):
 def _small_tt_codebook(order, first_rank=9):
     """Two tensor-train unknowns of different ranks (zero-padded in the stack) on a piecewise
     time coordinate (3 slabs of 5 nodes), a Chebyshev and a linear one, cores in ``order``."""
-    from pgdcli.codebook import FieldTT
+    from pgdcli.codebook.codebook import FieldTT
 
     coords = [CoordinateInfo("t", (0.0, 3.0), 13, "chebyshev", "time", breakpoints=(0.0, 0.7, 1.9, 3.0)),
               CoordinateInfo("x", (-1.0, 2.0), 7, "chebyshev"),
@@ -569,7 +569,7 @@ def test_tensor_train_point_errors_and_fallbacks():
 
 def test_one_point_of_a_mixed_codebook():
     """CP modes, a stacked tensor train and one of another core order (outside the stack) together."""
-    from pgdcli.codebook import FieldTT
+    from pgdcli.codebook.codebook import FieldTT
 
     tt = _small_tt_codebook((0, 1, 2))
     other = _small_tt_codebook((2, 0, 1)).fields["u"]

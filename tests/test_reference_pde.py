@@ -9,10 +9,10 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
 from pgdcli.errors import PgdError
-from pgdcli.reference import (
+from pgdcli.checks.reference import (
     barycentric_matrix,
     chebyshev_differentiation,
     chebyshev_points,

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes
-from pgdcli.resolution import resolution_tails
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.checks.resolution import resolution_tails
 
 COORDS = (CoordinateInfo("x", (0.0, 1.0), 9, "chebyshev", "space"),
           CoordinateInfo("k", (1.0, 3.0), 7, "chebyshev", "parameter"),
@@ -61,3 +61,32 @@ def test_a_small_tail_under_large_cancelling_terms_is_resolved():
     expected = _full_tail(_full(field), 0, COORDS[0])
     assert 0 < expected < 1e-12
     assert expected / 10 <= tails["x"] <= 10 * expected
+
+
+def test_chebyshev_decay_is_the_bernstein_ellipse_of_a_pole():
+    """1/(1 + (x - 0.3)^2) on [-1, 1] has poles at 0.3 +- i: its coefficients fall like rho**-k with
+    rho = |z + sqrt(z^2 - 1)| at the pole (the Bernstein ellipse through it), which the fitted
+    decay must recover; the linear coordinate and the one with too few nodes are left out."""
+    from pgdcli.checks.resolution import chebyshev_decay
+
+    info = (CoordinateInfo("x", (-1.0, 1.0), 33, "chebyshev", "parameter"),
+            CoordinateInfo("k", (1.0, 3.0), 7, "chebyshev", "parameter"),
+            CoordinateInfo("c", (-1.0, 1.0), 3, "linear", "parameter"))
+    x, k, c = (_nodes(i) for i in info)
+    field = FieldModes(np.array([1.0]), (np.column_stack([1 / (1 + (x - 0.3) ** 2)]),
+                                         np.column_stack([k]), np.column_stack([1 + c])))
+    decay = chebyshev_decay(Codebook(info, {"u": field}))
+    z = 0.3 + 1j
+    rho = max(abs(z + np.sqrt(z * z - 1)), abs(z - np.sqrt(z * z - 1)))
+    assert set(decay) == {"x"}
+    assert abs(decay["x"] - np.log(rho)) < 0.05 * np.log(rho)
+
+
+def test_chebyshev_decay_skips_a_resolved_coordinate():
+    """A polynomial of low degree is resolved: its spectrum is at rounding level, nothing to extrapolate."""
+    from pgdcli.checks.resolution import chebyshev_decay
+
+    info = (CoordinateInfo("x", (-1.0, 1.0), 17, "chebyshev", "parameter"),)
+    x = _nodes(info[0])
+    field = FieldModes(np.array([1.0]), (np.column_stack([1 + x + x**3]),))
+    assert chebyshev_decay(Codebook(info, {"u": field})) == {}

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 import pgdcli
-from pgdcli.march import compile_system, evaluate_rhs
+from pgdcli.algorithms.march import compile_system, evaluate_rhs
 
 SPEC = Path(__file__).resolve().parents[1] / "benchmarks" / "rigid_body10.yaml"
 M = np.array([0.2, 0.5, 0.8])

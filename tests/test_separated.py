@@ -1,4 +1,4 @@
-"""Separated tensors and operators (pgdcli.separated) against dense numpy."""
+"""Separated tensors and operators (pgdcli.tensors.cp) against dense numpy."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pgdcli.separated import CPTensor, SeparatedOperator, khatri_rao_rows, orthogonal_sweep
+from pgdcli.tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, orthogonal_sweep
 
 EPS = np.finfo(float).eps
 
@@ -71,7 +71,7 @@ def test_orthogonal_sweep_preserves_inner_products():
 def test_norm_by_two_sweeps_resolves_a_tiny_residual(seed):
     """The norm splits the modes into two swept groups (here sizes (9, 6, 2) and (8, 7): the
     cheaper pair); it must still see a term of 1e-13 relative size."""
-    from pgdcli.separated import _norm_split, separated_norm
+    from pgdcli.tensors.cp import _norm_split, separated_norm
 
     rng = np.random.default_rng(seed)
     shape, rank = (9, 8, 7, 6, 2), 12

@@ -7,8 +7,8 @@ import pytest
 from conftest import assert_solved
 
 import pgdcli
-from pgdcli.basis import PiecewiseChebyshevBasis, make_basis
-from pgdcli.codebook import Codebook
+from pgdcli.discretization.basis import PiecewiseChebyshevBasis, make_basis
+from pgdcli.codebook.codebook import Codebook
 from pgdcli.errors import SpecError
 
 

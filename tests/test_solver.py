@@ -1,4 +1,4 @@
-"""PGD solver accuracy and reporting (pgdcli.solver) against exact solutions and scipy.
+"""PGD solver accuracy and reporting (pgdcli.driver) against exact solutions and scipy.
 
 Accuracy is measured at >= 500 uniform random points plus every corner of the
 domain; references are the closed-form solutions in problems/*.yaml (see
@@ -17,9 +17,9 @@ from scipy.integrate import solve_ivp
 
 from pgdcli import Codebook, load_spec, parse_spec, solve
 from pgdcli.errors import SolverError
-from pgdcli.separated import CPTensor
-from pgdcli import solver
-from pgdcli.solver import STATE, SolveResult, discretize, residual_norm
+from pgdcli.tensors.cp import CPTensor
+from pgdcli import driver as solver
+from pgdcli.driver import STATE, SolveResult, discretize, residual_norm
 
 N_POINTS = 1000
 SEEDS = {"parametric": 101, "spring": 202, "relaxation": 303}
@@ -379,7 +379,7 @@ def test_update_fallback_reports_the_residual_of_what_it_keeps(monkeypatch):
     # the solver falls back to projecting and updating mode by mode (each update checked with one
     # sweep step from the projection's partial sweeps). Force the fallback at every enrichment and
     # compare the residual it reports with a full orthogonal sweep of the state it leaves.
-    from pgdcli import solver
+    from pgdcli import driver as solver
 
     checked = []
     one_pass, sweep = solver._update_all, solver._update_sweep

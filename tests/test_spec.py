@@ -1,4 +1,4 @@
-"""Tests of pgdcli.spec: YAML problem specification -> validated Problem."""
+"""Tests of pgdcli.problem.spec: YAML problem specification -> validated Problem."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from pgdcli.errors import ExpressionError, SpecError
-from pgdcli.expressions import Atom
-from pgdcli.spec import Coordinate, Equation, Problem, SolverOptions, check_linear, load_spec, parse_spec
+from pgdcli.problem.expressions import Atom
+from pgdcli.problem.spec import Coordinate, Equation, Problem, SolverOptions, check_linear, load_spec, parse_spec
 
 SOURCE = "problems/x.yaml"
 

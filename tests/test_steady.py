@@ -11,9 +11,9 @@ from click.testing import CliRunner
 
 import pgdcli
 from conftest import codebook_points, assert_solved
-from pgdcli.cli import cli
+from pgdcli.cli.main import cli
 from pgdcli.errors import SolverError, SpecError
-from pgdcli.reference import solve_reference, solve_reference_pde
+from pgdcli.checks.reference import solve_reference, solve_reference_pde
 
 
 def poisson_exact(x, y, a, g, q):
@@ -259,7 +259,7 @@ def test_cli_refuses_a_nonlinear_steady_problem(tmp_path):
 
 
 def test_plot_data_of_a_steady_codebook_runs_along_space(poisson):
-    from pgdcli.plot import error_data, solution_data
+    from pgdcli.plot.figures import error_data, solution_data
 
     cb = poisson.codebook
     lines = solution_data(cb, at=["a=0.7,g=1,q=3"], points=11)

@@ -1,7 +1,7 @@
-"""Tensor trains (pgdcli.tt) against numpy on the full tensors.
+"""Tensor trains (pgdcli.tensors.tt) against numpy on the full tensors.
 
 Every expectation is computed independently with numpy from the cores or the
-full tensors (explicit index loops, einsum), never with pgdcli.tt itself.
+full tensors (explicit index loops, einsum), never with pgdcli.tensors.tt itself.
 Rounding bounds are checked on the full tensors with an allowance of a few
 units of rounding of the measurement (``_SLACK``), not a looser tolerance.
 """
@@ -13,8 +13,8 @@ import itertools
 import numpy as np
 import pytest
 
-from pgdcli.basis import make_basis
-from pgdcli.tt import TT, tt_constant, tt_hadamard, tt_rank_one, tt_round, tt_round_many, tt_sum
+from pgdcli.discretization.basis import make_basis
+from pgdcli.tensors.tt import TT, tt_constant, tt_hadamard, tt_rank_one, tt_round, tt_round_many, tt_sum
 
 EPS = np.finfo(float).eps
 SHAPES = {1: (5,), 2: (4, 6), 3: (3, 5, 4), 4: (3, 4, 2, 5)}
@@ -285,7 +285,7 @@ def _random_train(rng, shape, rank):
 
 @pytest.mark.parametrize("hint", [2, 6, 40])
 def test_round_sum_of_products_matches_the_explicit_sum(hint):
-    from pgdcli.tt import tt_ones, tt_round_sum_of_products
+    from pgdcli.tensors.tt import tt_ones, tt_round_sum_of_products
 
     rng = np.random.default_rng(11)
     shape = (6, 7, 5, 4)
@@ -304,7 +304,7 @@ def test_round_sum_of_products_matches_the_explicit_sum(hint):
 def test_round_sum_of_products_counts_its_roundings():
     """A sketch far below the true rank is a failed compression: counted, redone larger, and the
     result is as accurate as the explicit sum's rounding."""
-    from pgdcli.tt import tt_ones, tt_round_sum_of_products
+    from pgdcli.tensors.tt import tt_ones, tt_round_sum_of_products
 
     rng = np.random.default_rng(12)
     shape = (8, 9, 7, 6)
@@ -322,7 +322,7 @@ def test_round_sum_of_products_counts_its_roundings():
 
 
 def test_centre_cores_carry_the_whole_tensor():
-    from pgdcli.tt import tt_centre_cores
+    from pgdcli.tensors.tt import tt_centre_cores
 
     rng = np.random.default_rng(5)
     t = _random_train(rng, (5, 6, 4, 3), 3)
@@ -337,7 +337,7 @@ def test_centre_cores_carry_the_whole_tensor():
 def test_round_many_of_sums_with_ranks_above_the_outer_modes():
     """Sums of many trains have bonds far above the outer mode sizes (the march's stage sums): the
     batched rounding cuts them first and still lands within the bound on the unbatched ranks."""
-    from pgdcli.tt import tt_round_many
+    from pgdcli.tensors.tt import tt_round_many
 
     rng = np.random.default_rng(21)
     shape = (6, 9, 5, 7)

@@ -84,7 +84,7 @@ def test_advection_diffusion_is_refused_with_its_residual(tmp_path):
     """Advection moves the solution with a: the enrichment reaches max_modes; exit 1, nothing written."""
     from click.testing import CliRunner
 
-    from pgdcli.cli import cli
+    from pgdcli.cli.main import cli
 
     out = tmp_path / "ad.h5"
     res = CliRunner().invoke(cli, ["solve", str(HERE / "advection_diffusion.yaml"), "-o", str(out), "-q"])

@@ -12,8 +12,8 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-from pgdcli.cli import cli
-from pgdcli.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.cli.main import cli
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"
@@ -176,8 +176,8 @@ def test_python_api(accurate):
 
 
 def test_cli_methods_match_the_reference():
-    from pgdcli import cli as cli_module
-    from pgdcli.reference import METHODS
+    from pgdcli.cli import main as cli_module
+    from pgdcli.checks.reference import METHODS
 
     assert cli_module._VERIFY_METHODS == METHODS
 
@@ -185,7 +185,7 @@ def test_cli_methods_match_the_reference():
 def test_package_verify_is_the_function_even_after_the_module_is_imported(accurate):
     import importlib
 
-    module = importlib.import_module("pgdcli.verification")
+    module = importlib.import_module("pgdcli.checks.verify")
     assert pgdcli.verify is module.verify
     assert pgdcli.verify(accurate["parametric"], samples=2, times=0, jobs=1).passed(max_error=1e-10)
 

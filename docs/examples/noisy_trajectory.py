@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pgdcli.reference import solve_reference
-from pgdcli.spec import load_spec
+from pgdcli.checks.reference import solve_reference
+from pgdcli.problem.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 TRUTH = {"u10": 0.8, "u20": 1.3, "u30": 0.6, "w10": 1.1, "w20": 0.7, "w30": 1.4}

@@ -4,7 +4,7 @@
 
 Solves the shipped problems it needs into a temporary directory (a few
 seconds), then draws one picture of each kind with the same code path as
-``pgd plot`` (:func:`pgdcli.plot.render`). The equivalent commands are
+``pgd plot`` (:func:`pgdcli.plot.figures.render`). The equivalent commands are
 printed as it goes.
 """
 
@@ -43,7 +43,7 @@ def _command(problem: str, kind: str, options: dict) -> str:
 
 def main() -> int:
     from pgdcli import load_spec, solve
-    from pgdcli.plot import render
+    from pgdcli.plot.figures import render
 
     with tempfile.TemporaryDirectory(prefix="pgd-figures-") as tmp:
         codebooks: dict[str, Path] = {}

@@ -1,0 +1,2 @@
+"""The algorithm layer: methods that compute a separated solution (the tensor-train time march).
+"""

@@ -1,0 +1,418 @@
+"""A posteriori error check of a codebook against an independent scipy reference.
+
+A user who writes ``tolerance: 1e-6`` reads it as a bound on the error of the
+values ``pgd query`` returns, anywhere in the domain. Neither solver controls
+that directly: the enrichment stops on a relative residual, the march on an RMS
+of its local errors. So after every solve :func:`pgdcli.solve` *measures* the
+error (this module) and the gate in :mod:`pgdcli.adapt` decides.
+
+The tolerance has solve_ivp's meaning: at every checked point the error must
+satisfy ``|u - u_ref| <= atol + rtol * |u_ref|`` (``solver.tolerance`` is atol,
+``solver.relative_tolerance`` rtol, 0 by default). Results are given as a
+*ratio* ``max |u - u_ref| / (atol + rtol |u_ref|)``: the check passes at <= 1.
+
+The reference is scipy's DOP853 (one vectorized ``solve_ivp`` call,
+:mod:`pgdcli.checks.reference`, which shares no code with the solvers) at rtol = atol =
+1e-13 (space coordinates: :func:`pgdcli.checks.verify.verify`'s method of lines).
+The sample of the parameter box has parts that fail for different reasons and
+are reported apart, so that the gate can name what is missing:
+
+* corners of the box (all of them up to :data:`CORNERS`, a seeded subset beyond)
+  and grid nodes on edges and faces, at the time nodes: the solver's own error,
+  which a tighter solve reduces (``node_ratio``);
+* per parameter coordinate, :data:`LINE` points off the nodes in that coordinate
+  only, the others at nodes: that coordinate's interpolation error, which only
+  more nodes in it reduce (``coordinate_ratio[name]``);
+* the node points at the midpoints between time nodes: the time interpolation
+  error (``coordinate_ratio[time]``);
+* points uniform in the box (``between_ratio``): all of it at once.
+
+numpy and :mod:`pgdcli.checks.reference` only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
+           "points_text", "unchecked"]
+
+CORNERS = 64
+FACE_NODES = 96
+BETWEEN = 96
+LINE = 16
+
+
+@dataclass
+class CheckResult:
+    """Measured error of a codebook at the check sample (max over unknowns and times).
+
+    Attributes
+    ----------
+    error : float
+        Max abs error over every checked point and time (NaN if no reference succeeded).
+    node_error, between_error : float
+        Max abs error at grid nodes (corners included, time nodes only) and elsewhere.
+    points : int
+        Parameter points whose reference integration succeeded.
+    failed : int
+        Parameter points whose reference integration failed (left out).
+    where : dict
+        Coordinates (time included) of the largest error relative to the tolerance.
+    per_unknown : dict
+        Max abs error per unknown.
+    ratio : float
+        Max of ``|u - u_ref| / (atol + rtol |u_ref|)``: the check passes when <= 1.
+    node_ratio, between_ratio : float
+        The same at grid nodes and time nodes, and at uniform points of the box.
+    coordinate_ratio : dict of str to float
+        Per coordinate, the ratio on points off the nodes in that coordinate only.
+    line_points : dict of str to (ndarray, ndarray)
+        Per parameter coordinate, the values of its off-node points and the error
+        ratio at each (max over times): where along it the error is.
+    tail_ratio : dict of str to float
+        Per coordinate, the largest Chebyshev tail over the unknowns
+        (:func:`pgdcli.checks.resolution.resolution_tails`) over the tolerance: an
+        estimate of the interpolation error along it that needs no sample.
+    tolerance, relative_tolerance : float
+        atol and rtol of the check.
+    method : str
+        How the error was measured (reference, tolerances, sample), for reports.
+    """
+
+    error: float
+    node_error: float
+    between_error: float
+    points: int
+    failed: int
+    where: dict = field(default_factory=dict)
+    per_unknown: dict = field(default_factory=dict)
+    ratio: float = float("nan")
+    node_ratio: float = float("nan")
+    between_ratio: float = float("nan")
+    coordinate_ratio: dict = field(default_factory=dict)
+    tail_ratio: dict = field(default_factory=dict)
+    line_points: dict = field(default_factory=dict)
+    tolerance: float = float("nan")
+    relative_tolerance: float = 0.0
+    method: str = ""
+
+    @property
+    def checked(self) -> bool:
+        """False when no reference value could be computed (the error is unknown)."""
+        return bool(np.isfinite(self.ratio))
+
+    @property
+    def passed(self) -> bool:
+        """The measured error is within the tolerance (False when unchecked)."""
+        return self.checked and self.ratio <= 1.0
+
+    def worst_coordinate(self) -> str | None:
+        """The coordinate whose off-node points show the largest error ratio (None if none)."""
+        finite = {k: v for k, v in self.coordinate_ratio.items() if np.isfinite(v)}
+        return max(finite, key=finite.get) if finite else None
+
+
+def unchecked(reason: str = "", tolerance: float = float("nan"), relative_tolerance: float = 0.0) -> CheckResult:
+    """A :class:`CheckResult` for a codebook whose error could not be measured."""
+    nan = float("nan")
+    return CheckResult(nan, nan, nan, 0, 0, method=reason, tolerance=tolerance, relative_tolerance=relative_tolerance)
+
+
+def points_text(n: int) -> str:
+    """``"1 check point"``, ``"183 check points"``."""
+    return f"{n} check point" + ("s" if n != 1 else "")
+
+
+def _parameter_nodes(problem, codebook) -> tuple[list[str], list[np.ndarray]]:
+    names = [c.name for c in problem.parameter_coordinates]
+    return names, [codebook.coordinate(n).basis().nodes for n in names]
+
+
+def check_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Corners, face nodes and uniform points of the parameter box, and which of them are grid nodes.
+
+    Returns
+    -------
+    points : dict of str to ndarray, shape (S,)
+        A value per point for every parameter coordinate (``{}`` when there are none: one point).
+    at_nodes : ndarray of bool, shape (S,)
+    """
+    names, nodes = _parameter_nodes(problem, codebook)
+    if not names:
+        return {}, np.ones(1, dtype=bool)
+    rng = np.random.default_rng([seed, 11])
+    m = len(names)
+    last = [len(x) - 1 for x in nodes]
+    if 2**m <= CORNERS:
+        ends = (np.arange(2**m)[:, None] >> np.arange(m)[None, :]) & 1
+    else:
+        ends = np.unique(rng.integers(0, 2, size=(4 * CORNERS, m)), axis=0)
+        ends = ends[rng.permutation(ends.shape[0])[:CORNERS]]
+    corner_index = np.where(ends == 1, last, 0)
+    face_index = np.column_stack([rng.integers(0, len(x), FACE_NODES) for x in nodes])
+    on_end = rng.random((FACE_NODES, m)) < 0.5
+    face_index = np.where(on_end, np.where(rng.random((FACE_NODES, m)) < 0.5, 0, last), face_index)
+    index = np.unique(np.vstack([corner_index, face_index]), axis=0)
+    at_grid = {n: x[index[:, j]] for j, (n, x) in enumerate(zip(names, nodes))}
+    between = {n: rng.uniform(*problem.coordinate(n).domain, size=BETWEEN) for n in names}
+    points = {n: np.concatenate([at_grid[n], between[n]]) for n in names}
+    at_nodes = np.concatenate([np.ones(index.shape[0], dtype=bool), np.zeros(BETWEEN, dtype=bool)])
+    return points, at_nodes
+
+
+def line_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Points off the nodes in one parameter coordinate only, :data:`LINE` per coordinate.
+
+    The off-node value is the midpoint of a random node interval moved by up to a
+    quarter of it (the interpolation error of a polynomial peaks between nodes);
+    the other coordinates sit at random nodes, half of them at an end.
+
+    Returns
+    -------
+    points : dict of str to ndarray, shape (L,)
+    line : ndarray of int, shape (L,)
+        Index (into ``problem.parameter_coordinates``) of the coordinate off its nodes.
+    """
+    names, nodes = _parameter_nodes(problem, codebook)
+    if not names:
+        return {}, np.zeros(0, dtype=int)
+    rng = np.random.default_rng([seed, 13])
+    cols = {n: [] for n in names}
+    counts = []
+    for j, (n, x) in enumerate(zip(names, nodes)):
+        k = _line_intervals(codebook.coordinate(n), x, rng)
+        size = k.size
+        counts.append(size)
+        cols[n].append(x[k] + (x[k + 1] - x[k]) * (0.5 + rng.uniform(-0.25, 0.25, size)))
+        for n2, x2 in zip(names, nodes):
+            if n2 != n:
+                idx = rng.integers(0, len(x2), size)
+                ends = rng.random(size) < 0.5
+                cols[n2].append(np.where(ends, x2[np.where(rng.random(size) < 0.5, 0, len(x2) - 1)], x2[idx]))
+    points = {n: np.concatenate(c) for n, c in cols.items()}
+    return points, np.repeat(np.arange(len(names)), counts)
+
+
+def _line_intervals(info, x: np.ndarray, rng) -> np.ndarray:
+    """Node intervals to sample off the nodes: :data:`LINE` random ones, and 2 in every element.
+
+    Elements are refined where their own points show the error (:mod:`pgdcli.adapt`), so
+    each needs points of its own however small it is.
+    """
+    k = rng.integers(0, len(x) - 1, LINE)
+    bp = getattr(info, "breakpoints", ())
+    if len(bp) <= 2:
+        return k
+    per = (len(x) - 1) // (len(bp) - 1)  # node intervals per element
+    first = np.arange(len(bp) - 1) * per
+    extra = first[:, None] + rng.integers(0, per, (first.size, 2))
+    return np.concatenate([k, extra.ravel()])
+
+
+def _check_times(codebook, time: str) -> tuple[np.ndarray, np.ndarray]:
+    """The time nodes and the midpoints between them, sorted, and which are nodes."""
+    nodes = np.asarray(codebook.coordinate(time).basis().nodes, dtype=float)
+    mids = 0.5 * (nodes[1:] + nodes[:-1])
+    times = np.concatenate([nodes, mids])
+    order = np.argsort(times, kind="stable")
+    is_node = np.concatenate([np.ones(nodes.size, bool), np.zeros(mids.size, bool)])
+    return times[order], is_node[order]
+
+
+def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float):
+    """Reference values ``{unknown: (S, T)}`` and a success mask ``(S,)``.
+
+    One vectorized DOP853 call with output at ``times`` (its dense output at
+    rtol 1e-13 agrees with node-to-node integration at 1e-12 to ~3e-12, and costs a
+    tenth); if that call fails (a sample blows up), the node-to-node integration of
+    :func:`pgdcli.checks.reference.solve_reference`, which isolates the failing samples.
+    """
+    from .reference import solve_reference, solve_reference_vectorized
+
+    values = solve_reference_vectorized(problem, points, S, times, rtol=rtol, atol=atol)
+    if values is not None:
+        return values, np.ones(S, dtype=bool)
+    ref = solve_reference(problem, points, times, method="DOP853", rtol=max(rtol, 1e-12), atol=max(atol, 1e-12))
+    return ref.values, np.asarray(ref.success, dtype=bool)
+
+
+def _on_sample(codebook, points, time: str, times: np.ndarray, unknowns) -> dict[str, np.ndarray]:
+    """Codebook values ``{unknown: (S, T)}`` at every point of the sample and every time."""
+    S = len(next(iter(points.values()))) if points else 1
+    coords = {c.name: (times[None, :] if c.name == time else points[c.name][:, None]) for c in codebook.coordinates}
+    values = codebook.evaluate(coords, fields=list(unknowns))
+    return {u: np.broadcast_to(values[u], (S, times.size)) for u in unknowns}
+
+
+def check_codebook(problem, codebook, *, tolerance: float | None = None, relative_tolerance: float = 0.0,
+                   seed: int = 0, rtol: float = 1e-13, atol: float = 1e-13) -> CheckResult:
+    """Error of a codebook of an ODE problem against scipy's DOP853 at the check sample.
+
+    Parameters
+    ----------
+    problem : pgdcli.problem.spec.Problem
+        With a time coordinate and no space coordinates.
+    codebook : pgdcli.Codebook
+    tolerance, relative_tolerance : float
+        atol and rtol of the promise (default: the problem's ``solver`` settings).
+    seed : int
+    rtol, atol : float
+        Tolerances of the reference integration.
+
+    Returns
+    -------
+    CheckResult
+    """
+    tol = problem.solver.tolerance if tolerance is None else float(tolerance)
+    points, at_nodes = check_sample(problem, codebook, seed)
+    lines, line = line_sample(problem, codebook, seed)
+    names = list(points)
+    if names:
+        points = {n: np.concatenate([points[n], lines[n]]) for n in names}
+    group = np.concatenate([np.where(at_nodes, -1, -2), line])  # -1 nodes, -2 uniform, j: line of coordinate j
+    time = problem.time
+    times, time_node = _check_times(codebook, time)
+    S = group.size if names else 1
+    reference, ok = _reference(problem, points, S, times, rtol, atol)
+    unknowns = [u.name for u in problem.unknowns]
+    approx = _on_sample(codebook, points, time, times, unknowns)
+    err = np.zeros((S, times.size))
+    ratio = np.zeros((S, times.size))
+    per_unknown = {}
+    for u in unknowns:
+        e = np.abs(approx[u] - reference[u])
+        e[~ok] = 0.0
+        per_unknown[u] = float(e.max()) if ok.any() else float("nan")
+        err = np.maximum(err, e)
+        ratio = np.maximum(ratio, e / (tol + relative_tolerance * np.abs(np.where(ok[:, None], reference[u], 0.0))))
+    method = (f"DOP853 (rtol = atol = {rtol:.0e}) at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
+              f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes; every time node "
+              f"and the midpoints between them")
+    if not ok.any():
+        return CheckResult(float("nan"), float("nan"), float("nan"), 0, int(ok.size), {}, per_unknown,
+                           tolerance=tol, relative_tolerance=relative_tolerance, method=method)
+    i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    where = {time: float(times[j])} | {n: float(v[i]) for n, v in points.items()}
+    node_rows = group == -1
+    at_node = node_rows[:, None] & time_node[None, :]
+    params = [c.name for c in problem.parameter_coordinates]
+    coordinate_ratio = {time: float(ratio[node_rows][:, ~time_node].max()) if (~time_node).any() else 0.0}
+    line_points = {}
+    for k, n in enumerate(params):
+        rows = group == k
+        coordinate_ratio[n] = float(ratio[rows][:, time_node].max()) if rows.any() else 0.0
+        line_points[n] = (points[n][rows], ratio[rows][:, time_node].max(axis=1))
+    return CheckResult(float(err.max()), float(err[at_node].max()), float(err[~at_node].max(initial=0.0)),
+                       int(ok.sum()), int((~ok).sum()), where, per_unknown, ratio=float(ratio.max()),
+                       node_ratio=float(ratio[at_node].max()),
+                       between_ratio=float(ratio[group == -2].max(initial=0.0)),
+                       coordinate_ratio=coordinate_ratio, line_points=line_points,
+                       tail_ratio=tail_ratios(codebook, tol), tolerance=tol,
+                       relative_tolerance=relative_tolerance, method=method)
+
+
+def tail_ratios(codebook, tolerance: float) -> dict[str, float]:
+    """Per coordinate, the largest Chebyshev tail over the unknowns divided by the tolerance (0 if unknown)."""
+    from .resolution import resolution_tails
+
+    tails = resolution_tails(codebook)
+    return {c.name: max(float(np.nan_to_num(tails[u][c.name])) for u in tails) / tolerance
+            for c in codebook.coordinates}
+
+
+#: Sample of the method-of-lines check (problems with space coordinates, steady problems): random
+#: parameter points besides the corners, and random times besides the time nodes.
+PDE_SAMPLES = 4
+PDE_CORNERS = 8
+PDE_TIMES = 4
+
+
+def check_codebook_pde(problem, codebook, *, tolerance: float | None = None, relative_tolerance: float = 0.0,
+                       seed: int = 0) -> CheckResult:
+    """Error of a codebook with space coordinates (or steady) against the method-of-lines reference.
+
+    The reference of ``pgd verify`` (:func:`pgdcli.checks.verify.verify`) at the corners
+    of the parameter box and :data:`PDE_SAMPLES` Sobol points, on every space node of the
+    codebook plus random space points, at the time nodes plus random times. Per
+    coordinate, the off-node share is estimated from the Chebyshev tails
+    (:func:`pgdcli.checks.resolution.resolution_tails`) relative to the tolerance.
+
+    Returns
+    -------
+    CheckResult
+    """
+    tol = problem.solver.tolerance if tolerance is None else float(tolerance)
+    report, values = _pde_reference(problem, codebook, seed)
+    ok = np.array([np.isfinite(report.reference[u]).all(axis=tuple(range(1, report.reference[u].ndim)))
+                   for u in report.reference]).all(axis=0)
+    err = ratio = None
+    per_unknown = {}
+    for u in report.reference:
+        ref = np.where(ok.reshape((-1,) + (1,) * (report.reference[u].ndim - 1)), report.reference[u], 0.0)
+        e = np.abs(values[u] - ref)
+        per_unknown[u] = float(e.max()) if ok.any() else float("nan")
+        r = e / (tol + relative_tolerance * np.abs(ref))
+        err = e if err is None else np.maximum(err, e)
+        ratio = r if ratio is None else np.maximum(ratio, r)
+    method = (f"method of lines ({report.settings.get('method', 'BDF')}) at {points_text(int(ok.sum()))} "
+              f"(corners and Sobol points), every space node plus random points, time nodes and random times")
+    if not ok.any():
+        return CheckResult(float("nan"), float("nan"), float("nan"), 0, int(ok.size), {}, per_unknown,
+                           tolerance=tol, relative_tolerance=relative_tolerance, method=method)
+    index = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    where = _where(report, index)
+    worst = float(ratio.max())
+    return CheckResult(float(err.max()), float(err.max()), float(err.max()), int(ok.sum()), int((~ok).sum()),
+                       where, per_unknown, ratio=worst, node_ratio=worst, between_ratio=worst,
+                       tail_ratio=tail_ratios(codebook, tol), tolerance=tol, relative_tolerance=relative_tolerance,
+                       method=method)
+
+
+#: The last method-of-lines reference, by problem, codebook nodes and seed: an enrichment retried with a
+#: smaller residual keeps its nodes, and so its sample, and the reference is most of a check's time.
+_PDE_REFERENCES: dict = {}
+
+
+def _pde_reference(problem, codebook, seed: int):
+    """verify's report at the check sample (reused for the same nodes) and the codebook's values there."""
+    from .verify import verify
+
+    key = (problem.source_text, tuple((c.name, c.nodes, c.breakpoints) for c in codebook.coordinates), seed)
+    report = _PDE_REFERENCES.get(key)
+    if report is not None:
+        return report, on_report_grid(codebook, report)
+    report = verify(codebook, samples=PDE_SAMPLES, seed=seed, times=PDE_TIMES, max_corners=PDE_CORNERS, jobs=1,
+                    rtol=1e-12, atol=1e-12)
+    _PDE_REFERENCES.clear()
+    _PDE_REFERENCES[key] = report
+    return report, report.codebook_values
+
+
+def on_report_grid(codebook, report) -> dict[str, np.ndarray]:
+    """The codebook at a verify report's points: shape (S, [T,] X_1, ..., X_d) like its reference."""
+    from .verify import codebook_on_space_grid
+
+    steady = report.time is None
+    S = next(iter(report.reference.values())).shape[0]
+    times = np.zeros(1) if steady else np.asarray(report.times, dtype=float)  # verify's placeholder time
+    values = codebook_on_space_grid(codebook, report.samples, S, report.time, times, report.space_points,
+                                    list(report.reference))
+    return {u: v[:, 0] if steady else v for u, v in values.items()}
+
+
+def _where(report, index: tuple) -> dict:
+    """Coordinates of one entry of verify's (S, [T], X_1, ...) arrays."""
+    out = {}
+    k = 1
+    if report.time is not None:
+        out[report.time] = float(report.times[index[1]])
+        k = 2
+    for name, values in report.samples.items():
+        out[name] = float(values[index[0]])
+    for name, values in report.space_points.items():
+        out[name] = float(values[index[k]])
+        k += 1
+    return out

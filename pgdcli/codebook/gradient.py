@@ -1,0 +1,290 @@
+"""Derivatives of a codebook with respect to its coordinates.
+
+Each coordinate's interpolant is differentiated exactly: a Chebyshev
+interpolant ``p(x) = L(x) f`` (``L`` the barycentric cardinal row) has the
+derivative ``L(x) (D f)`` with ``D`` the spectral differentiation matrix on
+the nodes (``p'`` is a polynomial of lower degree, so interpolating its nodal
+values reproduces it); piecewise Chebyshev slabs take the same on the slab of
+the point (a breakpoint belongs to the slab on its right, as in evaluation);
+linear elements have the piecewise-constant slope of the element on the right
+of the point (the last element at the upper end). The derivative rows then
+replace the cardinal rows of one coordinate in the same contraction as the
+evaluation (CP sum or tensor train), so a gradient costs about one
+evaluation per coordinate differentiated.
+
+This module imports numpy only.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Sequence
+
+import numpy as np
+
+from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis
+
+__all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
+
+
+def derivative_matrix(basis, x) -> np.ndarray:
+    """Derivatives of the ``n`` cardinal functions of ``basis`` at points ``x``.
+
+    Parameters
+    ----------
+    basis : pgdcli.discretization.basis.Basis1D
+    x : array_like, shape (p,)
+        Points in the basis's domain (not checked).
+
+    Returns
+    -------
+    ndarray, shape (p, n)
+        ``derivative_matrix(b, x) @ f`` is the derivative at ``x`` of the interpolant of the
+        nodal values ``f``.
+    """
+    x = np.asarray(x, dtype=float).reshape(-1)
+    if isinstance(basis, PiecewiseChebyshevBasis):
+        return _slab_rows(basis, x)
+    if isinstance(basis, ChebyshevBasis):
+        return basis.interpolation_matrix(x) @ basis.derivative
+    if isinstance(basis, LinearBasis):
+        nodes = basis.nodes
+        n = nodes.size
+        left = np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, n - 2)
+        slope = 1.0 / (nodes[left + 1] - nodes[left])
+        out = np.zeros((x.size, n))
+        rows = np.arange(x.size)
+        out[rows, left] = -slope
+        out[rows, left + 1] = slope
+        return out
+    raise TypeError(f"no derivative for a basis of kind {getattr(basis, 'kind', type(basis).__name__)!r}")
+
+
+def _slab_rows(basis: PiecewiseChebyshevBasis, x: np.ndarray) -> np.ndarray:
+    m = basis.slab_size
+    slabs = basis.slab_of(x)
+    out = np.zeros((x.size, basis.nodes.size))
+    bp = basis.breakpoints
+    for s in np.unique(slabs):
+        local = _slab_basis(bp[s], bp[s + 1], m)  # the slab's nodes, as the composite basis has them
+        first = s * (m - 1)
+        rows = slabs == s
+        out[np.ix_(rows, np.arange(first, first + m))] = local.interpolation_matrix(x[rows]) @ local.derivative
+    return out
+
+
+@lru_cache(maxsize=1024)
+def _slab_basis(low: float, high: float, m: int) -> ChebyshevBasis:
+    return ChebyshevBasis((low, high), m)
+
+
+def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[str]) -> dict:
+    """Derivatives at points given coordinate by coordinate (already checked).
+
+    Parameters
+    ----------
+    fields : mapping
+        Unknown name -> ``FieldModes`` or ``FieldTT`` (duck-typed: ``alphas``/``modes`` or
+        ``cores``/``mode_order``).
+    bases : sequence of Basis1D, one per coordinate
+    flat : sequence of ndarray, each shape (P,)
+        The points' values per coordinate.
+    wrt : sequence of int
+        Coordinates (indices) to differentiate with respect to.
+    selected : sequence of str
+        Unknowns.
+
+    Returns
+    -------
+    dict
+        ``out[u][k]``: ndarray (P,), the derivative of ``u`` with respect to coordinate ``wrt[k]``.
+    """
+    mats = [b.interpolation_matrix(x) for b, x in zip(bases, flat)]
+    dmats = {j: derivative_matrix(bases[j], flat[j]) for j in wrt}
+    out = {}
+    for u in selected:
+        fm = fields[u]
+        if hasattr(fm, "cores"):
+            out[u] = [_tt_points(fm, _swap(mats, j, dmats[j])) for j in wrt]
+        else:
+            vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P, rank)
+            out[u] = []
+            for j in wrt:
+                prod = dmats[j] @ fm.modes[j]
+                for k, v in enumerate(vs):
+                    if k != j:
+                        prod = prod * v
+                out[u].append(prod @ fm.alphas)
+    return out
+
+
+def _swap(mats: list, j: int, replacement: np.ndarray) -> list:
+    out = list(mats)
+    out[j] = replacement
+    return out
+
+
+def _tt_points(fm, mats: list[np.ndarray]) -> np.ndarray:
+    """Tensor train at points whose rows per coordinate are ``mats[j]`` (P, nodes_j): shape (P,)."""
+    v = None
+    for core, j in zip(fm.cores, fm.mode_order):
+        r0, n, r1 = core.shape
+        if v is None:
+            v = mats[j] @ core[0]
+        else:
+            kr = (v[:, :, None] * mats[j][:, None, :]).reshape(v.shape[0], r0 * n)
+            v = kr @ core.reshape(r0 * n, r1)
+    return v[:, 0]
+
+
+def gradient_grid(fields, bases, axes, wrt: Sequence[int], selected: Sequence[str], values: bool = False) -> dict:
+    """Derivatives on the cartesian grid of per-coordinate values (already checked).
+
+    Parameters
+    ----------
+    fields, bases, wrt, selected
+        As in :func:`gradient_points`.
+    axes : sequence of ndarray, each shape (P_j,)
+    values : bool
+        Also return the values (key ``None`` in the per-unknown list's place: see Returns).
+
+    Returns
+    -------
+    dict
+        ``out[u]``: list of ndarray of shape (P_1, ..., P_d), one per ``wrt`` entry; with
+        ``values`` the values of ``u`` are appended as the last entry.
+    """
+    mats = [b.interpolation_matrix(x) for b, x in zip(bases, axes)]
+    dmats = {j: derivative_matrix(bases[j], axes[j]) for j in wrt}
+    variants = [_swap(mats, j, dmats[j]) for j in wrt] + ([mats] if values else [])
+    out = {}
+    for u in selected:
+        fm = fields[u]
+        grid = _tt_grid if hasattr(fm, "cores") else _cp_grid
+        out[u] = [grid(fm, m) for m in variants]
+    return out
+
+
+def _cp_grid(fm, mats: list[np.ndarray]) -> np.ndarray:
+    vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P_j, rank)
+    letters = "abcdefghijklmnopqrstuvwxyz"[: len(vs)]
+    return np.einsum(",".join(f"{l}z" for l in letters) + ",z->" + letters, *vs, fm.alphas, optimize=True)
+
+
+def _tt_grid(fm, mats: list[np.ndarray]) -> np.ndarray:
+    """Tensor train on a grid, contracted from both ends toward the core with the longest axis.
+
+    A grid with one long axis (a trajectory over time at one parameter point) then costs
+    one vector-core product per core plus the long axis times one core's node count.
+    """
+    cores, order = fm.cores, fm.mode_order
+    sizes = [mats[j].shape[0] for j in order]
+    k = int(np.argmax(sizes))
+    left = np.ones((1, 1))  # (points of cores < k, r)
+    for core, j in zip(cores[:k], order[:k]):
+        r0, n, r1 = core.shape
+        partial = (left @ core.reshape(r0, n * r1)).reshape(left.shape[0], n, r1)
+        left = np.matmul(mats[j], partial).reshape(-1, r1)
+    right = np.ones((1, 1))  # (r, points of cores > k), the later cores' points varying fastest
+    for core, j in zip(cores[:k:-1], order[:k:-1]):
+        r0, n, r1 = core.shape
+        partial = (core.reshape(r0 * n, r1) @ right).reshape(r0, n, -1)  # (r0, n, points so far)
+        right = np.matmul(mats[j], partial).reshape(r0, -1)  # (r0, P_j x points so far)
+    middle = np.tensordot(mats[order[k]], cores[k], axes=(1, 1))  # (P_k, r0, r1)
+    block = np.matmul(np.matmul(left, middle), right)  # (P_k, left points, right points)
+    block = np.moveaxis(block, 0, 1).reshape(sizes)
+    return np.transpose(block, np.argsort(order))
+
+
+class TrajectoryModel:
+    """Unknowns along one coordinate ("the axis", e.g. time at the data times) at varying points of the others.
+
+    The axis's interpolation is done once; each call then costs one sweep over the other
+    coordinates' cores (tensor trains) or modes (CP) at a single point, carrying the values
+    and all requested derivatives together: what a least-squares fit needs per iteration.
+
+    Parameters
+    ----------
+    codebook : Codebook
+    axis : str
+        The coordinate that takes many values.
+    values : array_like, shape (P,)
+        Its values (checked by the caller).
+    fields : sequence of str
+        Unknowns.
+    """
+
+    def __init__(self, codebook, axis: str, values, fields: Sequence[str]):
+        names = codebook.coordinate_names
+        self.axis = names.index(axis)
+        self.bases = [c.basis() for c in codebook.coordinates]
+        self.fields = [codebook.fields[u] for u in fields]
+        rows = self.bases[self.axis].interpolation_matrix(np.asarray(values, dtype=float))
+        # per unknown: the axis's modes (P, R) or its core contracted with the rows (P, r0, r1)
+        self.axis_blocks = [rows @ fm.modes[self.axis] if not hasattr(fm, "cores") else
+                            np.tensordot(rows, fm.cores[list(fm.mode_order).index(self.axis)], axes=(1, 1))
+                            for fm in self.fields]
+        # tensor trains: each other core as (nodes, r0 * r1) (left of the axis) or (nodes, r1 * r0)
+        # (right of it, transposed), so that weights times it is one matrix-vector product
+        self.unfolded = []
+        for fm in self.fields:
+            if not hasattr(fm, "cores"):
+                self.unfolded.append(None)
+                continue
+            k = list(fm.mode_order).index(self.axis)
+            left = [(np.ascontiguousarray(c.transpose(1, 0, 2)).reshape(c.shape[1], -1), c.shape[0], c.shape[2], j)
+                    for c, j in zip(fm.cores[:k], fm.mode_order[:k])]
+            right = [(np.ascontiguousarray(c.transpose(1, 2, 0)).reshape(c.shape[1], -1), c.shape[2], c.shape[0], j)
+                     for c, j in zip(fm.cores[:k:-1], fm.mode_order[:k:-1])]
+            self.unfolded.append((left, right))
+
+    def evaluate(self, point: Sequence[float], wrt: Sequence[int] = ()) -> np.ndarray:
+        """Values and derivatives at ``point`` (a value per coordinate; the axis's entry is ignored).
+
+        Returns
+        -------
+        ndarray, shape (fields, P, 1 + len(wrt))
+            ``[..., 0]`` the values, ``[..., 1 + i]`` the derivatives with respect to coordinate ``wrt[i]``.
+        """
+        if self.axis in wrt:
+            raise ValueError("a TrajectoryModel differentiates with respect to the other coordinates only")
+        weights, dweights = {}, {}
+        for j, (b, x) in enumerate(zip(self.bases, point)):
+            if j != self.axis:
+                weights[j] = b.interpolation_matrix(np.array([float(x)]))[0]
+        for j in wrt:
+            dweights[j] = derivative_matrix(self.bases[j], np.array([float(point[j])]))[0]
+        slot = {j: 1 + i for i, j in enumerate(wrt)}
+        stacked = {j: np.array([weights[j], dweights[j]]) for j in wrt}
+        return np.stack([self._cp(fm, blk, weights, dweights, wrt) if unf is None else
+                         self._tt(unf, blk, weights, stacked, slot)
+                         for fm, blk, unf in zip(self.fields, self.axis_blocks, self.unfolded)])
+
+    def _cp(self, fm, block, weights, dweights, wrt) -> np.ndarray:
+        v = {j: w @ fm.modes[j] for j, w in weights.items()}
+        cols = [fm.alphas.copy()] + [fm.alphas * (dweights[j] @ fm.modes[j]) for j in wrt]
+        for j, vj in v.items():
+            for i, col in enumerate(cols):
+                if i == 0 or wrt[i - 1] != j:
+                    col *= vj
+        return block @ np.stack(cols, axis=1)
+
+    def _tt(self, unfolded, block, weights, stacked, slot) -> np.ndarray:
+        variants = 1 + len(slot)
+        ends = []
+        for cores in unfolded:  # the cores left of the axis, then those right of it (transposed)
+            vec = np.ones((variants, 1))
+            for mat, r0, r1, j in cores:
+                if j in slot:  # the variant differentiating this core's coordinate: both rows in one pass
+                    both = (stacked[j] @ mat).reshape(2, r0, r1)
+                    out = vec @ both[0]
+                    i = slot[j]
+                    out[i] = vec[i] @ both[1]
+                else:
+                    out = vec @ (weights[j] @ mat).reshape(r0, r1)
+                vec = out
+            ends.append(vec)
+        left, right = ends  # (variants, r0), (variants, r1)
+        p, r0, r1 = block.shape
+        tmp = (block.reshape(p * r0, r1) @ right.T).reshape(p, r0, variants)  # (P, r0, variants)
+        return np.einsum("pav,va->pv", tmp, left)

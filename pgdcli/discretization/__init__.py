@@ -1,0 +1,2 @@
+"""The discretization layer: one-dimensional bases (nodes, quadrature, interpolation) per coordinate.
+"""

@@ -1,0 +1,2 @@
+"""Parameter identification from data with a codebook (``pgd fit``).
+"""

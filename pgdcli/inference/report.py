@@ -1,0 +1,80 @@
+"""What ``pgd fit`` prints and draws: the estimate, the fitted curve, a summary line, a figure."""
+
+from __future__ import annotations
+
+import csv
+import json
+import numpy as np
+
+__all__ = ["write_result", "summary", "plot_fit"]
+
+
+def write_result(stream, result, fmt: str) -> None:
+    """Write a :class:`~pgdcli.inference.fitting.FitResult` to ``stream``.
+
+    ``plain``: one line per free coordinate, ``name estimate stderr`` (full precision);
+    ``csv``: the fitted curve, one row per data row: the data's coordinate columns, then for
+    every unknown its fitted value and, when observed, ``<u>_data``; ``json``: :meth:`FitResult.to_dict`.
+    """
+    if fmt == "json":
+        stream.write(json.dumps(result.to_dict(), indent=2) + "\n")
+        return
+    if fmt == "plain":
+        for name, value in result.estimate.items():
+            stream.write(f"{name} {value!r} {result.stderr[name]!r}\n")
+        return
+    columns, values = [], []
+    for name, col in result.fitted.items():
+        columns.append(name)
+        values.append(col)
+        if name in result.data:
+            columns.append(f"{name}_data")
+            values.append(result.data[name])
+    writer = csv.writer(stream, lineterminator="\n")
+    writer.writerow(columns)
+    for row in zip(*values):
+        writer.writerow([repr(float(v)) for v in row])
+
+
+def summary(result) -> str:
+    """One line for stderr: estimate, misfit, effort and the reference check."""
+    est = ", ".join(f"{n} = {v:.6g} +/- {result.stderr[n]:.2g}" for n, v in result.estimate.items())
+    text = (f"fit: {est}; rms {result.rms:.3g} over {result.residuals.size} values; {result.nfev} evaluations "
+            f"from {result.starts} start(s) in {1e3 * result.elapsed:.1f} ms; {result.message}")
+    if result.reference_error is not None:
+        text += (f"; reference check at the estimate: codebook - reference max {result.reference_error:.2g}, "
+                 f"rms with the reference {result.reference_rms:.3g} ({1e3 * result.check_elapsed:.0f} ms)")
+    elif result.reference_message:
+        text += f"; {result.reference_message}"
+    return text
+
+
+def plot_fit(result, path, dpi: int = 150):
+    """Data (markers) and the fitted curve (lines) of every observed unknown; saved as PNG/SVG."""
+    from matplotlib.figure import Figure
+
+    from ..plot.figures import save_figure
+
+    varying = [n for n in result.coordinates if np.ptp(result.fitted[n]) > 0]
+    xname = varying[0] if varying else None
+    x = result.fitted[xname] if xname else np.arange(result.residuals.size // len(result.observed))
+    order = np.argsort(x, kind="stable")
+    fig = Figure(figsize=(7, 4.5))
+    ax = fig.add_subplot()
+    for i, u in enumerate(result.observed):
+        color = f"C{i}"
+        ax.plot(x[order], result.fitted[u][order], color=color, label=f"{u} (fit)")
+        ax.plot(x, result.data[u], "o", color=color, markersize=3, alpha=0.7, label=f"{u} (data)")
+    ax.set_xlabel(xname or "row")
+    est = ", ".join(f"{n} = {v:.4g}" for n, v in result.estimate.items())
+    ax.set_title(_wrap(f"fit: {est}"), fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    return save_figure(fig, path, dpi=dpi)
+
+
+def _wrap(text: str, width: int = 90) -> str:
+    if len(text) <= width:
+        return text
+    cut = text.rfind(", ", 0, width)
+    return text[:cut + 1] + "\n" + _wrap(text[cut + 2:], width) if cut > 0 else text

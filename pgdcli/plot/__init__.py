@@ -1,0 +1,2 @@
+"""Figures of a codebook (``pgd plot``): data, drawing and files.
+"""

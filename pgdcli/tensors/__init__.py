@@ -1,0 +1,2 @@
+"""The tensor layer: separated (CP) tensors and operators, tensor trains; numpy only.
+"""
