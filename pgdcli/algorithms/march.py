@@ -38,6 +38,8 @@ import numpy as np
 from ..discretization.basis import Basis1D, _chebyshev_unit_nodes
 from ..problem.expressions import Separable, SepTerm, merge_to_function
 from ..errors import SolverError
+from ..discretization.coefficients import SEPARATION_FRACTION, JointTrain, separation_report_text
+from ..discretization.separate import MAX_SEPARATION_RANK
 from ..tensors.tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
@@ -205,15 +207,34 @@ class _Coefficient:
     weights: np.ndarray  # (T,)
     time_funcs: list  # Func1D or None, length T
     param_vectors: list  # per term, list of node vectors per parameter
+    joints: list = field(default_factory=list)  # non-separable parts (_JointPart)
 
     def at(self, t: float) -> TT:
         w = self.weights.copy()
         for i, f in enumerate(self.time_funcs):
             if f is not None:
                 w[i] *= float(f(np.array([t]))[0])
-        if len(w) == 1:
-            return tt_rank_one(self.param_vectors[0], w[0])
-        return tt_sum([tt_rank_one(v) for v in self.param_vectors], list(w))
+        parts = [tt_rank_one(v) for v in self.param_vectors] + [j.at(t) for j in self.joints]
+        w = list(w) + [1.0] * len(self.joints)
+        if len(parts) == 1:
+            return parts[0].scaled(w[0])
+        return tt_sum(parts, w)
+
+
+@dataclass
+class _JointPart:
+    """``weight * f(t) * prod_p v_p(p) * g(t, p)``: a non-separable part, g separated at each t if timed."""
+
+    weight: float
+    time_func: object  # callable or None
+    vectors: list  # per parameter, node vector
+    train: JointTrain
+
+    def at(self, t: float) -> TT:
+        w = self.weight * (1.0 if self.time_func is None else float(self.time_func(np.array([t]))[0]))
+        cores = [c * v[None, :, None] for c, v in zip(self.train.at(t), self.vectors)]
+        cores[0] = cores[0] * w
+        return TT(cores)
 
 
 @dataclass
@@ -262,13 +283,18 @@ def _param_vectors(term, params, bases, divide=None) -> list[np.ndarray]:
     return vecs
 
 
-def compile_system(problem) -> NonlinearSystem:
+def compile_system(problem, tolerance: float | None = None, separations: list | None = None) -> NonlinearSystem:
     """Bring every equation to ``der(u_s) = f_s(t, p, u)`` over the parameter grid.
 
     Each equation must contain the derivative of exactly one unknown, with a
     coefficient that is a single product of one-coordinate functions (it is
     divided out); together the equations must cover every unknown once.
+    Non-separable coefficients are separated over the parameter nodes to
+    ``SEPARATION_FRACTION * tolerance`` (:class:`pgdcli.discretization.coefficients.JointTrain`); each
+    separation is described in ``separations``.
     """
+    delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)
+    cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
     tname = problem.time
     unknowns = [u.name for u in problem.unknowns]
     index = {u: i for i, u in enumerate(unknowns)}
@@ -293,7 +319,7 @@ def compile_system(problem) -> NonlinearSystem:
             merged = merge_to_function(dsep)
             if merged is not None:  # e.g. (a + 1)*der(u): one function of one coordinate
                 dsep = Separable((SepTerm(1.0, ((merged.coordinate, merged),) if merged.coordinate else ()),))
-        if len(dsep.terms) != 1:
+        if len(dsep.terms) != 1 or dsep.joints:
             raise SolverError(f"{where}: equations[{eq.index}]: the coefficient of der({atom.unknown}) must be a "
                               f"single product of one-coordinate functions, got '{dsep}'")
         s = index[atom.unknown]
@@ -311,11 +337,23 @@ def compile_system(problem) -> NonlinearSystem:
                 tf = dict(term.factors).get(tname)
                 tfuncs.append(_time_ratio(tf, dtime))
                 pvecs.append(_param_vectors(term, params, bases, dterm))
-            monomials.append((_Coefficient(np.array(weights), tfuncs, pvecs), tuple(index[a.unknown] for a in mono)))
+            joints = []
+            for joint in sep.joints:
+                train = JointTrain(joint, tname, params, {p: bases[p].nodes for p in params}, delta,
+                                   where=f"{where}: equations[{eq.index}]: ", reports=separations, max_rank=cap)
+                joints.append(_JointPart(-joint.term.coef / dterm.coef,
+                                         _time_ratio(dict(joint.term.factors).get(tname), dtime),
+                                         _param_vectors(joint.term, params, bases, dterm), train))
+            monomials.append((_Coefficient(np.array(weights), tfuncs, pvecs, joints),
+                              tuple(index[a.unknown] for a in mono)))
         rhs[s] = monomials
     initial = []
     for u in problem.unknowns:
         terms = [tt_rank_one(_param_vectors(term, params, bases), term.coef) for term in u.initial.terms]
+        for joint in u.initial.joints:
+            train = JointTrain(joint, tname, params, {p: bases[p].nodes for p in params}, delta,
+                               where=f"{where}: unknowns.{u.name}.initial: ", reports=separations, max_rank=cap)
+            terms.append(_JointPart(joint.term.coef, None, _param_vectors(joint.term, params, bases), train).at(0.0))
         if not terms:
             terms = [tt_rank_one([np.zeros(bases[p].nodes.size) for p in params])]
         initial.append(tt_round(tt_sum(terms), 1e-15))
@@ -714,7 +752,8 @@ def solve_march(problem, tolerance: float, callback=None):
 
     opts = problem.solver
     started = _time.perf_counter()
-    system = compile_system(problem)
+    separations: list = []
+    system = compile_system(problem, tolerance, separations)
     last: dict = {}
 
     def progress(info):
@@ -808,6 +847,8 @@ def solve_march(problem, tolerance: float, callback=None):
         "wall_time": wall,
         "pgdcli_version": __version__,
     }
+    if separations:  # how many terms each non-separable coefficient needed
+        report["separated_coefficients"] = separation_report_text(separations)
     cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
                   description=problem.description)
     return SolveResult(cb, True, 0, message, np.array([estimate]), np.zeros(0, dtype=int), wall)

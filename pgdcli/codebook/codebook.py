@@ -954,6 +954,10 @@ class Codebook:
                 out["check"]["method"] = str(rep["check_method"])
         if "resolution_rounds" in rep:
             out["nodes_chosen"] = self.nodes_chosen()
+        if "rates" in rep:  # {rate unknown: the unknown it is the time derivative of}
+            out["rates"] = dict(pair.split("=", 1) for pair in str(rep["rates"]).split(",") if "=" in pair)
+        if "separated_coefficients" in rep:  # how many terms each non-separable coefficient needed
+            out["separated_coefficients"] = [line for line in str(rep["separated_coefficients"]).split("; ") if line]
         if "resolution" in rep and "resolution_coordinates" in rep:
             names = str(rep["resolution_coordinates"]).split(",")
             table = np.asarray(rep["resolution"], dtype=float)
