@@ -12,7 +12,8 @@ the codebook's own nodes (every parameter node, every time node), filled by
   ``t_eval`` = the time nodes; a random subset of at most 200 points is timed and the time scaled;
 - ONE vectorized ``solve_ivp`` call over all grid points (``pgdcli.checks.reference``'s vectorized
   right-hand side), at the same tolerances (problems with space coordinates: a method-of-lines
-  sweep, timed on a subset of at most 8 parameter points and scaled; no vectorized call).
+  sweep, pgdcli's reference at its default tolerances on the codebook's space nodes, timed on a
+  subset of at most 8 parameter points and scaled; no vectorized call).
 
 Interpolated with the codebook's own bases, such a grid is as accurate as the codebook (its nodal
 values are the exact solution to the reference's accuracy), so the times compare like with like.
@@ -34,7 +35,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 import pgdcli
-from pgdcli.checks.reference import solve_reference, solve_reference_vectorized
+from pgdcli.checks.reference import solve_reference_pde, solve_reference_vectorized
 
 from _machine import machine_facts
 
@@ -54,8 +55,12 @@ def grid_points(cb, problem):
     return points, times
 
 
-def time_loop(problem, points, times, space: bool):
-    """Seconds for a loop of solve_ivp over all points (timed on a subset, scaled)."""
+def time_loop(problem, points, times, space: dict | None):
+    """Seconds for a loop of solve_ivp over all points (timed on a subset, scaled).
+
+    ``space``: for a PDE, each space coordinate's nodes (one method-of-lines solve per point, its
+    values on those nodes); None for an ODE.
+    """
     size = len(next(iter(points.values()))) if points else 1
     rng = np.random.default_rng(0)
     subset = rng.choice(size, min(size, 8 if space else LOOP_SAMPLE), replace=False)
@@ -63,7 +68,7 @@ def time_loop(problem, points, times, space: bool):
     for i in subset:
         one = {n: v[i:i + 1] for n, v in points.items()}
         if space:
-            solve_reference(problem, one, times, rtol=RTOL, atol=ATOL, jobs=1)
+            solve_reference_pde(problem, one, space, times, jobs=1)
         else:
             solve_reference_vectorized(problem, one, 1, times, rtol=RTOL, atol=ATOL)
     return (time.perf_counter() - started) * size / subset.size
@@ -81,41 +86,58 @@ def time_vectorized(problem, points, times):
 SETTINGS = {"vanderpol": "  max_nodes: 65\n"}
 
 
-def row(name: str) -> str:
-    text = (PROBLEMS / f"{name}.yaml").read_text() + SETTINGS.get(name, "")
-    problem = pgdcli.parse_spec(text, source=f"{name}.yaml")
+def measure(problem) -> dict:
+    """Build the codebook, then fill its grid by a loop of solve_ivp and one vectorized call (seconds, sizes)."""
     started = time.perf_counter()
     result = pgdcli.solve(problem)
-    build = time.perf_counter() - started
-    cb = result.codebook
+    out = {"build": time.perf_counter() - started, "result": result, "cb": result.codebook}
     if not result.converged:
-        return f"| {name} | {build:.2f} s, refused: {result.message} | | | | |"
+        return out
+    cb = result.codebook
     with tempfile.TemporaryDirectory() as tmp:
-        size = cb.save(Path(tmp) / "cb.h5").stat().st_size
+        out["size"] = cb.save(Path(tmp) / "cb.h5").stat().st_size
     space = any(c.role == "space" for c in cb.coordinates)
     points, times = grid_points(cb, problem)
-    count = len(next(iter(points.values()))) if points else 1
+    out["count"] = count = len(next(iter(points.values()))) if points else 1
     with threadpool_limits(1, "blas"):
-        loop = time_loop(problem, points, times, space)
-        vector = float("nan") if space else time_vectorized(problem, points, times)
+        nodes = {c.name: cb.coordinate(c.name).basis().nodes for c in cb.coordinates if c.role == "space"}
+        out["loop"] = time_loop(problem, points, times, nodes if space else None)
+        out["vector"] = float("nan") if space else time_vectorized(problem, points, times)
     grid_bytes = count * len(cb.unknown_names) * times.size * 8
     if space:
         grid_bytes *= int(np.prod([c.nodes for c in cb.coordinates if c.role == "space"]))
-    nodes = ", ".join(f"{c.name} {c.nodes}" + (f" ({len(c.breakpoints) - 1} el.)" if c.breakpoints and
-                                               c.role != "time" else "") for c in cb.coordinates)
-    vec = "n/a (PDE)" if space else f"{vector:.2f} s ({vector / build:.2g}x the build)"
-    return (f"| {name} | {build:.2f} s, error {cb.report['check_error']:.2g} (tolerance "
-            f"{cb.report['tolerance']:.0e}); nodes {nodes} | {loop:.2f} s ({loop / build:.2g}x the build) | {vec} | "
-            f"{size / 1024:.0f} KiB | {grid_bytes / 1024:.0f} KiB ({count} grid points) |")
+    out["grid_bytes"], out["space"] = grid_bytes, space
+    out["nodes"] = ", ".join(f"{c.name} {c.nodes}" + (f" ({len(c.breakpoints) - 1} el.)" if c.breakpoints and
+                                                      c.role != "time" else "") for c in cb.coordinates)
+    build, vector = out["build"], out["vector"]
+    out["vector_text"] = "n/a (PDE)" if space else f"{vector:.2f} s ({vector / build:.2g}x the build)"
+    out["build_text"] = (f"{build:.2f} s, error {cb.report['check_error']:.2g} (tolerance "
+                         f"{cb.report['tolerance']:.0e}); nodes {out['nodes']}")
+    out["loop_text"] = f"{out['loop']:.2f} s ({out['loop'] / build:.2g}x the build)"
+    return out
+
+
+def row(name: str) -> str:
+    text = (PROBLEMS / f"{name}.yaml").read_text() + SETTINGS.get(name, "")
+    m = measure(pgdcli.parse_spec(text, source=f"{name}.yaml"))
+    if not m["result"].converged:
+        return f"| {name} | {m['build']:.2f} s, refused: {m['result'].message} | | | | |"
+    return (f"| {name} | {m['build_text']} | {m['loop_text']} | {m['vector_text']} | {m['size'] / 1024:.0f} KiB | "
+            f"{m['grid_bytes'] / 1024:.0f} KiB ({m['count']} grid points) |")
+
+
+def print_table(names, row_of, first: str = "problem", last: str = "grid values") -> None:
+    """The machine (stderr), then the table's header and one row per problem (stdout, as they finish)."""
+    print(f"machine: {machine_facts()}", file=sys.stderr)
+    print(f"| {first} | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
+          f"codebook's grid | one vectorized solve_ivp over it | codebook file | {last} |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for name in names:
+        print(row_of(name), flush=True)
 
 
 def main(names):
-    print(f"machine: {machine_facts()}", file=sys.stderr)
-    print("| problem | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
-          "codebook's grid | one vectorized solve_ivp over it | codebook file | grid values |")
-    print("| --- | --- | --- | --- | --- | --- |")
-    for name in names:
-        print(row(name), flush=True)
+    print_table(names, row)
 
 
 if __name__ == "__main__":

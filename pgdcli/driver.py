@@ -46,6 +46,9 @@ import scipy.linalg
 
 from .discretization.basis import Basis1D
 from .errors import PgdError, SolverError
+from .problem.general import has_general
+from .discretization.coefficients import SEPARATION_FRACTION, nodal_terms, separation_report_text
+from .discretization.separate import MAX_SEPARATION_RANK
 from .tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, separated_norm, sweep_order, sweep_step
 
 if TYPE_CHECKING:  # annotations only
@@ -111,6 +114,7 @@ class Discretization:
     coordinates: list[str]
     time: str | None
     trial: dict = field(default_factory=dict)  # coordinate -> trial node indices (Dirichlet ends removed)
+    separations: list = field(default_factory=list)  # per non-separable coefficient: how it was separated
 
     def nodal_factors(self, factors: list[np.ndarray]) -> dict[str, list[np.ndarray]]:
         """Solver factors -> per unknown, nodal mode matrices over the coordinates (spec order)."""
@@ -271,9 +275,24 @@ class _CoordinateOps:
             a[e:e + 2, e:e + 2] += 0.5 * fe * np.array([[-1.0, 1.0], [-1.0, 1.0]])
         return self._rows(a)
 
-    def second(self) -> np.ndarray:
-        """``d2u/dx2`` tested (weak form, boundary fluxes apart): (test, all nodes)."""
-        return self._rows(-self.stiffness)
+    def second(self, f: np.ndarray) -> np.ndarray:
+        """``f d2u/dx2`` tested (weak form, boundary fluxes apart): (test, all nodes).
+
+        ``int f u'' phi = [f u' phi] - int f u' phi' - int f' u' phi``: a stiffness weighted by
+        ``f`` and an advection by ``f'`` (Chebyshev: the derivative of f's interpolant, both
+        integrals by the Gauss rule; linear elements: f at the element midpoints, f' the slope
+        of f on each element, second order).
+        """
+        if self.derivative is not None:
+            stiffness = self.interp_d.T @ (self._weighted(f)[:, None] * self.interp_d)
+            return self._rows(-stiffness) - self.first(self.derivative @ f)
+        n = self.basis.nodes.size
+        k = np.zeros((n, n))
+        a = np.zeros((n, n))
+        for e, he in enumerate(self.h):
+            k[e:e + 2, e:e + 2] += 0.5 * (f[e] + f[e + 1]) * np.array([[1.0, -1.0], [-1.0, 1.0]]) / he
+            a[e:e + 2, e:e + 2] += 0.5 * (f[e + 1] - f[e]) / he * np.array([[-1.0, 1.0], [-1.0, 1.0]])
+        return self._rows(-k - a)
 
     def load(self, f: np.ndarray) -> np.ndarray:
         """A source ``f`` tested: (test,)."""
@@ -360,9 +379,12 @@ class _SteadyOps:
     constant = load
 
 
-def _initial_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dict[str, np.ndarray]]]:
+def _initial_lift(unknown, bases: dict[str, Basis1D], tolerance: float, reports: list,
+                  source: str) -> list[tuple[float, dict[str, np.ndarray]]]:
     """The initial value's separated terms as ``(coef, {coordinate: nodal values})``."""
-    return [(init.coef, _factor_values(init, bases)) for init in unknown.initial.terms]
+    return nodal_terms(unknown.initial, {c: b.nodes for c, b in bases.items()}, tolerance,
+                       where=f"{source}: unknowns.{unknown.name}.initial: ", reports=reports,
+                       max_rank=MAX_SEPARATION_RANK)
 
 
 def _dirichlet_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dict[str, np.ndarray]]]:
@@ -395,15 +417,19 @@ def _dirichlet_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dic
     return terms
 
 
-def discretize(problem) -> Discretization:
+def discretize(problem, *, tolerance: float | None = None) -> Discretization:
     """Assemble the separated operator, source and lift of a linear problem.
 
     Time-dependent problems are lifted by the initial value (``u = u0 + v``, ``v(t0) = 0``);
     steady ones by the Dirichlet values (``u = g + v``, ``v = 0`` on Dirichlet ends).
+    Non-separable coefficients are separated on the nodes (:func:`pgdcli.discretization.coefficients.nodal_terms`)
+    to ``SEPARATION_FRACTION * tolerance``; ``Discretization.separations`` says how.
 
     Parameters
     ----------
     problem : pgdcli.problem.spec.Problem
+    tolerance : float, optional
+        The solver's tolerance (default ``problem.solver.tolerance``).
 
     Returns
     -------
@@ -415,6 +441,10 @@ def discretize(problem) -> Discretization:
     q = len(unknowns)
     index = {name: s for s, name in enumerate(unknowns)}
     bases = {info.name: info.basis() for info in coordinate_infos(problem, march=False)}
+    nodes = {c: b.nodes for c, b in bases.items()}
+    delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)
+    separations: list = []
+    cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
     params = [c.name for c in coords if c.name != tname]
     names = [STATE] + params
     if tname is None:
@@ -428,7 +458,7 @@ def discretize(problem) -> Discretization:
         span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
         tau = {c.name: span * TAU_FRACTION for c in coords}
         _check_compatible_initial_values(problem, bases)
-        lifts = {u.name: _initial_lift(u, bases) for u in problem.unknowns}
+        lifts = {u.name: _initial_lift(u, bases, delta, separations, problem.source) for u in problem.unknowns}
     ops = {c: _CoordinateOps(c, bases[c], problem.coordinate(c).role, _boundary_kinds(problem, c), tau[c])
            for c in params}
 
@@ -454,10 +484,11 @@ def discretize(problem) -> Discretization:
     for eq in problem.equations:
         r = eq.index
         for monomial, sep in eq.polynomial.items():
+            terms = nodal_terms(sep, nodes, delta, where=f"{problem.source}: equations[{r}]: ", reports=separations,
+                                max_rank=cap)
             if len(monomial) == 0:
-                for term in sep.terms:
-                    vals = _factor_values(term, bases)
-                    add_source(r, -term.coef, time.load(time_values(vals)), tested_values(vals))
+                for coef, vals in terms:
+                    add_source(r, -coef, time.load(time_values(vals)), tested_values(vals))
                 continue
             if len(monomial) != 1:
                 raise SolverError(f"equations[{r}]: nonlinear term; the linear solver needs equations linear in the unknowns")
@@ -465,18 +496,14 @@ def discretize(problem) -> Discretization:
             s = index[atom.unknown]
             is_der = atom.order == 1 and atom.coordinate == tname
             space_der = atom.order > 0 and atom.coordinate != tname
-            for term in sep.terms:
-                vals = _factor_values(term, bases)
+            for term_coef, vals in terms:
                 coupling = np.zeros((q, q))
-                coupling[r, s] = term.coef
+                coupling[r, s] = term_coef
                 full = {}
                 for c in params:
                     if space_der and c == atom.coordinate:
                         if atom.order == 2:
-                            if c in dict(term.factors):
-                                raise SolverError(f"{problem.source}: equations[{r}]: the coefficient of "
-                                                  f"der({atom.unknown}, {c}, 2) must not depend on {c!r}")
-                            full[c] = ops[c].second()
+                            full[c] = ops[c].second(vals[c])
                         else:
                             full[c] = ops[c].first(vals[c])
                     else:
@@ -486,7 +513,7 @@ def discretize(problem) -> Discretization:
                 if not is_der:
                     # the lift (constant in time) moves to the right-hand side
                     for coef, lvals in lifts[atom.unknown]:
-                        add_source(r, -term.coef * coef, time.constant(time_values(vals)),
+                        add_source(r, -term_coef * coef, time.constant(time_values(vals)),
                                    {c: full[c] @ lvals[c] for c in params})
                 if space_der and atom.order == 2:
                     # weak form: the boundary flux [du/dx phi] of gradient ends is known data
@@ -497,8 +524,9 @@ def discretize(problem) -> Discretization:
                         for g in bc.value.terms:
                             gvals = _factor_values(g, bases)
                             vectors = {p: ops[p].load(vals[p] * gvals[p]) for p in params if p != c}
-                            vectors[c] = ops[c].flux(side)
-                            add_source(r, -term.coef * g.coef, time.constant(time_values(vals)), vectors)
+                            # [f u' phi] at that end: the coefficient's value there times the gradient
+                            vectors[c] = vals[c][0 if side == 0 else -1] * ops[c].flux(side)
+                            add_source(r, -term_coef * g.coef, time.constant(time_values(vals)), vectors)
 
     if not op_terms:
         raise SolverError("the equations have no term in the unknowns")
@@ -514,7 +542,7 @@ def discretize(problem) -> Discretization:
                            else np.zeros((bases[c.name].nodes.size, 0)) for c in coords])
     trial = {c: ops[c].trial for c in params if ops[c].trial.size != bases[c].nodes.size}
     return Discretization(names, bases, SeparatedOperator(tuple(op_terms)), source, lift, unknowns,
-                          [c.name for c in coords], tname, trial)
+                          [c.name for c in coords], tname, trial, separations)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1097,15 +1125,19 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         once = partial(_checked_enrichment, tolerance=tol, relative_tolerance=rtol, max_modes=nmax,
                        callback=callback, learned=learned)
     with _blas_single_thread():
-        return solve_to_tolerance(problem, once, march=march)
+        result = solve_to_tolerance(problem, once, march=march)
+    rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
+    if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info
+        result.codebook.report["rates"] = ",".join(f"{rate}={x}" for rate, x in rates)
+    return result
 
 
-def _enrich(problem, residual_tolerance: float, nmax: int, callback) -> SolveResult:
+def _enrich(problem, residual_tolerance: float, nmax: int, callback, tolerance: float | None = None) -> SolveResult:
     """One enrichment solve to a relative residual (the solver's internal stopping signal)."""
     opts = problem.solver
     tol = residual_tolerance
     started = _time.perf_counter()
-    disc = discretize(problem)
+    disc = discretize(problem, tolerance=tolerance)
     state, history, iterations, status = _run(disc, opts, tol, nmax, callback)
     wall = _time.perf_counter() - started
     converged = status == 0
@@ -1134,6 +1166,8 @@ def _enrich(problem, residual_tolerance: float, nmax: int, callback) -> SolveRes
         "formulation": opts.formulation,
         "update": bool(opts.update),
     }
+    if disc.separations:  # how many terms each non-separable coefficient needed
+        report["separated_coefficients"] = separation_report_text(disc.separations)
     codebook = codebook_from_solution(problem, disc, state.alphas, state.factors, report)
     return SolveResult(codebook, converged, status, message, np.array(history), np.array(iterations, dtype=int), wall)
 
@@ -1157,7 +1191,9 @@ def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float,
     kept = None
     attempts = []
     for _ in range(CHECK_ATTEMPTS):
-        result = _enrich(problem, target, max_modes, callback)
+        # non-separable coefficients are separated to a share of the tolerance, tightened with the
+        # residual when the error at the nodes asks for another enrichment (as the march's target is)
+        result = _enrich(problem, target, max_modes, callback, min(tolerance, target))
         if not result.converged:
             if kept is None:
                 result.codebook.report["tolerance"] = float(tolerance)
@@ -1299,7 +1335,7 @@ def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveRe
 
 def _use_march(problem) -> bool:
     """``method: auto`` marches nonlinear problems and enriches linear ones."""
-    nonlinear = any(eq.polynomial.degree >= 2 for eq in problem.equations)
+    nonlinear = any(eq.polynomial.degree >= 2 or has_general(eq.polynomial) for eq in problem.equations)
     method = getattr(problem.solver, "method", "auto")
     if method == "pgd" and nonlinear:
         raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "

@@ -38,6 +38,9 @@ import numpy as np
 from ..discretization.basis import Basis1D, _chebyshev_unit_nodes
 from ..problem.expressions import Separable, SepTerm, merge_to_function
 from ..errors import SolverError
+from .general_rhs import CROSS_SHARE, GeneralPart, general_monomials, report_entries, underflow_hint
+from ..discretization.coefficients import SEPARATION_FRACTION, JointTrain, separation_report_text
+from ..discretization.separate import MAX_SEPARATION_RANK
 from ..tensors.tt import (TT, _is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
                  tt_round_sum_of_products, tt_sum)
 
@@ -205,15 +208,34 @@ class _Coefficient:
     weights: np.ndarray  # (T,)
     time_funcs: list  # Func1D or None, length T
     param_vectors: list  # per term, list of node vectors per parameter
+    joints: list = field(default_factory=list)  # non-separable parts (_JointPart)
 
     def at(self, t: float) -> TT:
         w = self.weights.copy()
         for i, f in enumerate(self.time_funcs):
             if f is not None:
                 w[i] *= float(f(np.array([t]))[0])
-        if len(w) == 1:
-            return tt_rank_one(self.param_vectors[0], w[0])
-        return tt_sum([tt_rank_one(v) for v in self.param_vectors], list(w))
+        parts = [tt_rank_one(v) for v in self.param_vectors] + [j.at(t) for j in self.joints]
+        w = list(w) + [1.0] * len(self.joints)
+        if len(parts) == 1:
+            return parts[0].scaled(w[0])
+        return tt_sum(parts, w)
+
+
+@dataclass
+class _JointPart:
+    """``weight * f(t) * prod_p v_p(p) * g(t, p)``: a non-separable part, g separated at each t if timed."""
+
+    weight: float
+    time_func: object  # callable or None
+    vectors: list  # per parameter, node vector
+    train: JointTrain
+
+    def at(self, t: float) -> TT:
+        w = self.weight * (1.0 if self.time_func is None else float(self.time_func(np.array([t]))[0]))
+        cores = [c * v[None, :, None] for c, v in zip(self.train.at(t), self.vectors)]
+        cores[0] = cores[0] * w
+        return TT(cores)
 
 
 @dataclass
@@ -231,6 +253,8 @@ class NonlinearSystem:
     rhs : list of list of (Coefficient, tuple of int)
         Per unknown, its monomials: coefficient and the unknown indices multiplied.
     initial : list of TT
+    general : list of GeneralPart or None
+        Per unknown, the terms with functions of the unknowns (:mod:`pgdcli.algorithms.general_rhs`).
     """
 
     unknowns: list[str]
@@ -239,6 +263,7 @@ class NonlinearSystem:
     time_basis: Basis1D
     rhs: list[list[tuple[_Coefficient, tuple[int, ...]]]]
     initial: list[TT]
+    general: list = field(default_factory=list)  # per unknown: GeneralPart of its general terms, or None
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -262,13 +287,18 @@ def _param_vectors(term, params, bases, divide=None) -> list[np.ndarray]:
     return vecs
 
 
-def compile_system(problem) -> NonlinearSystem:
+def compile_system(problem, tolerance: float | None = None, separations: list | None = None) -> NonlinearSystem:
     """Bring every equation to ``der(u_s) = f_s(t, p, u)`` over the parameter grid.
 
     Each equation must contain the derivative of exactly one unknown, with a
     coefficient that is a single product of one-coordinate functions (it is
     divided out); together the equations must cover every unknown once.
+    Non-separable coefficients are separated over the parameter nodes to
+    ``SEPARATION_FRACTION * tolerance`` (:class:`pgdcli.discretization.coefficients.JointTrain`); each
+    separation is described in ``separations``.
     """
+    delta = SEPARATION_FRACTION * (problem.solver.tolerance if tolerance is None else tolerance)
+    cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
     tname = problem.time
     unknowns = [u.name for u in problem.unknowns]
     index = {u: i for i, u in enumerate(unknowns)}
@@ -280,6 +310,7 @@ def compile_system(problem) -> NonlinearSystem:
         params = [SINGLE_POINT]
         bases[SINGLE_POINT] = _SinglePoint()
     rhs: list = [None] * len(unknowns)
+    general: list = [None] * len(unknowns)
     where = problem.source
     for eq in problem.equations:
         ders = [(m, sep) for m, sep in eq.polynomial.items() if any(a.order > 0 for a in m)]
@@ -293,7 +324,7 @@ def compile_system(problem) -> NonlinearSystem:
             merged = merge_to_function(dsep)
             if merged is not None:  # e.g. (a + 1)*der(u): one function of one coordinate
                 dsep = Separable((SepTerm(1.0, ((merged.coordinate, merged),) if merged.coordinate else ()),))
-        if len(dsep.terms) != 1:
+        if len(dsep.terms) != 1 or dsep.joints:
             raise SolverError(f"{where}: equations[{eq.index}]: the coefficient of der({atom.unknown}) must be a "
                               f"single product of one-coordinate functions, got '{dsep}'")
         s = index[atom.unknown]
@@ -302,8 +333,12 @@ def compile_system(problem) -> NonlinearSystem:
         dterm = dsep.terms[0]
         dtime = dict(dterm.factors).get(tname)
         monomials = []
+        crossed = general_monomials(eq.polynomial)
+        if crossed:
+            general[s] = GeneralPart([(m, eq.polynomial[m]) for m in crossed], dterm, unknowns, params,
+                                     {p: bases[p].nodes for p in params}, tname)
         for mono, sep in eq.polynomial.items():
-            if mono == ders[0][0]:
+            if mono == ders[0][0] or mono in crossed:
                 continue
             weights, tfuncs, pvecs = [], [], []
             for term in sep.terms:
@@ -311,15 +346,27 @@ def compile_system(problem) -> NonlinearSystem:
                 tf = dict(term.factors).get(tname)
                 tfuncs.append(_time_ratio(tf, dtime))
                 pvecs.append(_param_vectors(term, params, bases, dterm))
-            monomials.append((_Coefficient(np.array(weights), tfuncs, pvecs), tuple(index[a.unknown] for a in mono)))
+            joints = []
+            for joint in sep.joints:
+                train = JointTrain(joint, tname, params, {p: bases[p].nodes for p in params}, delta,
+                                   where=f"{where}: equations[{eq.index}]: ", reports=separations, max_rank=cap)
+                joints.append(_JointPart(-joint.term.coef / dterm.coef,
+                                         _time_ratio(dict(joint.term.factors).get(tname), dtime),
+                                         _param_vectors(joint.term, params, bases, dterm), train))
+            monomials.append((_Coefficient(np.array(weights), tfuncs, pvecs, joints),
+                              tuple(index[a.unknown] for a in mono)))
         rhs[s] = monomials
     initial = []
     for u in problem.unknowns:
         terms = [tt_rank_one(_param_vectors(term, params, bases), term.coef) for term in u.initial.terms]
+        for joint in u.initial.joints:
+            train = JointTrain(joint, tname, params, {p: bases[p].nodes for p in params}, delta,
+                               where=f"{where}: unknowns.{u.name}.initial: ", reports=separations, max_rank=cap)
+            terms.append(_JointPart(joint.term.coef, None, _param_vectors(joint.term, params, bases), train).at(0.0))
         if not terms:
             terms = [tt_rank_one([np.zeros(bases[p].nodes.size) for p in params])]
         initial.append(tt_round(tt_sum(terms), 1e-15))
-    return NonlinearSystem(unknowns, params, bases, bases[tname], rhs, initial)
+    return NonlinearSystem(unknowns, params, bases, bases[tname], rhs, initial, general)
 
 
 class _Ratio:
@@ -347,7 +394,7 @@ def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: floa
     """
     ones = tt_ones(system.shape)
     per_unknown = []
-    for monomials in system.rhs:
+    for s, monomials in enumerate(system.rhs):
         terms = []
         for coef, unknowns in monomials:
             a = coef.at(t)
@@ -357,6 +404,10 @@ def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: floa
             while len(factors) > 1:  # degree >= 3: fold all but the last factor exactly
                 a = tt_round(tt_hadamard(a, state[factors.pop(0)]), absolute=delta / 4, max_rank=max_rank)
             terms.append((1.0, a, state[factors[0]] if factors else ones))
+        part = system.general[s] if system.general else None
+        if part is not None:  # functions of the unknowns: by cross, to a share of the rounding's RMS budget
+            rms = CROSS_SHARE * delta / np.sqrt(float(np.prod(system.shape)))
+            terms.append((1.0, part.at(t, state, rms, max_rank, stats), ones))
         if not terms:
             terms.append((1.0, state[0].scaled(0.0), ones))
         per_unknown.append(terms)
@@ -521,7 +572,8 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             raise MarchFailure(f"max_steps={max_steps} reached", t, y)
         h = min(h, t_final - t)
         if h < MIN_STEP * span:
-            raise MarchFailure("step size underflow (the solution blows up or is stiff)", t, y)
+            raise MarchFailure("step size underflow (the solution blows up or is stiff" + underflow_hint(system.general, stats)
+                               + ")", t, y)
         err = np.inf
         try:
             with np.errstate(over="ignore", invalid="ignore"):
@@ -714,7 +766,8 @@ def solve_march(problem, tolerance: float, callback=None):
 
     opts = problem.solver
     started = _time.perf_counter()
-    system = compile_system(problem)
+    separations: list = []
+    system = compile_system(problem, tolerance, separations)
     last: dict = {}
 
     def progress(info):
@@ -807,7 +860,10 @@ def solve_march(problem, tolerance: float, callback=None):
         "max_rank": int(opts.max_rank),
         "wall_time": wall,
         "pgdcli_version": __version__,
+        **report_entries(stats),
     }
+    if separations:  # how many terms each non-separable coefficient needed
+        report["separated_coefficients"] = separation_report_text(separations)
     cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
                   description=problem.description)
     return SolveResult(cb, True, 0, message, np.array([estimate]), np.zeros(0, dtype=int), wall)

@@ -4,7 +4,10 @@ This module exists to check codebooks (``pgd verify``, plots): it must not
 share a code path with the PGD solver beyond the parsed spec, so that a bug in
 operator assembly cannot cancel out. It therefore never imports
 ``solver``, ``basis`` or ``separated``: the equations are evaluated pointwise
-from the parsed :class:`~pgdcli.problem.expressions.Polynomial` of each equation.
+from the parsed :class:`~pgdcli.problem.expressions.Polynomial` of each equation. Non-separable
+coefficients and sources (``sin(w*t)``, ``exp(-k*x*t)``) are evaluated from their expression
+trees at the samples (and space grid) at every call, never from the solvers' numerical
+separation, so the error gate and ``pgd verify`` check that separation too.
 
 Equation ``r`` reads (lhs - rhs = 0)
 
@@ -48,6 +51,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import SolverError
+from ..problem.general import evaluate as general_tree_values, is_general, tree_of
 
 __all__ = [
     "METHODS",
@@ -120,12 +124,21 @@ class ReferenceBudgetExceeded(Exception):
 # compiled right-hand side
 # ----------------------------------------------------------------------------------------------
 class _Coefficient:
-    """A Separable coefficient at S parameter samples: ``static(p) + sum_i w_i(p) f_i(t)``."""
+    """A Separable coefficient at S parameter samples: ``static(p) + sum_i w_i(p) f_i(t) + sum_j g_j(t, p)``.
 
-    __slots__ = ("static", "timed", "is_static")
+    The non-separable parts ``g_j`` (joints) are evaluated from their expression trees
+    directly, at the samples and the time of each call: never from the solvers' separation.
+    """
+
+    __slots__ = ("static", "timed", "is_static", "joints", "params", "time", "S")
 
     def __init__(self, sep, time: str, params: Mapping[str, np.ndarray], S: int) -> None:
+        self.params, self.time, self.S = params, time, S
+        self.joints = [joint for joint in sep.joints if time in joint.coordinates]
         static = np.zeros(S)
+        for joint in sep.joints:
+            if time not in joint.coordinates:
+                static = static + np.broadcast_to(joint.evaluate(**params), (S,))
         timed: dict = {}
         for term in sep.terms:
             weight = np.full(S, term.coef)
@@ -146,7 +159,7 @@ class _Coefficient:
                     timed[key] = (time_func, weight)
         self.static = static
         self.timed = list(timed.values())
-        self.is_static = not self.timed
+        self.is_static = not self.timed and not self.joints
 
     def at(self, t: float) -> np.ndarray:
         if self.is_static:
@@ -154,6 +167,10 @@ class _Coefficient:
         out = self.static
         for func, weight in self.timed:
             out = out + weight * float(func(t))
+        if self.joints:
+            values = {**self.params, self.time: np.asarray(float(t))}
+            for joint in self.joints:
+                out = out + np.broadcast_to(joint.evaluate(**values), (self.S,))
         return out
 
 
@@ -189,10 +206,12 @@ class _System:
                             "only appear linearly (not multiplied by unknowns) for the reference integrator"
                         )
                     der[r].append((index[monomial[0].unknown], coef))
-                else:
-                    rest[r].append((tuple(index[a.unknown] for a in monomial), coef))
+                else:  # an unknown's index, or the tree of a general atom (sin(th)), evaluated per call
+                    rest[r].append((tuple(tree_of(a) if is_general(a) else index[a.unknown] for a in monomial), coef))
         self.der = der
         self.rest = rest
+        self.index, self.time = index, time
+        self.params = {name: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for name, v in params.items()}
         self.static_mass = all(c.is_static for row in der for _, c in row)
         # fast path: every equation holds exactly one der(), each of a different unknown
         targets = [row[0][0] for row in der if len(row) == 1]
@@ -244,7 +263,7 @@ class _System:
             for idx, coef in terms:
                 product = coef.at(t)[:, None]
                 for s in idx:
-                    product = product * U[:, s, :]
+                    product = product * (U[:, s, :] if isinstance(s, int) else self._general(s, t, U))
                 acc += product
         A = self._mass if self.static_mass else self._mass_at(t)
         if self.permutation is not None:
@@ -253,6 +272,13 @@ class _System:
         else:
             D = np.linalg.solve(A, -G)
         return D.reshape(y.shape)
+
+    def _general(self, tree: tuple, t: float, U: np.ndarray) -> np.ndarray:
+        """A general atom's tree at the samples (S, K): unknowns from the state, coordinates per sample."""
+        values = {name: U[:, i, :] for name, i in self.index.items()}
+        values.update({name: v[:, None] for name, v in self.params.items()})
+        values[self.time] = t
+        return general_tree_values(tree, values)
 
     def initial(self, problem, params: Mapping[str, np.ndarray]) -> np.ndarray:
         y0 = np.empty((self.S, self.q))
@@ -865,6 +891,8 @@ class _PdeModel:
 
         self.ops = []  # (kind 'mass'|'op', time key, time func, param factors, coef, R A Z, R A (for h))
         self.sources = []  # (time key, time func, param factors, coef, R-rows vector)
+        self.joint_sources = []  # (equation row, Joint): non-separable sources, evaluated from their trees
+        self.joint_ops = []  # (equation row, unknown, derivative or None, Joint): non-separable coefficients
         for r, equation in enumerate(problem.equations):
             for monomial, sep in equation.polynomial.items():
                 if len(monomial) > 1:
@@ -874,6 +902,16 @@ class _PdeModel:
                         f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
                         "method-of-lines reference supports equations linear in the unknowns"
                     )
+                if sep.joints and monomial:
+                    atom = monomial[0]
+                    if atom.order == 1 and atom.coordinate == time:
+                        raise SolverError(
+                            f"{problem.source}: equations[{r}]: the method-of-lines reference does not support a "
+                            f"non-separable coefficient of der({atom.unknown}) ('{sep.joints[0].function_text()}')")
+                    L = None if atom.order == 0 else grid.derivative(atom.coordinate, atom.order)
+                    self.joint_ops += [(r, index[atom.unknown], L, joint) for joint in sep.joints]
+                elif sep.joints:
+                    self.joint_sources += [(r, joint) for joint in sep.joints]
                 for term in sep.terms:
                     coef, tfunc, pf, sf = _term_parts(term, time, self.space)
                     values = np.ones(n)
@@ -932,6 +970,36 @@ class _PdeModel:
             h[:, s * n + B] = sla.lu_solve(lu, g.T).T
         return h
 
+    def _joint_values(self, joint, params: Mapping[str, np.ndarray], S: int, t: float | None) -> np.ndarray:
+        """A non-separable coefficient on the grid at every sample, from its tree: (S, n)."""
+        at = {name: params[name][:, None] for name in self.params}
+        at.update({name: self.grid.values[name][None, :] for name in self.space})
+        if t is not None:
+            at[self.time] = np.asarray(float(t))
+        return np.broadcast_to(joint.evaluate(**at), (S, self.grid.n))
+
+    def joint_source(self, joints, params: Mapping[str, np.ndarray], S: int, t: float | None) -> np.ndarray:
+        """Non-separable sources at time t (None: steady or not timed), on the kept rows: (S m,)."""
+        n = self.grid.n
+        full = np.zeros((S, self.q * n))
+        for r, joint in joints:
+            full[:, r * n:(r + 1) * n] += self._joint_values(joint, params, S, t)
+        return full[:, self.rows].reshape(-1)
+
+    def joint_operators(self, entries, params: Mapping[str, np.ndarray], S: int, t: float | None) -> list:
+        """Per sample, the rows ``R (c L)`` of non-separable coefficients ``c`` of unknowns: (m, q n) each."""
+        import scipy.sparse as sp
+
+        n, q = self.grid.n, self.q
+        out = [sp.csr_matrix((self.rows.size, q * n)) for _ in range(S)]
+        for r, s, L, joint in entries:
+            values = self._joint_values(joint, params, S, t)
+            place = sp.csr_matrix(([1.0], ([r], [s])), shape=(q, q))
+            for i in range(S):
+                block = sp.diags(values[i]) if L is None else sp.diags(values[i]) @ L
+                out[i] = out[i] + sp.kron(place, block, format="csr")[self.rows]
+        return out
+
     def initial_grid(self, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
         """Initial values (S, q, n) at the grid nodes."""
         n = self.grid.n
@@ -973,6 +1041,18 @@ class _PdeSystem:
         for key, _, pf, coef, vec in model.sources:
             w = model._weights(pf, coef, params, S)
             src[key] = src.get(key, 0.0) + np.concatenate([w[i] * vec for i in range(S)])
+        self.params = params
+        self.timed_joints = [(r, j) for r, j in model.joint_sources if model.time in j.coordinates]
+        fixed = [(r, j) for r, j in model.joint_sources if model.time not in j.coordinates]
+        if fixed:
+            src[None] = src.get(None, 0.0) + model.joint_source(fixed, params, S, None)
+        self.timed_ops = [(e, *self._factors(e, h)) for e in model.joint_ops if model.time in e[3].coordinates]
+        fixed = [e for e in model.joint_ops if model.time not in e[3].coordinates]
+        if fixed:  # constant in time: with the other operators, once
+            A = model.joint_operators(fixed, params, S, None)
+            ops[None] = [a @ model.Z if j is None else j + a @ model.Z for a, j in zip(A, ops.get(None, [None] * S))]
+            src[None] = src.get(None, 0.0) + np.concatenate([a @ h[i] for i, a in enumerate(A)])
+        self.mass_solve = None  # M^-1 applied to the timed sources when the operators are premultiplied
         self.bad = np.zeros(S, dtype=bool)
         self.bad_reason = ""
         self.keys = sorted(set(ops) | set(src), key=lambda k: (k is not None, repr(k)))
@@ -995,13 +1075,15 @@ class _PdeSystem:
                 inv = sp.diags(1.0 / M.diagonal())
                 self.A = {k: (inv @ A).tocsr() for k, A in self.A.items()}
                 self.b = {k: inv @ b for k, b in self.b.items()}
+                self.mass_solve = inv.__matmul__
             else:
                 from scipy.sparse.linalg import splu
 
                 lu = splu(M.tocsc())
                 self.A = {k: sp.csr_matrix(lu.solve(A.toarray())) for k, A in self.A.items()}
                 self.b = {k: lu.solve(b) for k, b in self.b.items()}
-        self.constant = self.static and self.keys in ([], [None])
+                self.mass_solve = lu.solve
+        self.constant = self.static and self.keys in ([], [None]) and not self.timed_joints and not self.timed_ops
 
     def _mass_check(self, M) -> None:
         m, S = self.model.m, self.S
@@ -1027,7 +1109,28 @@ class _PdeSystem:
         A = sp.csr_matrix((self.S * self.model.m,) * 2)
         for k in self.keys:
             A = A + (self.A[k] if k is None else self._weight(k, t) * self.A[k])
+        for (_, _, _, joint), left, right, _ in self.timed_ops:
+            c = self.model._joint_values(joint, self.params, self.S, t).reshape(-1)
+            part = left @ sp.diags(c) @ right
+            A = A + (part if self.mass_solve is None else sp.csr_matrix(self.mass_solve(part.toarray())))
         return A
+
+    def _factors(self, entry, h: np.ndarray):
+        """``R (c L) Z = left diag(c) right`` over all samples (block-diagonal), and ``L h`` of the unknown: (S n,)."""
+        import scipy.sparse as sp
+
+        model = self.model
+        r, s, L, _ = entry
+        n, S = model.grid.n, self.S
+        select = sp.kron(sp.csr_matrix(([1.0], ([r], [0])), shape=(model.q, 1)), sp.identity(n), format="csr")
+        left = select[model.rows]  # (m, n): the equation rows kept from the block of equation r
+        right = model.Z[s * n:(s + 1) * n]  # (n, m)
+        block = h[:, s * n:(s + 1) * n]
+        if L is not None:
+            right = L @ right
+            block = (L @ block.T).T
+        return (sp.block_diag([left] * S, format="csr"), sp.block_diag([right] * S, format="csr"),
+                np.asarray(block).reshape(-1))
 
     def _mass_at(self, t: float):
         M = None
@@ -1047,6 +1150,16 @@ class _PdeSystem:
             if w != 0.0:
                 b = self.b[k] if y.ndim == 1 else self.b[k][:, None]
                 out -= w * (self.A[k] @ y + b)
+        if self.timed_joints:
+            b = self.model.joint_source(self.timed_joints, self.params, self.S, t)
+            if self.mass_solve is not None:
+                b = self.mass_solve(b)
+            out -= b if y.ndim == 1 else b[:, None]
+        for (_, _, _, joint), left, right, hs in self.timed_ops:  # R (c L) (Z y + h), c from its tree at t
+            c = self.model._joint_values(joint, self.params, self.S, t).reshape(-1)
+            part = left @ (c[:, None] * (right @ y) if y.ndim == 2 else c * (right @ y)) + \
+                (left @ (c * hs) if y.ndim == 1 else (left @ (c * hs))[:, None])
+            out -= part if self.mass_solve is None else self.mass_solve(part)
         if self.static:
             return out
         M = self._mass_at(t)

@@ -282,6 +282,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
         "wall_time": float(result.wall_time),
         "output": None if target is None else str(target),
+        **({"separated_coefficients": cb.info()["separated_coefficients"]} if "separated_coefficients" in rep else {}),
     }
 
 
@@ -310,6 +311,7 @@ def _short_where(where: str) -> str:
 
 
 def _summary_table(summary: dict):
+    from rich.markup import escape
     from rich.table import Table
 
     from ..checks.check import points_text
@@ -340,6 +342,8 @@ def _summary_table(summary: dict):
         residual = "none" if summary["residual"] is None else f"{summary['residual']:.3e}"
         table.add_row("residual", f"{residual} (relative; the solver's stopping signal)")
         table.add_row("modes", ", ".join(f"{u}: {n}" for u, n in summary["modes"].items()))
+    for line in summary.get("separated_coefficients", []):
+        table.add_row("separated", escape(line))
     slabs = summary.get("slabs", {})
     table.add_row("nodes", ", ".join(f"{c}: {n}" + (f" ({slabs[c]} slabs)" if c in slabs else "")
                                      for c, n in summary["coordinates"].items()))
@@ -444,6 +448,10 @@ def info(codebook, fmt):
     console.print("modes: " + ", ".join(
         f"{u} {v['modes']}" if v.get("representation") != "tensor-train" else f"{u} tensor train, ranks {tuple(v['ranks'])}"
         for u, v in summary["unknowns"].items()))
+    if summary.get("rates"):
+        console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
+    for line in summary.get("separated_coefficients", []):
+        console.print(f"separated coefficient: {line}", markup=False)
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("accurate") is False:
@@ -462,6 +470,11 @@ def info(codebook, fmt):
         r = summary["roundings"]
         console.print(f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized "
                       f"({r['redone']} redone with a larger sketch)")
+    if summary.get("crosses") is not None:
+        c = summary["crosses"]
+        failed = f", {c['not_converged']} not converged ({c['failure']})" if c["not_converged"] else ""
+        console.print(f"functions of the unknowns: {c['count']} approximations on the state (TT-cross or whole "
+                      f"grid){failed}, {c['evaluations']} values, ranks <= {c['max_rank']}")
     console.print(f"solve time: {summary['solve_time']:.3f} s")
     console.print(f"size: {_human_size(summary['size_bytes'])} ({summary['size_bytes']} bytes)")
     console.print(f"format: {summary['format']}, written by pgdcli {summary['pgdcli_version']}, {summary['created']}")

@@ -2,8 +2,10 @@
 
 A PGD solver needs every coefficient of an equation as a sum of products of
 one-coordinate functions, ``sum_i c_i prod_j f_ij(x_j)``. This module turns the
-text of an expression or equation into exactly that form, or explains which
-term is not separable and why.
+text of an expression or equation into that form; a part that is not separable
+(``sin(w*t)``, ``1/(1 + a*b)``) is kept as an expression tree of its
+coordinates (:class:`Joint`), which the solvers separate numerically on their
+nodes (:mod:`pgdcli.discretization.separate`) and the references evaluate directly.
 
 The text never reaches ``eval``/``exec``: it is parsed with
 ``ast.parse(text, mode="eval")`` and the tree is walked against a whitelist of
@@ -17,8 +19,11 @@ Data model
     A function of one coordinate (or a constant) as a small expression tree.
 :class:`SepTerm`
     ``coef * prod_j f_j(x_j)``, at most one factor per coordinate.
+:class:`Joint`
+    ``SepTerm * g(x_a, x_b, ...)``: a function of two or more coordinates jointly,
+    kept as a tree with named coordinate leaves ``('coord', name)``.
 :class:`Separable`
-    A sum of :class:`SepTerm`.
+    A sum of :class:`SepTerm` (``terms``) plus non-separable parts (``joints``).
 :class:`Atom`, ``Monomial``
     An unknown or one of its derivatives; a sorted tuple of atoms.
 :class:`Polynomial`
@@ -40,6 +45,7 @@ from typing import Callable, Iterable, Iterator, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from ..errors import ExpressionError
+from .general import FUNCTIONS, GENERAL, build_tree, mentions, render
 
 __all__ = [
     "FUNCTIONS",
@@ -47,6 +53,7 @@ __all__ = [
     "MAX_TERMS",
     "Func1D",
     "SepTerm",
+    "Joint",
     "Separable",
     "Atom",
     "Monomial",
@@ -58,20 +65,6 @@ __all__ = [
     "parse_equation",
     "evaluate_constant",
 ]
-
-#: Functions allowed in expressions, with their numpy implementation.
-FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
-    "sin": np.sin,
-    "cos": np.cos,
-    "tan": np.tan,
-    "exp": np.exp,
-    "log": np.log,
-    "sqrt": np.sqrt,
-    "sinh": np.sinh,
-    "cosh": np.cosh,
-    "tanh": np.tanh,
-    "abs": np.abs,
-}
 
 #: Names with a fixed meaning in expressions (the spec layer reserves them).
 BUILTIN_NAMES = frozenset({"der", "pi", *FUNCTIONS})
@@ -204,13 +197,15 @@ def _t_pow(a: tuple, b: tuple) -> tuple:
     return ("pow", a, b)
 
 
-def _evaluate_tree(tree: tuple, x: np.ndarray) -> np.ndarray:
-    """Evaluate a tree at the points x (a float array)."""
+def _evaluate_tree(tree: tuple, x) -> np.ndarray:
+    """Evaluate a tree at the points x (a float array; for a joint tree, coordinate name -> array)."""
     kind = tree[0]
     if kind == "num":
-        return np.full(x.shape, tree[1])
+        return np.full(np.shape(x) if not isinstance(x, Mapping) else (), tree[1])
     if kind == "var":
         return x
+    if kind == "coord":
+        return np.asarray(x[tree[1]], dtype=float)
     if kind == "call":
         return FUNCTIONS[tree[1]](_evaluate_tree(tree[2], x))
     if kind == "neg":
@@ -236,7 +231,7 @@ def _tree_precedence(tree: tuple) -> int:
     kind = tree[0]
     if kind == "num":
         return 3 if tree[1] < 0 else 5
-    if kind in ("var", "call"):
+    if kind in ("var", "call", "coord"):
         return 5
     return _PRECEDENCE[kind]
 
@@ -253,6 +248,8 @@ def _render_bare(tree: tuple, name: str) -> str:
         return _format_number(tree[1])
     if kind == "var":
         return name
+    if kind == "coord":
+        return tree[1]
     if kind == "call":
         return f"{tree[1]}({_render(tree[2], name)})"
     if kind == "neg":
@@ -393,6 +390,131 @@ def _term_text(term: SepTerm, signed: bool) -> str:
     return "-" + text if signed and term.coef < 0 else text
 
 
+def _substitute(tree: tuple, coordinate: str) -> tuple:
+    """A one-coordinate tree with its variable named: ``('var',)`` -> ``('coord', coordinate)``."""
+    if tree[0] == "var":
+        return ("coord", coordinate)
+    if tree[0] == "num" or tree[0] == "coord":
+        return tree
+    if tree[0] == "call":
+        return ("call", tree[1], _substitute(tree[2], coordinate))
+    return (tree[0],) + tuple(_substitute(child, coordinate) for child in tree[1:])
+
+
+def _fix_coordinate(tree: tuple, coordinate: str, value: float) -> tuple:
+    """A joint tree with the leaves of one coordinate replaced by a number (not simplified)."""
+    if tree[0] == "coord":
+        return _num(value) if tree[1] == coordinate else tree
+    if tree[0] in ("num", "var"):
+        return tree
+    if tree[0] == "call":
+        return ("call", tree[1], _fix_coordinate(tree[2], coordinate, value))
+    return (tree[0],) + tuple(_fix_coordinate(child, coordinate, value) for child in tree[1:])
+
+
+def _tree_coordinates(tree: tuple) -> frozenset[str]:
+    """Coordinates named in a joint tree."""
+    if tree[0] == "coord":
+        return frozenset((tree[1],))
+    if tree[0] in ("num", "var"):
+        return frozenset()
+    children = tree[2:] if tree[0] == "call" else tree[1:]
+    return frozenset().union(*(_tree_coordinates(child) for child in children))
+
+
+def _term_tree(term: SepTerm) -> tuple:
+    """A separable term as one joint tree (coordinates named)."""
+    tree = _num(term.coef)
+    for name, func in term.factors:
+        tree = _t_mul(tree, _substitute(func.tree, name))
+    return tree
+
+
+@dataclass(frozen=True)
+class Joint:
+    """A non-separable part of a coefficient: ``term * g(x_a, x_b, ...)``.
+
+    ``g`` depends on two or more coordinates and is kept as an expression tree
+    (leaves ``('coord', name)``), evaluated vectorized by :meth:`evaluate`; the
+    solvers separate it numerically on their nodes (:mod:`pgdcli.discretization.coefficients`).
+    One-coordinate factors of other coordinates stay apart in ``term``, so that
+    ``F*sin(w*t)`` is separated over (w, t) only.
+
+    Attributes
+    ----------
+    term : SepTerm
+        The coefficient and the one-coordinate factors of coordinates not in ``tree``.
+    tree : tuple
+        The joint function.
+    """
+
+    term: SepTerm
+    tree: tuple
+
+    @classmethod
+    def make(cls, term: SepTerm, tree: tuple) -> Joint:
+        """The product ``term * tree``, with the term's factors of the tree's coordinates folded into the tree."""
+        inside = _tree_coordinates(tree)
+        kept = []
+        for name, func in term.factors:
+            if name in inside:
+                tree = _t_mul(tree, _substitute(func.tree, name))
+            else:
+                kept.append((name, func))
+        return cls(SepTerm(term.coef, tuple(kept)), tree)
+
+    @property
+    def tree_coordinates(self) -> frozenset[str]:
+        """Coordinates of the joint function (at least two)."""
+        return _tree_coordinates(self.tree)
+
+    @property
+    def coordinates(self) -> frozenset[str]:
+        return self.term.coordinates | self.tree_coordinates
+
+    def evaluate(self, /, **values: np.ndarray) -> np.ndarray:
+        """The value with numpy broadcasting; values maps coordinate names to arrays."""
+        return self.term.evaluate(**values) * np.asarray(_evaluate_tree(self.tree, values), dtype=float)
+
+    def evaluate_tree(self, values: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The joint function alone (without ``term``) at broadcast arrays of its coordinates."""
+        return np.asarray(_evaluate_tree(self.tree, values), dtype=float)
+
+    def with_value(self, coordinate: str, value: float) -> Joint:
+        """The joint function with one coordinate fixed at a number (the factor ``term`` unchanged)."""
+        return Joint(self.term, _fix_coordinate(self.tree, coordinate, value))
+
+    def function_text(self) -> str:
+        """Text of the joint function alone, e.g. ``sin(w*t)``."""
+        return _render(self.tree, "?")
+
+    def scaled(self, factor: float) -> Joint:
+        return Joint(self.term.scaled(factor), self.tree)
+
+    def times_term(self, other: SepTerm) -> Joint:
+        return Joint.make(self.term * other, self.tree)
+
+    def __mul__(self, other: Joint) -> Joint:
+        if not isinstance(other, Joint):
+            return NotImplemented
+        return Joint.make(self.term * other.term, _t_mul(self.tree, other.tree))
+
+    def __str__(self) -> str:
+        text = _term_text(SepTerm(abs(self.term.coef), self.term.factors), signed=False)
+        inner = _render(self.tree, "?", 2)
+        text = inner if text == "1" else f"{text}*{inner}"
+        return "-" + text if self.term.coef < 0 else text
+
+
+def _normalize_joints(joints: Iterable[Joint]) -> tuple[Joint, ...]:
+    """Combine joints with equal factors and trees, drop zero ones (first-appearance order)."""
+    coefs: dict[tuple, float] = {}
+    for joint in joints:
+        key = (joint.term.factors, joint.tree)
+        coefs[key] = coefs.get(key, 0.0) + joint.term.coef
+    return tuple(Joint(SepTerm(coef, factors), tree) for (factors, tree), coef in coefs.items() if coef != 0)
+
+
 def _join_signed(pieces: Iterable[tuple[bool, str]]) -> str:
     """Join (negative, text) pieces as 'a + b - c'."""
     out = ""
@@ -421,9 +543,12 @@ class Separable:
     """
 
     terms: tuple[SepTerm, ...] = ()
+    #: non-separable parts (functions of two or more coordinates jointly), kept as trees
+    joints: tuple[Joint, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", _normalize_terms(self.terms))
+        object.__setattr__(self, "joints", _normalize_joints(self.joints))
 
     # -- constructors ----------------------------------------------------------------------
     @classmethod
@@ -447,15 +572,26 @@ class Separable:
     @property
     def coordinates(self) -> frozenset[str]:
         """Coordinates any term depends on."""
-        return frozenset().union(*(term.coordinates for term in self.terms))
+        return frozenset().union(*(term.coordinates for term in (*self.terms, *self.joints)))
 
     @property
     def is_zero(self) -> bool:
-        return not self.terms
+        return not self.terms and not self.joints
+
+    @property
+    def is_separated(self) -> bool:
+        """True without non-separable parts: a sum of products of one-coordinate functions."""
+        return not self.joints
+
+    def separated_part(self) -> Separable:
+        """The sum of the separable terms alone (the joints left out)."""
+        return Separable(self.terms)
 
     @property
     def constant_value(self) -> float | None:
         """The number if the sum is a constant (0.0 for zero), else None."""
+        if self.joints:
+            return None
         if self.is_zero:
             return 0.0
         if len(self.terms) == 1 and not self.terms[0].factors:
@@ -471,7 +607,7 @@ class Separable:
         """
         shape = np.broadcast_shapes(*(np.shape(v) for v in values.values()))
         result = np.zeros(shape)
-        for term in self.terms:
+        for term in (*self.terms, *self.joints):
             result = result + term.evaluate(**values)
         return result
 
@@ -480,12 +616,12 @@ class Separable:
         other = _as_separable(other)
         if other is None:
             return NotImplemented
-        return Separable(self.terms + other.terms)
+        return Separable(self.terms + other.terms, self.joints + other.joints)
 
     __radd__ = __add__
 
     def __neg__(self) -> Separable:
-        return Separable(tuple(term.scaled(-1.0) for term in self.terms))
+        return self * -1.0
 
     def __sub__(self, other: Separable | float) -> Separable:
         other = _as_separable(other)
@@ -501,10 +637,15 @@ class Separable:
 
     def __mul__(self, other: Separable | float) -> Separable:
         if isinstance(other, numbers.Real) and not isinstance(other, bool):
-            return Separable(tuple(term.scaled(float(other)) for term in self.terms))
+            factor = float(other)
+            return Separable(tuple(term.scaled(factor) for term in self.terms),
+                             tuple(joint.scaled(factor) for joint in self.joints))
         if not isinstance(other, Separable):
             return NotImplemented
-        return Separable(tuple(a * b for a in self.terms for b in other.terms))
+        joints = [j.times_term(t) for j in self.joints for t in other.terms]
+        joints += [j.times_term(t) for j in other.joints for t in self.terms]
+        joints += [a * b for a in self.joints for b in other.joints]
+        return Separable(tuple(a * b for a in self.terms for b in other.terms), tuple(joints))
 
     __rmul__ = __mul__
 
@@ -515,7 +656,9 @@ class Separable:
 
     # -- comparison, text ------------------------------------------------------------------
     def _key(self) -> dict:
-        return {term.factors: term.coef for term in self.terms}
+        key = {term.factors: term.coef for term in self.terms}
+        key.update({(j.term.factors, j.tree): j.term.coef for j in self.joints})
+        return key
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Separable):
@@ -526,7 +669,18 @@ class Separable:
         return hash(frozenset(self._key().items()))
 
     def __str__(self) -> str:
-        return _join_signed((term.coef < 0, _term_text(term, signed=False)) for term in self.terms)
+        pieces = [(term.coef < 0, _term_text(term, signed=False)) for term in self.terms]
+        pieces += [(j.term.coef < 0, str(j.scaled(-1.0) if j.term.coef < 0 else j)) for j in self.joints]
+        return _join_signed(pieces)
+
+    def tree(self) -> tuple:
+        """The whole sum as one expression tree with named coordinates (leaves ``('coord', name)``)."""
+        tree = _num(0.0)
+        for term in self.terms:
+            tree = _t_add(tree, _term_tree(term))
+        for joint in self.joints:
+            tree = _t_add(tree, _t_mul(_term_tree(joint.term), joint.tree))
+        return tree
 
 
 def _as_separable(value: object) -> Separable | None:
@@ -557,7 +711,7 @@ def merge_to_function(sep: Separable) -> Func1D | None:
         coordinates in total.
     """
     coordinates = sep.coordinates
-    if len(coordinates) > 1:
+    if len(coordinates) > 1 or sep.joints:
         return None
     coordinate = next(iter(coordinates), None)
     tree = _num(0.0)
@@ -712,7 +866,7 @@ class Polynomial:
     @property
     def term_count(self) -> int:
         """Total number of separated terms over all coefficients."""
-        return sum(len(sep.terms) for sep in self.terms.values())
+        return sum(len(sep.terms) + len(sep.joints) for sep in self.terms.values())
 
     # -- arithmetic ------------------------------------------------------------------------
     def __add__(self, other: Polynomial | Separable | float) -> Polynomial:
@@ -772,7 +926,8 @@ class Polynomial:
         for monomial, sep in self.items():
             if not monomial:
                 pieces += [(t.coef < 0, _term_text(t, signed=False)) for t in sep.terms]
-            elif len(sep.terms) == 1:
+                pieces += [(j.term.coef < 0, str(j.scaled(-1.0) if j.term.coef < 0 else j)) for j in sep.joints]
+            elif len(sep.terms) == 1 and not sep.joints:
                 term = sep.terms[0]
                 coef_text = _term_text(term, signed=False)
                 text = format_monomial(monomial) if coef_text == "1" else f"{coef_text}*{format_monomial(monomial)}"
@@ -828,6 +983,13 @@ _OPERATOR_SYMBOLS = {
     ast.Not: "not",
     ast.Invert: "~",
 }
+
+
+def _joint_of(tree: tuple) -> Separable:
+    """A non-separable function of coordinates (a tree with named coordinates) as a Separable."""
+    if len(_tree_coordinates(tree)) < 2:  # cannot happen for the parser's callers: kept as a guard
+        raise ValueError(f"a joint function needs two or more coordinates: {tree}")
+    return Separable((), (Joint(SepTerm(1.0), tree),))
 
 
 @dataclass(frozen=True)
@@ -889,9 +1051,6 @@ class _Parser:
         what = what or _DISALLOWED_KINDS.get(type(node), f"{type(node).__name__} syntax")
         return self.error(f"{what} {self.quote(node)} is not allowed; {self.allowed()}")
 
-    def non_separable(self, node: ast.AST, why: str) -> ExpressionError:
-        return self.error(f"non-separable term {self.quote(node)}: {why}")
-
     # -- dispatch --------------------------------------------------------------------------
     def visit(self, node: ast.AST, context: _Context | None) -> Polynomial:
         if isinstance(node, ast.Constant):
@@ -911,7 +1070,7 @@ class _Parser:
 
     def check_finite(self, result: Polynomial, node: ast.AST) -> None:
         for sep in result.values():
-            if not all(math.isfinite(term.coef) for term in sep.terms):
+            if not all(math.isfinite(term.coef) for term in (*sep.terms, *(j.term for j in sep.joints))):
                 raise self.error(f"{self.quote(node)} overflows: a coefficient is not a finite number")
 
     def visit_constant(self, node: ast.Constant) -> Polynomial:
@@ -986,8 +1145,19 @@ class _Parser:
         if isinstance(op, ast.Mult):
             return self.multiply(left, self.visit(node.right, context), node)
         if isinstance(op, ast.Div):
+            if context is None and mentions(node.right, self.unknowns):  # 1/(1 + u): a general atom 1/(...)
+                inverse = ast.BinOp(ast.Constant(1), ast.Div(), node.right)
+                return self.multiply(left, self.general(node, inverse), node)
             return self.divide(left, self.visit(node.right, _Context("denominator", node)), node)
+        if context is None and mentions(node.right, self.unknowns):  # 2**u
+            return self.general(node)
         return self.power(left, self.visit(node.right, _Context("exponent", node)), node)
+
+    def general(self, node: ast.AST, term: ast.AST | None = None) -> Polynomial:
+        """``term`` (default: ``node``, the text quoted in errors), in which unknowns enter
+        non-polynomially, as one general atom (:mod:`pgdcli.problem.general`)."""
+        tree = build_tree(node if term is None else term, _GeneralNames(self, node))
+        return Polynomial.atom(Atom(render(tree), GENERAL, 0))
 
     def multiply(self, a: Polynomial, b: Polynomial, node: ast.AST) -> Polynomial:
         """``a*b``, refusing expansions that would blow up the number of terms or the work."""
@@ -1029,18 +1199,15 @@ class _Parser:
         return Polynomial(merged)
 
     def reciprocal(self, den: Separable, node: ast.BinOp) -> Separable:
-        """``1/den`` in separated form, or a non-separable error."""
-        if len(den.terms) == 1:
+        """``1/den`` in separated form, or as a non-separable part (a joint) when it is not separable."""
+        if len(den.terms) == 1 and not den.joints:
             term = den.terms[0]
             # 1/(c*f(k)*g(a)) = (1/c) * (1/f(k)) * (1/g(a))
             return Separable((SepTerm(1.0 / term.coef, tuple((n, f.reciprocal()) for n, f in term.factors)),))
         func = merge_to_function(den)
         if func is not None:
             return Separable.of_function(func.reciprocal())
-        raise self.error(
-            f"non-separable denominator {self.quote(node.right)}: a denominator must be a single product"
-            " of one-coordinate functions (like k*a) or depend on one coordinate only"
-        )
+        return _joint_of(("div", _num(1.0), den.tree()))
 
     def power(self, base: Polynomial, exponent: Polynomial, node: ast.BinOp) -> Polynomial:
         exp_sep = exponent.coefficient(())
@@ -1054,6 +1221,8 @@ class _Parser:
         if base.atoms:
             if _is_nonneg_int(b):
                 return self.expand_power(base, int(b), node)
+            if all(atom.order == 0 for atom in base.atoms):  # u**0.5, 1/u**2: a general atom
+                return self.general(node)
             raise self.error(
                 f"non-polynomial term {self.quote(node)}: unknowns may only be raised to non-negative integer powers"
             )
@@ -1061,7 +1230,7 @@ class _Parser:
         c = sep.constant_value
         if c is not None:
             return Polynomial.constant(self.fold_power(c, b, node))
-        if len(sep.terms) == 1 and (sep.terms[0].coef > 0 or float(b).is_integer()):
+        if len(sep.terms) == 1 and not sep.joints and (sep.terms[0].coef > 0 or float(b).is_integer()):
             # (c*f(k)*g(a))**b = c**b * f(k)**b * g(a)**b
             term = sep.terms[0]
             coef = self.fold_power(term.coef, b, node)
@@ -1072,10 +1241,7 @@ class _Parser:
             return Polynomial.from_separable(Separable.of_function(func.power(b)))
         if _is_nonneg_int(b):
             return self.expand_power(base, int(b), node)
-        raise self.non_separable(
-            node,
-            "a non-integer power needs a base that is a single product (like k*a) or depends on one coordinate only",
-        )
+        return Polynomial.from_separable(_joint_of(("pow", sep.tree(), _num(b))))
 
     def expand_power(self, base: Polynomial, n: int, node: ast.BinOp) -> Polynomial:
         """``base**n`` by repeated multiplication (polynomial degree grows with n)."""
@@ -1088,21 +1254,20 @@ class _Parser:
 
     def coordinate_power(self, base: Polynomial, exponent: Separable, node: ast.BinOp) -> Polynomial:
         """``c**g`` for a positive constant c and an exponent depending on coordinates."""
+        if base.atoms and all(atom.order == 0 for atom in base.atoms):  # u**k: a general atom
+            return self.general(node)
         if base.atoms:
             raise self.error(
                 f"non-polynomial term {self.quote(node)}: unknowns may only be raised to non-negative integer powers"
             )
         c = base.coefficient(()).constant_value
-        if c is None:
-            raise self.non_separable(node, "when the exponent depends on a coordinate the base must be a constant")
+        if c is None:  # f(k)**g(a): a function of both, separated numerically by the solvers
+            return Polynomial.from_separable(_joint_of(("pow", base.coefficient(()).tree(), exponent.tree())))
         if c <= 0:
             raise self.error(
                 f"{self.quote(node)}: a base raised to a coordinate-dependent power must be positive, got {_format_number(c)}"
             )
-        result = self.exponential(exponent, node, base=c)
-        if result is None:
-            raise self.non_separable(node, "the exponent must be a sum of terms that each depend on one coordinate")
-        return result
+        return self.exponential(exponent, node, base=c)
 
     def fold_power(self, a: float, b: float, node: ast.AST) -> float:
         """``a**b`` of numbers, with errors instead of complex, infinite or raised results."""
@@ -1129,6 +1294,8 @@ class _Parser:
             raise self.disallowed(node, "call")
         if node.keywords or len(node.args) != 1:
             raise self.error(f"{self.quote(node)}: {name}() takes exactly one argument")
+        if context is None and mentions(node.args[0], self.unknowns):
+            return self.general(node)  # sin(th): a function of unknowns
         argument = self.visit(node.args[0], _Context("argument", node))
         return Polynomial.from_separable(self.apply_function(name, argument.coefficient(()), node))
 
@@ -1141,16 +1308,14 @@ class _Parser:
         if func is not None:
             return Separable.of_function(func.apply(name))
         if name == "exp":
-            # exp(f(k) + g(a)) = exp(f(k)) * exp(g(a))
-            result = self.exponential(arg, node)
-            if result is not None:
-                return result.coefficient(())
-        if name == "abs" and len(arg.terms) == 1:
+            # exp(f(k) + g(a) + h(w, t)) = exp(f(k)) * exp(g(a)) * exp(h(w, t))
+            return self.exponential(arg, node).coefficient(())
+        if name == "abs" and len(arg.terms) == 1 and not arg.joints:
             # |c f(k) g(a)| = |c| |f(k)| |g(a)|
             term = arg.terms[0]
             return Separable((SepTerm(abs(term.coef), tuple((n, f.apply("abs")) for n, f in term.factors)),))
-        extra = " (exp also accepts a sum of terms that each depend on one coordinate)" if name == "exp" else ""
-        raise self.non_separable(node, f"a function's argument may depend on one coordinate only{extra}")
+        # a function of two or more coordinates jointly (sin(w*t)): kept as a tree, separated by the solvers
+        return _joint_of(("call", name, arg.tree()))
 
     def fold_call(self, name: str, value: float, node: ast.AST) -> float:
         with np.errstate(all="ignore"):
@@ -1159,18 +1324,23 @@ class _Parser:
             raise self.error(f"{self.quote(node)} is not a finite real number")
         return result
 
-    def exponential(self, arg: Separable, node: ast.AST, base: float | None = None) -> Polynomial | None:
+    def exponential(self, arg: Separable, node: ast.AST, base: float | None = None) -> Polynomial:
         """``exp(arg)`` (or ``base**arg``) as one product, grouping the terms by coordinate.
 
-        Returns None if a term of arg depends on two or more coordinates.
+        Terms of two or more coordinates (and non-separable parts) go into one joint
+        factor ``exp(rest)``, so ``exp(-k - a*t)`` is ``exp(-k)`` times a function of (a, t) only.
         """
+        log_base = 1.0 if base is None else math.log(base)
+        single = tuple(term for term in arg.terms if len(term.factors) <= 1)
+        rest = Separable(tuple(term for term in arg.terms if len(term.factors) > 1), arg.joints)
+        if not rest.is_zero:
+            scaled = rest.tree() if base is None else _t_mul(_num(log_base), rest.tree())
+            joint = _joint_of(("call", "exp", scaled))
+            return Polynomial.from_separable(self.exponential(Separable(single), node, base).coefficient(()) * joint)
         groups: dict[str | None, list[SepTerm]] = {}
-        for term in arg.terms:
-            if len(term.factors) > 1:
-                return None
+        for term in single:
             key = term.factors[0][0] if term.factors else None
             groups.setdefault(key, []).append(term)
-        log_base = 1.0 if base is None else math.log(base)
         coef = 1.0
         factors = []
         for coordinate, terms in groups.items():
@@ -1223,6 +1393,35 @@ class _Parser:
                 f"{self.quote(der_node)}: the order of a derivative must be 1 or 2, got '{self.segment(node)}'"
             )
         return value
+
+
+class _GeneralNames:
+    """Name resolution and errors of :func:`pgdcli.problem.general.build_tree` for one general term of a parse."""
+
+    def __init__(self, parser: _Parser, term: ast.AST) -> None:
+        self.parser, self.term = parser, term
+
+    def resolve(self, node: ast.Name) -> tuple:
+        parser, name = self.parser, node.id
+        if name in parser.coordinates or name in parser.unknowns:
+            return ("name", name)
+        if name in parser.constants:
+            return ("num", float(parser.constants[name]))
+        if name == "pi":
+            return ("num", math.pi)
+        return parser.visit_name(node, None)  # raises the parser's own message (functions, der, unknown names)
+
+    def refuse(self, node: ast.AST, what: str | None = None) -> ExpressionError:
+        parser = self.parser
+        if isinstance(node, ast.Constant):
+            parser.visit_constant(node)  # raises its message (a string, a number too large)
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "der":
+            return parser.error(f"der() may not appear inside the non-polynomial term {parser.quote(self.term)}")
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
+            return parser.error(f"{parser.quote(node)}: {node.func.id}() takes exactly one argument")
+        if isinstance(node, (ast.BinOp, ast.UnaryOp)):
+            return parser.disallowed_operator(node)
+        return parser.disallowed(node, "call" if isinstance(node, ast.Call) else None)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -31,6 +31,7 @@ import numpy as np
 import yaml
 
 from ..errors import SpecError
+from .second_order import INITIAL_KEYS, rate_name, reduce_to_first_order
 from .expressions import (
     BUILTIN_NAMES,
     Polynomial,
@@ -141,6 +142,7 @@ class Unknown:
     initial: Separable
     initial_text: str
     boundary: dict = field(default_factory=dict, hash=False, compare=False)
+    rate_of: str | None = None  # the rate unknown of a second-order unknown (pgdcli.problem.second_order): its name
 
 
 @dataclass(frozen=True)
@@ -613,15 +615,33 @@ def _parse_unknown_names(check: _Checker, names: _Names, value: Any) -> dict[str
 
 def _parse_unknown(
     check: _Checker, name: str, body: dict, *, coordinates: list[str], constants: dict[str, float], unknowns: list[str], time: str
-) -> Unknown:
+) -> tuple[Unknown, ...]:
+    """The unknown, and for ``initial: {value, rate}`` its rate unknown after it."""
     path = f"unknowns.{name}.initial"
     boundary = _parse_boundary(check, name, body.get("boundary"), coordinates=coordinates, constants=constants,
                                unknowns=unknowns, time=time)
     if time is None:  # steady: parse_spec has checked there is no initial value
-        return Unknown(name, Separable(()), "", boundary)
+        return (Unknown(name, Separable(()), "", boundary),)
     raw = check.require(body, "initial", f"unknowns.{name}")
+    if isinstance(raw, dict):  # a second-order unknown: {value: x0, rate: v0}
+        raw = check.mapping(raw, path, INITIAL_KEYS)
+        value = check.require(raw, "value", path)
+        rate = _parse_initial(check, name, check.require(raw, "rate", path), f"{path}.rate", coordinates=coordinates,
+                              constants=constants, unknowns=unknowns, time=time)
+        first = _parse_initial(check, name, value, f"{path}.value", coordinates=coordinates, constants=constants,
+                               unknowns=unknowns, time=time)
+        return (Unknown(name, *first, boundary), Unknown(rate_name(name), *rate, rate_of=name))
+    return (Unknown(name, *_parse_initial(check, name, raw, path, coordinates=coordinates, constants=constants,
+                                          unknowns=unknowns, time=time), boundary),)
+
+
+def _parse_initial(check: _Checker, name: str, raw: Any, path: str, *, coordinates: list[str],
+                   constants: dict[str, float], unknowns: list[str], time: str) -> tuple[Separable, str]:
+    """An initial value: a number or an expression of the non-time coordinates; (value, text)."""
     if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
-        raise check.error(path, f"expected a number or an expression string, got {_show(raw)}")
+        expected = "a number or an expression string" + (", or {value: ..., rate: ...} for der(u, t, 2)"
+                                                         if path.endswith("initial") else "")
+        raise check.error(path, f"expected {expected}, got {_show(raw)}")
     text = raw if isinstance(raw, str) else repr(raw)
     poly = parse_expression(
         text,
@@ -640,7 +660,7 @@ def _parse_unknown(
         raise check.error(
             path, f"the initial value of '{name}' must not depend on the time coordinate '{time}', got '{text}'"
         )
-    return Unknown(name, initial, text if isinstance(raw, str) else str(raw), boundary)
+    return initial, text if isinstance(raw, str) else str(raw)
 
 
 def _parse_boundary(check: _Checker, name: str, value: Any, *, coordinates: list[str], constants: dict[str, float],
@@ -675,6 +695,9 @@ def _parse_boundary(check: _Checker, name: str, value: Any, *, coordinates: list
             if poly.unknowns:
                 raise check.error(spath, f"a boundary value must not depend on unknowns, got '{text}'")
             sep = poly.coefficient(())
+            if sep.joints:
+                raise check.error(spath, f"a boundary value must be a sum of products of one-coordinate functions; "
+                                         f"'{sep.joints[0].function_text()}' in '{text}' is not separable")
             if coord in sep.coordinates or (time is not None and time in sep.coordinates):
                 raise check.error(spath, f"a boundary value at the {side} end of {coord!r} may depend on the other "
                                          f"non-time coordinates only, got '{text}'")
@@ -709,14 +732,17 @@ def _assign_space_roles(check: _Checker, coordinates: tuple, unknowns: tuple, eq
 
 
 def _parse_equations(
-    check: _Checker, value: Any, *, coordinates: list[str], constants: dict[str, float], unknowns: list[str], time: str
+    check: _Checker, value: Any, *, coordinates: list[str], constants: dict[str, float], unknowns: list[str], time: str,
+    rates: dict[str, str] | None = None,
 ) -> tuple[Equation, ...]:
+    rates = rates or {}
+    declared = [u for u in unknowns if u not in rates.values()]
     if not isinstance(value, list):
         raise check.error("equations", f"expected a list of equation strings, got {_show(value)}")
-    if len(value) != len(unknowns):
+    if len(value) != len(declared):
         raise check.error(
             "equations",
-            f"expected {len(unknowns)} equation(s), one per unknown ({', '.join(unknowns)}), got {len(value)}",
+            f"expected {len(declared)} equation(s), one per unknown ({', '.join(declared)}), got {len(value)}",
         )
     equations = []
     for index, text in enumerate(value):
@@ -737,6 +763,10 @@ def _parse_equations(
             allow_space_derivatives=True,
         )
         equations.append(Equation(index, text, poly))
+    if time is not None:  # der(x, t, 2): the first-order system with the rates
+        equations, errors = reduce_to_first_order(equations, rates, time)
+        if errors:
+            raise check.error("", errors[0])
     if time is None:
         _check_steady(check, equations, unknowns)
     else:
@@ -762,8 +792,8 @@ def _check_time_derivatives(check: _Checker, equations: list[Equation], unknowns
             if atom.order > 1:
                 raise check.error(
                     f"equations[{equation.index}]",
-                    f"'{atom.text(time)}' in '{equation.text}': only first-order time derivatives are supported;"
-                    " write higher-order equations as first-order systems",
+                    f"'{atom.text(time)}' in '{equation.text}': time derivatives of order 1 or 2 only"
+                    " (write higher orders as first-order systems)",
                 )
         if not derivatives:
             raise check.error(
@@ -835,10 +865,15 @@ def _parse_output(check: _Checker, data: dict, name: str) -> pathlib.Path:
 # public API
 # ----------------------------------------------------------------------------------------------
 def check_derivatives_linear(problem: Problem) -> None:
-    """Reject a time derivative multiplied by an unknown (``der(u)*u``): no solver handles it."""
+    """Reject a time derivative multiplied by an unknown (``der(u)*u``): no solver handles it.
+
+    A space derivative times an unknown (``u*der(u, x)``, Burgers) is a nonlinear PDE: valid,
+    and refused by the solver with that reason."""
     for equation in problem.equations:
         for monomial in equation.polynomial:
             if len(monomial) >= 2 and any(atom.order > 0 for atom in monomial):
+                if all(atom.order == 0 or atom.coordinate != problem.time for atom in monomial):
+                    continue  # u*der(u, x): a valid nonlinear PDE, which the solver refuses (not supported yet)
                 raise SpecError(
                     f"{problem.source}: equations[{equation.index}]: term '{format_monomial(monomial, problem.time)}'"
                     f" in '{equation.text}' multiplies a derivative by an unknown; der(...) must appear linearly"
@@ -915,14 +950,24 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
         _parse_coordinate(check, n, body, time, constants) for n, body in coordinate_bodies.items()
     )
     unknown_bodies = _parse_unknown_names(check, names, data["unknowns"])
-    unknown_names = list(unknown_bodies)
+    rates = {}
+    for name, body in unknown_bodies.items():  # second-order unknowns: their rates are unknowns too
+        if isinstance(body.get("initial"), dict) and time is not None:
+            rate = rate_name(name)
+            if rate in names.owner:
+                raise check.error(f"unknowns.{name}.initial", f"the rate of {name!r} is the unknown {rate!r}, a name "
+                                                              f"already used by {names.owner[rate]}; rename that")
+            names.owner[rate] = f"unknowns.{name}.initial.rate"
+            rates[name] = rate
+    unknown_names = list(unknown_bodies) + list(rates.values())
     if time is None and any("initial" in body for body in unknown_bodies.values()):
         raise check.error("time", f"no coordinate is named 't'; add 'time: <name>' naming the time coordinate "
                                   f"(coordinates: {', '.join(coordinate_names)}), or remove the initial values "
                                   f"for a steady problem")
     context = dict(coordinates=coordinate_names, constants=constants, unknowns=unknown_names, time=time)
-    unknowns = tuple(_parse_unknown(check, n, body, **context) for n, body in unknown_bodies.items())
-    equations = _parse_equations(check, data["equations"], **context)
+    parsed = [_parse_unknown(check, n, body, **context) for n, body in unknown_bodies.items()]
+    unknowns = tuple(u[0] for u in parsed) + tuple(u[1] for u in parsed if len(u) > 1)
+    equations = _parse_equations(check, data["equations"], **context, rates=rates)
     coordinates = _assign_space_roles(check, coordinates, unknowns, equations, time)
     if time is None and not any(c.role == "space" for c in coordinates):
         raise check.error("time", "no coordinate is named 't' and no equation has a space derivative: name the time "
