@@ -103,18 +103,26 @@ def _predicted_nodes(c, ratio: float, past: list) -> int:
 MIN_DECAY = np.log(1.2)
 
 
+def _doublings(before: int, after: int) -> float:
+    """How many doublings of the node intervals lead from ``before`` to ``after`` nodes (at least 1)."""
+    return max(1.0, float(np.log2(max(after - 1, 1) / max(before - 1, 1))))
+
+
 def _spectral_nodes(c, ratio: float, decay: float | None) -> int:
     """Nodes at which the error ratio falls to a quarter, from the decay of the coefficients of one solve.
 
     The first refinement of a coordinate has no earlier doubling to measure the
     convergence by (:func:`_predicted_nodes`); the Chebyshev spectrum of the
     codebook along the coordinate gives the rate instead
-    (:func:`pgdcli.resolution.chebyshev_decay`). At most two doublings at once,
-    so that a pre-asymptotic spectrum cannot ask for an oversized grid.
+    (:func:`pgdcli.resolution.chebyshev_decay`). The caller trusts it only up to
+    :data:`MAX_ELEMENT_NODES` (beyond, the feature may be sharp: doubling and
+    measuring the gain decides between nodes and elements, as before) and takes
+    at most two doublings at once, so that a pre-asymptotic spectrum cannot ask
+    for an oversized grid.
     """
     if decay is None or not decay >= MIN_DECAY or not ratio > 0.25:
         return 0
-    return min(int(np.ceil(c.nodes + np.log(ratio / 0.25) / decay)), 4 * c.nodes - 3)
+    return int(np.ceil(c.nodes + np.log(ratio / 0.25) / decay))
 
 
 def split_elements(problem, name: str, where: np.ndarray):
@@ -148,8 +156,12 @@ def _refine(problem, check, names, history, decay=None):
         c = problem.coordinate(name)
         ratio = check.coordinate_ratio.get(name, 0.0)
         past = history.setdefault(name, [])
-        slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN * ratio
-        predicted = _predicted_nodes(c, ratio, past) or (0 if past else _spectral_nodes(c, ratio, decay.get(name)))
+        # P_GAIN per doubling of the nodes (a predicted jump can span several)
+        slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN ** _doublings(past[-1][2], c.nodes) * ratio
+        spectral = 0 if past else _spectral_nodes(c, ratio, decay.get(name))
+        if spectral > MAX_ELEMENT_NODES:
+            spectral = 0  # a sharp feature, or a pre-asymptotic spectrum: double and measure the gain
+        predicted = _predicted_nodes(c, ratio, past) or min(spectral, 4 * c.nodes - 3)
         h_able = c.role == "parameter" and c.discretization == "chebyshev" and name in check.line_points
         if h_able and (slow or max(c.nodes, predicted) > MAX_ELEMENT_NODES):
             x, r = check.line_points[name]

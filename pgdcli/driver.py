@@ -22,6 +22,7 @@ from .discretization.coefficients import separation_report_text
 from .discretization.coordinates import coordinate_infos
 from .discretization.linear import discretize
 from .errors import PgdError, SolverError
+from .problem.general import has_general
 
 __all__ = ["solve", "SolveResult"]
 
@@ -299,7 +300,7 @@ def _with_resolution(result: "SolveResult", tolerance: float | None) -> "SolveRe
 
 def _use_march(problem) -> bool:
     """``method: auto`` marches nonlinear problems and enriches linear ones."""
-    nonlinear = any(eq.polynomial.degree >= 2 for eq in problem.equations)
+    nonlinear = any(eq.polynomial.degree >= 2 or has_general(eq.polynomial) for eq in problem.equations)
     method = getattr(problem.solver, "method", "auto")
     if method == "pgd" and nonlinear:
         raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "

@@ -39,6 +39,7 @@ from ..discretization.basis import Basis1D, chebyshev_unit_nodes
 from ..discretization.coordinates import coordinate_infos
 from ..problem.expressions import Separable, SepTerm, merge_to_function
 from ..errors import SolverError
+from .general_rhs import CROSS_SHARE, GeneralPart, general_monomials, report_entries, underflow_hint
 from ..discretization.coefficients import SEPARATION_FRACTION, JointTrain, separation_report_text
 from ..discretization.separate import MAX_SEPARATION_RANK
 from ..tensors.tt import (TT, is_ones, tt_concatenate, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many,
@@ -253,6 +254,8 @@ class NonlinearSystem:
     rhs : list of list of (Coefficient, tuple of int)
         Per unknown, its monomials: coefficient and the unknown indices multiplied.
     initial : list of TT
+    general : list of GeneralPart or None
+        Per unknown, the terms with functions of the unknowns (:mod:`pgdcli.algorithms.general_rhs`).
     """
 
     unknowns: list[str]
@@ -261,6 +264,7 @@ class NonlinearSystem:
     time_basis: Basis1D
     rhs: list[list[tuple[_Coefficient, tuple[int, ...]]]]
     initial: list[TT]
+    general: list = field(default_factory=list)  # per unknown: GeneralPart of its general terms, or None
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -305,6 +309,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
         params = [SINGLE_POINT]
         bases[SINGLE_POINT] = _SinglePoint()
     rhs: list = [None] * len(unknowns)
+    general: list = [None] * len(unknowns)
     where = problem.source
     for eq in problem.equations:
         ders = [(m, sep) for m, sep in eq.polynomial.items() if any(a.order > 0 for a in m)]
@@ -327,8 +332,12 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
         dterm = dsep.terms[0]
         dtime = dict(dterm.factors).get(tname)
         monomials = []
+        crossed = general_monomials(eq.polynomial)
+        if crossed:
+            general[s] = GeneralPart([(m, eq.polynomial[m]) for m in crossed], dterm, unknowns, params,
+                                     {p: bases[p].nodes for p in params}, tname)
         for mono, sep in eq.polynomial.items():
-            if mono == ders[0][0]:
+            if mono == ders[0][0] or mono in crossed:
                 continue
             weights, tfuncs, pvecs = [], [], []
             for term in sep.terms:
@@ -356,7 +365,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
         if not terms:
             terms = [tt_rank_one([np.zeros(bases[p].nodes.size) for p in params])]
         initial.append(tt_round(tt_sum(terms), 1e-15))
-    return NonlinearSystem(unknowns, params, bases, bases[tname], rhs, initial)
+    return NonlinearSystem(unknowns, params, bases, bases[tname], rhs, initial, general)
 
 
 class _Ratio:
@@ -384,7 +393,7 @@ def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: floa
     """
     ones = tt_ones(system.shape)
     per_unknown = []
-    for monomials in system.rhs:
+    for s, monomials in enumerate(system.rhs):
         terms = []
         for coef, unknowns in monomials:
             a = coef.at(t)
@@ -394,6 +403,10 @@ def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: floa
             while len(factors) > 1:  # degree >= 3: fold all but the last factor exactly
                 a = tt_round(tt_hadamard(a, state[factors.pop(0)]), absolute=delta / 4, max_rank=max_rank)
             terms.append((1.0, a, state[factors[0]] if factors else ones))
+        part = system.general[s] if system.general else None
+        if part is not None:  # functions of the unknowns: by cross, to a share of the rounding's RMS budget
+            rms = CROSS_SHARE * delta / np.sqrt(float(np.prod(system.shape)))
+            terms.append((1.0, part.at(t, state, rms, max_rank, stats), ones))
         if not terms:
             terms.append((1.0, state[0].scaled(0.0), ones))
         per_unknown.append(terms)
@@ -558,7 +571,8 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             raise MarchFailure(f"max_steps={max_steps} reached", t, y)
         h = min(h, t_final - t)
         if h < MIN_STEP * span:
-            raise MarchFailure("step size underflow (the solution blows up or is stiff)", t, y)
+            raise MarchFailure("step size underflow (the solution blows up or is stiff" + underflow_hint(system.general, stats)
+                               + ")", t, y)
         err = np.inf
         try:
             with np.errstate(over="ignore", invalid="ignore"):
@@ -843,6 +857,7 @@ def solve_march(problem, tolerance: float, callback=None):
         "max_rank": int(opts.max_rank),
         "wall_time": wall,
         "pgdcli_version": __version__,
+        **report_entries(stats),
     }
     if separations:  # how many terms each non-separable coefficient needed
         report["separated_coefficients"] = separation_report_text(separations)

@@ -11,6 +11,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import SolverError
+from ..problem.general import evaluate as general_tree_values, is_general, tree_of
 from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, checked_params,
                              checked_times, run_in_chunks, sample_subset)
 
@@ -103,10 +104,12 @@ class CompiledSystem:
                             "only appear linearly (not multiplied by unknowns) for the reference integrator"
                         )
                     der[r].append((index[monomial[0].unknown], coef))
-                else:
-                    rest[r].append((tuple(index[a.unknown] for a in monomial), coef))
+                else:  # an unknown's index, or the tree of a general atom (sin(th)), evaluated per call
+                    rest[r].append((tuple(tree_of(a) if is_general(a) else index[a.unknown] for a in monomial), coef))
         self.der = der
         self.rest = rest
+        self.index, self.time = index, time
+        self.params = {name: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for name, v in params.items()}
         self.static_mass = all(c.is_static for row in der for _, c in row)
         # fast path: every equation holds exactly one der(), each of a different unknown
         targets = [row[0][0] for row in der if len(row) == 1]
@@ -158,7 +161,7 @@ class CompiledSystem:
             for idx, coef in terms:
                 product = coef.at(t)[:, None]
                 for s in idx:
-                    product = product * U[:, s, :]
+                    product = product * (U[:, s, :] if isinstance(s, int) else self._general(s, t, U))
                 acc += product
         A = self._mass if self.static_mass else self._mass_at(t)
         if self.permutation is not None:
@@ -167,6 +170,13 @@ class CompiledSystem:
         else:
             D = np.linalg.solve(A, -G)
         return D.reshape(y.shape)
+
+    def _general(self, tree: tuple, t: float, U: np.ndarray) -> np.ndarray:
+        """A general atom's tree at the samples (S, K): unknowns from the state, coordinates per sample."""
+        values = {name: U[:, i, :] for name, i in self.index.items()}
+        values.update({name: v[:, None] for name, v in self.params.items()})
+        values[self.time] = t
+        return general_tree_values(tree, values)
 
     def initial(self, problem, params: Mapping[str, np.ndarray]) -> np.ndarray:
         y0 = np.empty((self.S, self.q))

@@ -61,6 +61,11 @@ def info(codebook, fmt):
         r = summary["roundings"]
         console.print(f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized "
                       f"({r['redone']} redone with a larger sketch)")
+    if summary.get("crosses") is not None:
+        c = summary["crosses"]
+        failed = f", {c['not_converged']} not converged ({c['failure']})" if c["not_converged"] else ""
+        console.print(f"functions of the unknowns: {c['count']} approximations on the state (TT-cross or whole "
+                      f"grid){failed}, {c['evaluations']} values, ranks <= {c['max_rank']}")
     console.print(f"solve time: {summary['solve_time']:.3f} s")
     console.print(f"size: {human_size(summary['size_bytes'])} ({summary['size_bytes']} bytes)")
     console.print(f"format: {summary['format']}, written by pgdcli {summary['pgdcli_version']}, {summary['created']}")

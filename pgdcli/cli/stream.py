@@ -163,9 +163,11 @@ def read_points(handle, source: str, cb):
 def _values(cb, names: list[str], selected: list[str], points: list[tuple]) -> list[list[float]]:
     """Each point through the one-point path of :meth:`Codebook.evaluate` (see the module docstring)."""
     evaluate = cb.evaluate
+    # all unknowns in order: fields=None lets a tensor-train codebook take its shortest one-point path
+    fields = None if list(selected) == cb.unknown_names else selected
     rows = []
     for point in points:
-        values = evaluate(dict(zip(names, point)), fields=selected)
+        values = evaluate(dict(zip(names, point)), fields=fields)
         rows.append([float(values[u]) for u in selected])
     return rows
 

@@ -474,6 +474,7 @@ class Codebook:
         # the stack, when it holds every unknown (in their order): one point then skips evaluate's bookkeeping
         stack = self._tt_stack
         self._tt_all = stack if stack is not None and stack.names == list(self.fields) else None
+        self._tt_batch = None  # batch_eval.TTBatch, built on the first batch of tensor-train points
 
     # ------------------------------------------------------------------ introspection
     @property
@@ -656,18 +657,12 @@ class Codebook:
         arrays = np.broadcast_arrays(*[np.asarray(coordinates[c.name], dtype=float) for c in self.coordinates])
         shape = arrays[0].shape
         flat = [self._checked(c, a.reshape(-1)) for c, a in zip(self.coordinates, arrays)]
-        size = flat[0].size
-        values = {u: np.empty(size) for u in tt}
+        if self._tt_batch is None:  # prepared on the first batch (pgd query of one point never needs it)
+            from .batch_eval import TTBatch
 
-        def run(bounds):
-            for lo, hi in bounds:
-                mats = [b.interpolation_matrix(x[lo:hi]) for b, x in zip(self._bases, flat)]
-                for u in tt:
-                    values[u][lo:hi] = _contract_tt(self.fields[u], mats)
-
-        if size:
-            # the CP path's BLAS and thread policy (one BLAS thread, chunks shared by our threads)
-            _run_chunks(run, _chunk_bounds(size, _TT_CHUNK))
+            self._tt_batch = TTBatch({u: f for u, f in self.fields.items() if isinstance(f, FieldTT)}, self._bases)
+        # the CP path's BLAS and thread policy (one BLAS thread, blocks shared by our threads)
+        values = self._tt_batch.evaluate(flat, tt, _run_chunks)
         out.update({u: v.reshape(shape) for u, v in values.items()})
         return {u: out[u] for u in selected}
 
@@ -840,6 +835,10 @@ class Codebook:
         }
         if "roundings_exact" in rep:
             out["roundings"] = {k: int(rep[f"roundings_{k}"]) for k in ("exact", "sketched", "redone")}
+        if "crosses" in rep:  # functions of the unknowns, by cross approximation (pgdcli.algorithms.general_rhs)
+            out["crosses"] = {"count": int(rep["crosses"]), "not_converged": int(rep["crosses_not_converged"]),
+                              "evaluations": int(rep["cross_evaluations"]), "max_rank": int(rep["cross_max_rank"]),
+                              "failure": str(rep["cross_failure"])}
         if "check_error" in rep:
             def finite(key):  # JSON has no NaN: an unchecked march gives None
                 v = float(rep[key])
@@ -900,9 +899,6 @@ def _field_summary(fm) -> dict:
     if isinstance(fm, FieldTT):
         return {"representation": "tensor-train", "modes": fm.rank, "ranks": list(fm.ranks), "floats": fm.size}
     return {"representation": "cp", "modes": fm.rank, "floats": int(fm.alphas.size + sum(m.size for m in fm.modes))}
-
-
-_TT_CHUNK = 2048  # points per block: keeps the (points, nodes, rank) intermediates in cache
 
 
 def _contract_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:

@@ -35,6 +35,7 @@ __all__ = [
     "LinearBasis",
     "make_basis",
     "chebyshev_unit_nodes",
+    "barycentric_rows",
     "KINDS",
 ]
 
@@ -352,14 +353,7 @@ class PiecewiseChebyshevBasis(Basis1D):
         m = self.slab_size
         first = self.slab_of(x) * (m - 1)
         idx = first[:, None] + np.arange(m)  # (p, m) global node indices of each point's slab
-        diff = x[:, None] - self.nodes[idx]
-        exact = diff == 0.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            c = self.bary / diff
-        hit = exact.any(axis=1)
-        if hit.any():
-            c[hit] = exact[hit]
-        c /= c.sum(axis=1, keepdims=True)
+        c = barycentric_rows(x, self.nodes[idx], self.bary)
         out.fill(0.0)
         out[np.arange(x.size)[:, None], idx] = c
         return out
@@ -368,6 +362,20 @@ class PiecewiseChebyshevBasis(Basis1D):
     time_mass = ChebyshevBasis.time_mass
     time_load = ChebyshevBasis.time_load
     time_weights = ChebyshevBasis.time_weights
+
+
+def barycentric_rows(x: np.ndarray, nodes: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """Barycentric cardinal rows of the points ``x`` (shape (p,)) on ``nodes`` (shape (m,), or
+    (p, m): each point's own nodes), shape (p, m); a point on a node gets the unit row."""
+    diff = x[:, None] - nodes
+    exact = diff == 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = bary / diff
+    hit = exact.any(axis=1)
+    if hit.any():
+        c[hit] = exact[hit]
+    c /= c.sum(axis=1, keepdims=True)
+    return c
 
 
 def make_basis(kind: str, domain, size: int, breakpoints=None) -> Basis1D:

@@ -10,9 +10,12 @@ that tensor to an absolute bound ``delta`` on its entries:
   approximation in the Frobenius norm, which bounds every entry);
 * three or more: the TT-SVD of the node tensor (Oseledets 2011, each unfolding
   truncated to ``delta / sqrt(m - 1)`` so the total Frobenius error is at most
-  ``delta``) when the tensor has at most :data:`DENSE_LIMIT` entries; beyond, a
-  TT-cross approximation (:func:`tt_cross`: alternating maxvol-chosen fibres,
-  Oseledets & Tyrtyshnikov 2010) that evaluates the function at a few fibres only.
+  ``delta``) when the tensor has at most :data:`DENSE_LIMIT` entries; beyond, the
+  DMRG cross of :mod:`pgdcli.tensors.cross` (the march's, for functions of the
+  unknowns) from a few fibres, its max error measured at random entries.
+
+Both come from :mod:`pgdcli.tensors.cross`; this module adds the rank cap, the
+max-error measurement and the refusal (:class:`SeparationRankError`).
 
 The enrichment solver needs a canonical (CP) sum of Kronecker products: a tensor
 train is expanded exactly into ``prod(ranks)`` rank-one terms (:func:`cp_from_tt`).
@@ -25,11 +28,14 @@ parsed coefficients (:class:`pgdcli.problem.expressions.Joint`) to node values.
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
+
+from ..tensors.cross import tt_cross as cross_approximation
+from ..tensors.cross import tt_from_full, tt_values_at
+from ..tensors.tt import TT, tt_round
 
 __all__ = ["DENSE_LIMIT", "MAX_SEPARATION_RANK", "Separation", "SeparationRankError", "tt_svd", "tt_cross",
            "cp_from_tt", "separate_function"]
@@ -76,13 +82,6 @@ class Separation:
         return int(np.prod(self.ranks)) if self.ranks else 1
 
 
-def _truncation_rank(s: np.ndarray, delta: float) -> int:
-    """Smallest r with ``sqrt(sum_{i >= r} s_i^2) <= delta`` (at least 1)."""
-    tail = np.sqrt(np.cumsum((s ** 2)[::-1]))[::-1]  # tail[r] = norm of s[r:]
-    r = int(np.count_nonzero(tail > delta))
-    return max(r, 1)
-
-
 def tt_svd(tensor: np.ndarray, delta: float, max_rank: int = MAX_SEPARATION_RANK) -> list[np.ndarray]:
     """Tensor train of a full tensor with Frobenius error at most ``delta`` (TT-SVD).
 
@@ -101,27 +100,15 @@ def tt_svd(tensor: np.ndarray, delta: float, max_rank: int = MAX_SEPARATION_RANK
     Raises
     ------
     SeparationRankError
-        When an unfolding needs a rank above ``max_rank``.
+        When an unfolding needs a rank above ``max_rank``: the rank is the cap, the error the
+        largest entry left by the train truncated to it.
     """
-    shape = tensor.shape
-    m = len(shape)
-    if m == 1:
-        return [tensor.reshape(1, -1, 1).astype(float)]
-    local = delta / math.sqrt(m - 1)
-    cores = []
-    rest = np.asarray(tensor, dtype=float).reshape(1, -1)
-    r = 1
-    for k in range(m - 1):
-        rest = rest.reshape(r * shape[k], -1)
-        u, s, vt = np.linalg.svd(rest, full_matrices=False)
-        rank = _truncation_rank(s, local)
-        if rank > max_rank:
-            raise SeparationRankError(max_rank, float(np.sqrt(np.sum(s[max_rank:] ** 2))))
-        cores.append(u[:, :rank].reshape(r, shape[k], rank))
-        rest = s[:rank, None] * vt[:rank]
-        r = rank
-    cores.append(rest.reshape(r, shape[-1], 1))
-    return cores
+    tensor = np.asarray(tensor, dtype=float)
+    train = tt_from_full(tensor, delta)
+    if max(train.ranks, default=1) > max_rank:
+        capped = tt_round(train, absolute=0.0, max_rank=max_rank)
+        raise SeparationRankError(max_rank, float(np.max(np.abs(capped.full() - tensor))))
+    return list(train.cores)
 
 
 def cp_from_tt(cores: Sequence[np.ndarray]) -> list[list[np.ndarray]]:
@@ -146,45 +133,24 @@ def cp_from_tt(cores: Sequence[np.ndarray]) -> list[list[np.ndarray]]:
 
 
 def _full(cores: Sequence[np.ndarray]) -> np.ndarray:
-    out = cores[0][0]
-    for c in cores[1:]:
-        out = np.tensordot(out, c, axes=(-1, 0))
-    return out[..., 0]
+    return TT(cores).full()
 
 
-def _maxvol(a: np.ndarray, iterations: int = 100, tau: float = 1.05) -> np.ndarray:
-    """Rows of a tall (n, r) matrix whose r x r submatrix has a locally maximal volume."""
-    n, r = a.shape
-    if n <= r:
-        return np.arange(n)
-    _, _, piv = _qr_pivoted(a.T)
-    rows = piv[:r].copy()
-    for _ in range(iterations):
-        b = np.linalg.solve(a[rows].T, a.T).T  # (n, r): a = b a[rows]
-        i, j = np.unravel_index(np.argmax(np.abs(b)), b.shape)
-        if abs(b[i, j]) <= tau:
-            break
-        rows[j] = i
-    return rows
-
-
-def _qr_pivoted(a: np.ndarray):
-    import scipy.linalg
-
-    return scipy.linalg.qr(a, mode="economic", pivoting=True)
+#: Random entries at which a cross's max error is measured (not its own fibres).
+CHECK_ENTRIES = 1000
+#: Crosses of one function at ever tighter root-mean-square targets before the refusal.
+CROSS_ATTEMPTS = 3
 
 
 def tt_cross(function: Callable[[np.ndarray], np.ndarray], shape: Sequence[int], delta: float, *,
-             max_rank: int = MAX_SEPARATION_RANK, seed: int = 0, sweeps: int = 16) -> Separation:
-    """A tensor train of ``function`` on an index grid from a few of its fibres (TT-cross).
+             max_rank: int = MAX_SEPARATION_RANK, seed: int = 0) -> Separation:
+    """A tensor train of ``function`` on an index grid from a few of its fibres, to a max error ``delta``.
 
-    Left-to-right sweeps: at each mode the function is evaluated on the fibres
-    ``(left indices) x (all n_k) x (right indices)``, the unfolding is factored by a truncated
-    SVD, the core is the interpolating ``Q Q[rows]^-1`` on the maxvol rows of its left factor,
-    and those rows are the next mode's left indices (a skeleton decomposition per mode:
-    Oseledets & Tyrtyshnikov 2010). The right index sets are random fibres, doubled wherever an
-    unfolding shows no small singular value, until the train agrees with the function at 1000
-    random entries to ``delta``.
+    The DMRG cross of :func:`pgdcli.tensors.cross.tt_cross` converges in the
+    root-mean-square over the grid; a separation promises a max abs error, so
+    the train is measured at :data:`CHECK_ENTRIES` random entries and the cross
+    repeated with a target ten times tighter while it misses (at most
+    :data:`CROSS_ATTEMPTS` crosses, the last one's index sets as the next start).
 
     Parameters
     ----------
@@ -193,91 +159,33 @@ def tt_cross(function: Callable[[np.ndarray], np.ndarray], shape: Sequence[int],
     shape : sequence of int
     delta : float
         Target max abs error.
-    max_rank, seed, sweeps : int
+    max_rank, seed : int
 
     Returns
     -------
     Separation
-        ``error`` is the max abs error measured at the 1000 random entries.
+        ``error`` is the max abs error measured at the random entries.
 
     Raises
     ------
     SeparationRankError
-        When the rank would exceed ``max_rank`` or the sweeps do not reach ``delta``.
+        When the rank reaches ``max_rank`` or the crosses do not reach ``delta``.
     """
     rng = np.random.default_rng(seed)
-    m = len(shape)
-    check = np.column_stack([rng.integers(0, n, 1000) for n in shape])
+    check = np.column_stack([rng.integers(0, n, CHECK_ENTRIES) for n in shape])
     exact = function(check)
-    # left[k]: index sets (r, k) of modes < k; right[k]: (r, m - k) of modes >= k
-    left = [np.zeros((1, 0), dtype=int)] + [None] * m
-    right = [None] * m + [np.zeros((1, 0), dtype=int)]
-    for k in range(m - 1, 0, -1):
-        right[k] = np.column_stack([rng.integers(0, n, KICK) for n in shape[k:]])
-    error, rank_reached = math.inf, 1
-    for _ in range(sweeps):
-        cores = []
-        for k in range(m):  # left to right: cores and new left sets
-            values = _fibres(function, left[k], shape[k], right[k + 1])
-            rl, n, rr = values.shape
-            if k == m - 1:
-                cores.append(values)
-                break
-            q, rank = _range(values.reshape(rl * n, rr), delta / math.sqrt(m), max_rank)
-            rank_reached = max(rank_reached, rank)
-            rows = _maxvol(q)
-            cores.append(np.linalg.solve(q[rows].T, q.T).T.reshape(rl, n, q.shape[1]))
-            left[k + 1] = np.concatenate([left[k][rows // n], (rows % n)[:, None]], axis=1)
-        error = float(np.max(np.abs(_evaluate_at(cores, check) - exact)))
-        if error <= delta:
-            return Separation(cores, error, "tt-cross")
-        for k in range(m - 1, 0, -1):  # right to left: new right sets
-            values = _fibres(function, left[k], shape[k], right[k + 1])
-            rl, n, rr = values.shape
-            q, rank = _range(values.reshape(rl, n * rr).T, delta / math.sqrt(m), max_rank)
-            rank_reached = max(rank_reached, rank)
-            rows = _maxvol(q)
-            right[k] = _kicked(np.concatenate([(rows // rr)[:, None], right[k + 1][rows % rr]], axis=1), shape[k:],
-                               rng)
-    raise SeparationRankError(rank_reached, error)
-
-
-#: Random indices added to every index set of a cross sweep, so that ranks can grow.
-KICK = 3
-
-
-def _fibres(function, left: np.ndarray, n: int, right: np.ndarray) -> np.ndarray:
-    """``function`` on (left sets) x (all n) x (right sets): shape (r_left, n, r_right)."""
-    rl, rr = left.shape[0], right.shape[0]
-    grid = np.concatenate([
-        np.repeat(left, n * rr, axis=0),
-        np.tile(np.repeat(np.arange(n), rr), rl)[:, None],
-        np.tile(right, (rl * n, 1)),
-    ], axis=1)
-    return function(grid).reshape(rl, n, rr)
-
-
-def _range(a: np.ndarray, delta: float, max_rank: int) -> tuple[np.ndarray, int]:
-    """Orthonormal basis of the numerical range of ``a`` (truncated SVD) and its rank."""
-    u, s, _ = np.linalg.svd(a, full_matrices=False)
-    rank = _truncation_rank(s, delta)
-    if rank > max_rank:
-        raise SeparationRankError(max_rank, float(np.sqrt(np.sum(s[max_rank:] ** 2))))
-    return u[:, :rank], rank
-
-
-def _kicked(sets: np.ndarray, shape: Sequence[int], rng: np.random.Generator) -> np.ndarray:
-    """Index sets plus :data:`KICK` random ones (duplicates removed)."""
-    extra = np.column_stack([rng.integers(0, n, KICK) for n in shape])
-    return np.unique(np.concatenate([sets, extra]), axis=0)
-
-
-def _evaluate_at(cores: Sequence[np.ndarray], index: np.ndarray) -> np.ndarray:
-    """Entries of a train at integer indices (N, m)."""
-    out = cores[0][0][index[:, 0]]  # (N, r_1)
-    for k in range(1, len(cores)):
-        out = np.einsum("na,anb->nb", out, cores[k][:, index[:, k], :])
-    return out[:, 0]
+    target, right_sets, error, rank = 0.5 * delta, None, np.inf, 1
+    for _ in range(CROSS_ATTEMPTS):
+        result = cross_approximation(function, shape, target, max_rank=max_rank, rng=rng, right_sets=right_sets,
+                                     dense_limit=0)
+        rank = max(result.train.ranks, default=1)
+        error = float(np.max(np.abs(tt_values_at(result.train, check) - exact)))
+        if error <= delta and rank <= max_rank and result.converged:
+            return Separation(list(result.train.cores), error, "tt-cross")
+        if rank >= max_rank:
+            break
+        target, right_sets = target / 10.0, result.right_sets
+    raise SeparationRankError(rank, error)
 
 
 def separate_function(function: Callable[[Mapping[str, np.ndarray]], np.ndarray], nodes: Mapping[str, np.ndarray],

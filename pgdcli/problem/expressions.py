@@ -45,6 +45,7 @@ from typing import Callable, Iterable, Iterator, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from ..errors import ExpressionError
+from .general import FUNCTIONS, GENERAL, build_tree, mentions, render
 
 __all__ = [
     "FUNCTIONS",
@@ -64,20 +65,6 @@ __all__ = [
     "parse_equation",
     "evaluate_constant",
 ]
-
-#: Functions allowed in expressions, with their numpy implementation.
-FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
-    "sin": np.sin,
-    "cos": np.cos,
-    "tan": np.tan,
-    "exp": np.exp,
-    "log": np.log,
-    "sqrt": np.sqrt,
-    "sinh": np.sinh,
-    "cosh": np.cosh,
-    "tanh": np.tanh,
-    "abs": np.abs,
-}
 
 #: Names with a fixed meaning in expressions (the spec layer reserves them).
 BUILTIN_NAMES = frozenset({"der", "pi", *FUNCTIONS})
@@ -1158,8 +1145,19 @@ class _Parser:
         if isinstance(op, ast.Mult):
             return self.multiply(left, self.visit(node.right, context), node)
         if isinstance(op, ast.Div):
+            if context is None and mentions(node.right, self.unknowns):  # 1/(1 + u): a general atom 1/(...)
+                inverse = ast.BinOp(ast.Constant(1), ast.Div(), node.right)
+                return self.multiply(left, self.general(node, inverse), node)
             return self.divide(left, self.visit(node.right, _Context("denominator", node)), node)
+        if context is None and mentions(node.right, self.unknowns):  # 2**u
+            return self.general(node)
         return self.power(left, self.visit(node.right, _Context("exponent", node)), node)
+
+    def general(self, node: ast.AST, term: ast.AST | None = None) -> Polynomial:
+        """``term`` (default: ``node``, the text quoted in errors), in which unknowns enter
+        non-polynomially, as one general atom (:mod:`pgdcli.problem.general`)."""
+        tree = build_tree(node if term is None else term, _GeneralNames(self, node))
+        return Polynomial.atom(Atom(render(tree), GENERAL, 0))
 
     def multiply(self, a: Polynomial, b: Polynomial, node: ast.AST) -> Polynomial:
         """``a*b``, refusing expansions that would blow up the number of terms or the work."""
@@ -1223,6 +1221,8 @@ class _Parser:
         if base.atoms:
             if _is_nonneg_int(b):
                 return self.expand_power(base, int(b), node)
+            if all(atom.order == 0 for atom in base.atoms):  # u**0.5, 1/u**2: a general atom
+                return self.general(node)
             raise self.error(
                 f"non-polynomial term {self.quote(node)}: unknowns may only be raised to non-negative integer powers"
             )
@@ -1254,6 +1254,8 @@ class _Parser:
 
     def coordinate_power(self, base: Polynomial, exponent: Separable, node: ast.BinOp) -> Polynomial:
         """``c**g`` for a positive constant c and an exponent depending on coordinates."""
+        if base.atoms and all(atom.order == 0 for atom in base.atoms):  # u**k: a general atom
+            return self.general(node)
         if base.atoms:
             raise self.error(
                 f"non-polynomial term {self.quote(node)}: unknowns may only be raised to non-negative integer powers"
@@ -1292,6 +1294,8 @@ class _Parser:
             raise self.disallowed(node, "call")
         if node.keywords or len(node.args) != 1:
             raise self.error(f"{self.quote(node)}: {name}() takes exactly one argument")
+        if context is None and mentions(node.args[0], self.unknowns):
+            return self.general(node)  # sin(th): a function of unknowns
         argument = self.visit(node.args[0], _Context("argument", node))
         return Polynomial.from_separable(self.apply_function(name, argument.coefficient(()), node))
 
@@ -1389,6 +1393,35 @@ class _Parser:
                 f"{self.quote(der_node)}: the order of a derivative must be 1 or 2, got '{self.segment(node)}'"
             )
         return value
+
+
+class _GeneralNames:
+    """Name resolution and errors of :func:`pgdcli.problem.general.build_tree` for one general term of a parse."""
+
+    def __init__(self, parser: _Parser, term: ast.AST) -> None:
+        self.parser, self.term = parser, term
+
+    def resolve(self, node: ast.Name) -> tuple:
+        parser, name = self.parser, node.id
+        if name in parser.coordinates or name in parser.unknowns:
+            return ("name", name)
+        if name in parser.constants:
+            return ("num", float(parser.constants[name]))
+        if name == "pi":
+            return ("num", math.pi)
+        return parser.visit_name(node, None)  # raises the parser's own message (functions, der, unknown names)
+
+    def refuse(self, node: ast.AST, what: str | None = None) -> ExpressionError:
+        parser = self.parser
+        if isinstance(node, ast.Constant):
+            parser.visit_constant(node)  # raises its message (a string, a number too large)
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "der":
+            return parser.error(f"der() may not appear inside the non-polynomial term {parser.quote(self.term)}")
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
+            return parser.error(f"{parser.quote(node)}: {node.func.id}() takes exactly one argument")
+        if isinstance(node, (ast.BinOp, ast.UnaryOp)):
+            return parser.disallowed_operator(node)
+        return parser.disallowed(node, "call" if isinstance(node, ast.Call) else None)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -437,10 +437,15 @@ def _parse_output(check: Checker, data: dict, name: str) -> pathlib.Path:
 # public API
 # ----------------------------------------------------------------------------------------------
 def check_derivatives_linear(problem: Problem) -> None:
-    """Reject a time derivative multiplied by an unknown (``der(u)*u``): no solver handles it."""
+    """Reject a time derivative multiplied by an unknown (``der(u)*u``): no solver handles it.
+
+    A space derivative times an unknown (``u*der(u, x)``, Burgers) is a nonlinear PDE: valid,
+    and refused by the solver with that reason."""
     for equation in problem.equations:
         for monomial in equation.polynomial:
             if len(monomial) >= 2 and any(atom.order > 0 for atom in monomial):
+                if all(atom.order == 0 or atom.coordinate != problem.time for atom in monomial):
+                    continue  # u*der(u, x): a valid nonlinear PDE, which the solver refuses (not supported yet)
                 raise SpecError(
                     f"{problem.source}: equations[{equation.index}]: term '{format_monomial(monomial, problem.time)}'"
                     f" in '{equation.text}' multiplies a derivative by an unknown; der(...) must appear linearly"

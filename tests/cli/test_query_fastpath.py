@@ -29,6 +29,7 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli.codebook.codebook as codebook_module
+from pgdcli.codebook import batch_eval
 from pgdcli.cli import query as _query
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
@@ -354,7 +355,7 @@ def test_tensor_train_batches_threads_and_chunks(solved, monkeypatch):
     one-point evaluation (the point past the last full chunk, which joins it, included)."""
     cb = solved("logistic").codebook
     rng = np.random.default_rng(9)
-    size = codebook_module._PARALLEL_MIN_POINTS + 2 * codebook_module._TT_CHUNK + 1
+    size = codebook_module._PARALLEL_MIN_POINTS + 2 * batch_eval.MAX_BLOCK + 1
     p = {c.name: rng.uniform(*c.domain, size) for c in cb.coordinates}
     ref = cb(**p)
     for i in list(rng.choice(size, 20, replace=False)) + [size - 1]:

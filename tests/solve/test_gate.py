@@ -13,6 +13,7 @@ import warnings
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from threadpoolctl import threadpool_limits
 
 import pgdcli
 from pgdcli import parse_spec
@@ -400,11 +401,12 @@ def test_a_second_march_starts_from_the_target_learned():
         text = text.replace(f"  {name}: {{domain:", f"  {name}: {{nodes: 9, domain:")
     problem = parse_spec(text, source="sir.yaml")
     learned: dict = {}
-    first = _checked_march(problem, tolerance=1e-6, learned=learned)
+    with threadpool_limits(1):  # as pgdcli.solve runs it (two BLAS threads per xdist worker: 10x slower)
+        first = _checked_march(problem, tolerance=1e-6, learned=learned)
+        second = _checked_march(problem, tolerance=1e-6, learned=learned)
     attempts = first.codebook.report["march_attempts"]
     assert attempts.shape[0] >= 2 and attempts[0, 0] == CHECK_FIRST * 1e-6  # it had to tighten
     assert first.check.node_ratio <= 1.0 and learned["march_target"] == attempts[-1, 0]
-    second = _checked_march(problem, tolerance=1e-6, learned=learned)
     assert second.codebook.report["march_attempts"].tolist() == [[attempts[-1, 0], second.check.error]]
     assert second.check.node_ratio <= 1.0
 
@@ -418,12 +420,13 @@ def test_a_second_enrichment_starts_from_the_residual_learned():
     problem = pgdcli.load_spec(PROBLEMS / "heat1d.yaml")
     opts = problem.solver
     learned: dict = {}
-    first = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
-                                max_modes=opts.max_modes, learned=learned)
+    with threadpool_limits(1):  # as pgdcli.solve runs it
+        first = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
+                                    max_modes=opts.max_modes, learned=learned)
+        second = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
+                                     max_modes=opts.max_modes, learned=learned)
     attempts = first.codebook.report["enrichment_attempts"]
     assert attempts.shape[0] == 2 and attempts[0, 0] == opts.tolerance
     assert learned["residual"] == attempts[-1, 0] < opts.tolerance
-    second = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
-                                 max_modes=opts.max_modes, learned=learned)
     assert second.codebook.report["enrichment_attempts"][:, 0].tolist() == [learned["residual"]]
     assert second.accurate is not False and second.check.node_ratio <= 1.0

@@ -1,0 +1,219 @@
+"""General terms: functions of the unknowns as whitelisted expression trees.
+
+The separated parser (:mod:`pgdcli.problem.expressions`) keeps equations polynomial in
+the unknowns. A term in which an unknown enters non-polynomially (``sin(th)``,
+``exp(-E/u)``, ``1/(1 + u)``, ``u**0.5``, ``sqrt(vx**2 + vy**2)``) cannot be
+separated; it becomes a *general atom*: an :class:`~pgdcli.problem.expressions.Atom`
+whose ``coordinate`` is :data:`GENERAL` and whose ``unknown`` is the canonical
+text of an expression tree over coordinates and unknowns. The atom then
+multiplies like an unknown, so ``-(g/L)*sin(th)`` is the monomial
+``(sin(th),)`` with the separated coefficient ``-g/L`` and ``abs(v)*v`` the
+monomial ``(abs(v), v)``: the polynomial part of an equation keeps its exact
+path, and the general atoms beside it are evaluated pointwise by
+:func:`evaluate`, a vectorized walk of the tree (never ``eval``).
+
+Trees are tuples: ``('num', value)``, ``('name', name)``, ``('call', function,
+child)``, ``('neg', child)`` and ``(op, left, right)`` with op in ``add sub mul
+div pow``. Constants are folded into numbers when the tree is built. The text
+of an atom renders the tree with the fewest parentheses that parse back to the
+same tree, so :func:`tree_of` recovers it from the atom alone (spec text never
+reaches ``eval``: the text is parsed with ``ast`` against the same whitelist).
+"""
+
+from __future__ import annotations
+
+import ast
+import functools
+import math
+from typing import Iterable, Mapping
+
+import numpy as np
+
+__all__ = ["FUNCTIONS", "GENERAL", "is_general", "tree_of", "build_tree", "mentions", "render", "evaluate",
+           "tree_names", "has_general"]
+
+#: Functions allowed in expressions, with their numpy implementation (the whitelist of
+#: :mod:`pgdcli.problem.expressions` too, which imports it from here).
+FUNCTIONS = {
+    "sin": np.sin,
+    "cos": np.cos,
+    "tan": np.tan,
+    "exp": np.exp,
+    "log": np.log,
+    "sqrt": np.sqrt,
+    "sinh": np.sinh,
+    "cosh": np.cosh,
+    "tanh": np.tanh,
+    "abs": np.abs,
+}
+
+#: The ``coordinate`` of a general atom (not an identifier, so no coordinate can have it).
+GENERAL = "<general>"
+
+_BINARY_OPS = {ast.Add: "add", ast.Sub: "sub", ast.Mult: "mul", ast.Div: "div", ast.Pow: "pow"}
+_NUMPY = {"add": np.add, "sub": np.subtract, "mul": np.multiply, "div": np.divide, "pow": np.power}
+
+
+# ----------------------------------------------------------------------------------------------
+# atoms
+# ----------------------------------------------------------------------------------------------
+def is_general(atom) -> bool:
+    """True for the :class:`~pgdcli.problem.expressions.Atom` of a general term: ``Atom(render(tree), GENERAL, 0)``."""
+    return atom.coordinate == GENERAL
+
+
+def has_general(polynomial) -> bool:
+    """True if a monomial of the polynomial holds a general atom."""
+    return any(is_general(atom) for atom in polynomial.atoms)
+
+
+@functools.lru_cache(maxsize=1024)
+def tree_of(atom) -> tuple:
+    """The expression tree of a general atom (its text parsed back, whitelisted)."""
+    if not is_general(atom):
+        raise ValueError(f"{atom!r} is not a general atom")
+    return build_tree(ast.parse(atom.unknown, mode="eval").body, _Names())
+
+
+def mentions(node: ast.AST, names: Iterable[str]) -> bool:
+    """True if the syntax tree uses one of the names (as a variable or inside der())."""
+    names = set(names)
+    return any(isinstance(n, ast.Name) and n.id in names for n in ast.walk(node))
+
+
+# ----------------------------------------------------------------------------------------------
+# building trees from whitelisted syntax
+# ----------------------------------------------------------------------------------------------
+class _Names:
+    """Name resolution for re-parsing canonical text: every name is a variable."""
+
+    constants: Mapping[str, float] = {}
+
+    def resolve(self, node: ast.Name) -> tuple:
+        return ("name", node.id)
+
+    def refuse(self, node: ast.AST, what: str | None = None) -> Exception:
+        return ValueError(f"not a canonical general term: {ast.unparse(node)}")
+
+
+def build_tree(node: ast.AST, names) -> tuple:
+    """Expression tree of a syntax tree, against the whitelist of the separated parser.
+
+    Parameters
+    ----------
+    node : ast.AST
+        An expression node (``ast.parse(text, mode='eval').body`` or part of it).
+    names : object
+        ``resolve(node: ast.Name) -> tree`` (a constant folds to ``('num', v)``, a
+        coordinate or unknown to ``('name', n)``, anything else raises) and
+        ``refuse(node, what=None) -> Exception`` for syntax outside the whitelist.
+
+    Returns
+    -------
+    tuple
+        The tree, numbers folded.
+    """
+    if isinstance(node, ast.Constant):
+        if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
+            raise names.refuse(node)
+        value = float(node.value) if abs(node.value) < 1e308 else math.inf
+        if not math.isfinite(value):
+            raise names.refuse(node, "number too large:")
+        return ("num", value)
+    if isinstance(node, ast.Name):
+        return names.resolve(node)
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        child = build_tree(node.operand, names)
+        return child if isinstance(node.op, ast.UAdd) else _fold(("neg", child))
+    if isinstance(node, ast.BinOp) and type(node.op) in _BINARY_OPS:
+        return _fold((_BINARY_OPS[type(node.op)], build_tree(node.left, names), build_tree(node.right, names)))
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
+        if node.keywords or len(node.args) != 1:
+            raise names.refuse(node, f"{node.func.id}() takes exactly one argument:")
+        return _fold(("call", node.func.id, build_tree(node.args[0], names)))
+    raise names.refuse(node)
+
+
+def _fold(tree: tuple) -> tuple:
+    """A node whose children are all numbers becomes a number (when finite)."""
+    children = tree[2:] if tree[0] == "call" else tree[1:]
+    if not all(child[0] == "num" for child in children):
+        return tree
+    with np.errstate(all="ignore"):
+        value = float(evaluate(tree, {}))
+    return ("num", value) if math.isfinite(value) else tree
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluation and text
+# ----------------------------------------------------------------------------------------------
+def evaluate(tree: tuple, values: Mapping[str, np.ndarray | float]) -> np.ndarray:
+    """The tree at points given per name (numpy broadcasting; NaN/inf where undefined).
+
+    Parameters
+    ----------
+    tree : tuple
+    values : mapping of str to ndarray or float
+        Every name of the tree (:func:`tree_names`), arrays broadcastable together.
+
+    Returns
+    -------
+    ndarray
+        The broadcast shape of the values the tree uses (0-d for a number).
+    """
+    kind = tree[0]
+    if kind == "num":
+        return np.asarray(tree[1])
+    if kind == "name":
+        return np.asarray(values[tree[1]], dtype=float)
+    with np.errstate(all="ignore"):
+        if kind == "call":
+            return FUNCTIONS[tree[1]](evaluate(tree[2], values))
+        if kind == "neg":
+            return np.negative(evaluate(tree[1], values))
+        return _NUMPY[kind](evaluate(tree[1], values), evaluate(tree[2], values))
+
+
+def tree_names(tree: tuple) -> frozenset[str]:
+    """Names (coordinates and unknowns) the tree uses."""
+    if tree[0] == "name":
+        return frozenset((tree[1],))
+    if tree[0] == "num":
+        return frozenset()
+    children = tree[2:] if tree[0] == "call" else tree[1:]
+    return frozenset().union(*(tree_names(child) for child in children))
+
+
+# Python precedences: the rendered text parses back to the same tree
+_PRECEDENCE = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3, "pow": 4}
+_SYMBOL = {"add": " + ", "sub": " - ", "mul": "*", "div": "/", "pow": "**"}
+# least precedence of (left, right) operands written without parentheses
+_OPERANDS = {"add": (1, 2), "sub": (1, 2), "mul": (2, 3), "div": (2, 3), "pow": (5, 3)}
+
+
+def _precedence(tree: tuple) -> int:
+    if tree[0] == "num":
+        return 3 if tree[1] < 0 or math.copysign(1.0, tree[1]) < 0 else 5
+    return _PRECEDENCE.get(tree[0], 5)
+
+
+def render(tree: tuple) -> str:
+    """Text of a tree that parses back to the same tree (numbers exact: ``repr``)."""
+    kind = tree[0]
+    if kind == "num":
+        value = tree[1]
+        negative_zero = value == 0.0 and math.copysign(1.0, value) < 0
+        return str(int(value)) if value.is_integer() and abs(value) < 1e15 and not negative_zero else repr(value)
+    if kind == "name":
+        return tree[1]
+    if kind == "call":
+        return f"{tree[1]}({render(tree[2])})"
+    if kind == "neg":
+        return "-" + _wrapped(tree[1], 4)
+    left, right = _OPERANDS[kind]
+    return _wrapped(tree[1], left) + _SYMBOL[kind] + _wrapped(tree[2], right)
+
+
+def _wrapped(tree: tuple, least: int) -> str:
+    text = render(tree)
+    return f"({text})" if _precedence(tree) < least else text

@@ -1,0 +1,153 @@
+"""The tensor-train batch path (pgdcli.codebook.batch_eval) against an independent contraction.
+
+The reference here contracts each point on its own: the dense cardinal row of every
+coordinate (``basis.interpolation_matrix``, all nodes) times each core, left to right
+in the train's order, with ``numpy.einsum``. Codebooks: the shipped march problems
+(time slabs, the first two cores merged per slab), and hand-made trains with every
+kind of first coordinate (one Chebyshev window, slabs narrower and wider than the
+first bond, linear elements), unknowns in different core orders, and points on
+nodes, breakpoints and the domain's ends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pgdcli.codebook.codebook as codebook_module
+from pgdcli.codebook.batch_eval import TTBatch
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+
+
+def _reference(cb: Codebook, points: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Every tensor-train unknown at each point, one point at a time (dense rows, einsum)."""
+    rows = [b.interpolation_matrix(np.clip(points[c.name], *c.domain)) for c, b in zip(cb.coordinates, cb._bases)]
+    out = {}
+    for u, f in cb.fields.items():
+        if not isinstance(f, FieldTT):
+            continue
+        values = np.empty(rows[0].shape[0])
+        for i in range(values.size):
+            v = np.ones(1)
+            for core, j in zip(f.cores, f.mode_order):
+                v = np.einsum("a,anb,n->b", v, core, rows[j][i])
+            values[i] = v[0]
+        out[u] = values
+    return out
+
+
+def _points(cb: Codebook, size: int, seed: int, special: float = 0.25) -> dict[str, np.ndarray]:
+    """Uniform points, a share of each coordinate's values on its nodes (breakpoints, ends included)."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for c, b in zip(cb.coordinates, cb._bases):
+        x = rng.uniform(*c.domain, size)
+        hit = rng.random(size) < special
+        x[hit] = b.nodes[rng.integers(0, b.nodes.size, int(hit.sum()))]
+        out[c.name] = x
+    return out
+
+
+def _assert_close(ours: dict, ref: dict) -> None:
+    for u, v in ref.items():
+        scale = max(1.0, float(np.max(np.abs(v))))
+        np.testing.assert_allclose(ours[u], v, rtol=0, atol=5e-14 * scale, err_msg=u)
+
+
+def _random_tt(rng, coords: list[CoordinateInfo], ranks: list[int], order: list[int]) -> FieldTT:
+    full = [1] + ranks + [1]
+    cores = tuple(rng.standard_normal((full[k], coords[j].nodes, full[k + 1])) / np.sqrt(full[k] * coords[j].nodes)
+                  for k, j in enumerate(order))
+    return FieldTT(cores, tuple(order))
+
+
+def _slab_time(name: str, slabs: int, per_slab: int, domain=(0.0, 2.0)) -> CoordinateInfo:
+    breaks = tuple(np.linspace(*domain, slabs + 1) ** 1.3 / domain[1] ** 0.3)  # uneven slabs
+    return CoordinateInfo(name, domain, slabs * (per_slab - 1) + 1, "chebyshev", "time", breaks)
+
+
+def _hand_made() -> dict[str, Codebook]:
+    rng = np.random.default_rng(3)
+    t = _slab_time("t", 5, 7)
+    a = CoordinateInfo("a", (-1.0, 2.0), 9)
+    b = CoordinateInfo("b", (0.0, 1.0), 11, "linear")
+    c = CoordinateInfo("c", (0.5, 1.5), 6)
+    coords = [t, a, b, c]
+    books = {
+        # slab window (7) narrower than the first bond (10): first two cores merged per slab
+        "slabs, merged pair": {"u": _random_tt(rng, coords, [10, 14, 5], [0, 1, 2, 3]),
+                               "v": _random_tt(rng, coords, [12, 9, 4], [0, 1, 2, 3])},
+        # window (7) wider than the first bond (3): the first core by windows, no merge
+        "slabs, no merge": {"u": _random_tt(rng, coords, [3, 8, 4], [0, 1, 2, 3])},
+        # one Chebyshev window first; a linear coordinate later
+        "chebyshev first": {"u": _random_tt(rng, coords, [5, 13, 6], [1, 0, 2, 3])},
+        # linear elements first (windows of two nodes), and two core orders side by side
+        "linear first, two orders": {"u": _random_tt(rng, coords, [4, 12, 6], [2, 1, 0, 3]),
+                                     "v": _random_tt(rng, coords, [6, 10, 3], [0, 3, 2, 1]),
+                                     "w": _random_tt(rng, coords, [2, 7, 9], [2, 1, 0, 3])},
+    }
+    out = {name: Codebook(coords, fields, name=name) for name, fields in books.items()}
+    # a tensor train beside CP unknowns (the mixed path) and a one-coordinate train
+    cp = FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((ci.nodes, 3)) for ci in coords))
+    out["mixed with CP"] = Codebook(coords, {"p": cp, "u": _random_tt(rng, coords, [9, 11, 5], [0, 1, 2, 3])})
+    out["one coordinate"] = Codebook([t], {"u": FieldTT((rng.standard_normal((1, t.nodes, 1)),), (0,))})
+    return out
+
+
+HAND_MADE = _hand_made()
+
+
+@pytest.mark.parametrize("name", sorted(HAND_MADE))
+def test_batch_equals_pointwise_contraction_hand_made(name):
+    cb = HAND_MADE[name]
+    for size, seed in ((1, 1), (2, 2), (37, 3), (3000, 4)):  # one point, one block, many blocks and windows
+        points = _points(cb, size, seed)
+        ours = cb(**points)
+        _assert_close(ours, _reference(cb, points))
+
+
+@pytest.mark.parametrize("name", sorted(HAND_MADE))
+def test_batch_equals_one_point_path(name):
+    """The batch path and the one-point path (a different algorithm: _TTStack) agree."""
+    cb = HAND_MADE[name]
+    points = _points(cb, 200, 11)
+    batch = cb(**points)
+    for i in range(0, 200, 7):
+        one = cb(**{k: float(v[i]) for k, v in points.items()})
+        for u in cb.unknown_names:
+            assert abs(float(one[u]) - batch[u][i]) <= 5e-14 * max(1.0, abs(float(one[u]))), (u, i)
+
+
+@pytest.mark.parametrize("name", ["coupled", "logistic"])
+def test_batch_equals_pointwise_contraction_march_codebooks(solved, name):
+    cb = solved(name).codebook
+    points = _points(cb, 1500, 5)
+    _assert_close(cb(**points), _reference(cb, points))
+
+
+def test_blocks_and_threads_never_change_a_value(solved, monkeypatch):
+    """Blocks are cut from the sorted points the same way whatever the threads: bitwise equal."""
+    cb = solved("coupled").codebook
+    size = codebook_module._PARALLEL_MIN_POINTS + 3000
+    points = _points(cb, size, 6)
+    ref = cb(**points)
+    for threads in (1, 2, 3):
+        monkeypatch.setattr(codebook_module, "_threads", lambda: threads)
+        other = cb(**points)
+        for u in cb.unknown_names:
+            assert other[u].tobytes() == ref[u].tobytes(), threads
+
+
+def test_selected_fields_and_shapes():
+    cb = HAND_MADE["linear first, two orders"]
+    rng = np.random.default_rng(12)
+    grid = {"t": rng.uniform(0, 2, (4, 1)), "a": rng.uniform(-1, 2, (1, 5)), "b": 0.25, "c": 1.0}
+    both = cb.evaluate(grid)
+    only = cb.evaluate(grid, fields=["w", "u"])
+    assert list(only) == ["w", "u"] and only["w"].shape == (4, 5)
+    for u in ("w", "u"):
+        assert only[u].tobytes() == both[u].tobytes()
+    batch = TTBatch({u: cb.fields[u] for u in ("v",)}, cb._bases)
+    flat = [np.full(3, 0.5), np.full(3, 0.0), np.full(3, 0.5), np.full(3, 1.0)]
+    assert list(batch.evaluate(flat, ["v"])) == ["v"]
+    assert batch.evaluate([np.empty(0)] * 4, ["v"])["v"].shape == (0,)
