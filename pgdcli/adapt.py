@@ -94,8 +94,12 @@ def _predicted_nodes(c, ratio: float, past: list) -> int:
     _, before, n_before = past[-1]
     if not before > ratio or c.nodes <= n_before:
         return 0
-    per_node = np.log(before / ratio) / (c.nodes - n_before)
-    return int(np.ceil(c.nodes + np.log(ratio / 0.25) / per_node))
+    return _nodes_to_a_quarter(c.nodes, ratio, np.log(before / ratio) / (c.nodes - n_before))
+
+
+def _nodes_to_a_quarter(nodes: int, ratio: float, per_node: float) -> int:
+    """Nodes at which an error ratio falling by ``exp(per_node)`` per node reaches a quarter."""
+    return int(np.ceil(nodes + np.log(ratio / 0.25) / per_node))
 
 
 #: Slowest decay of the Chebyshev coefficients (per node, natural log) that a first prediction trusts:
@@ -114,15 +118,16 @@ def _spectral_nodes(c, ratio: float, decay: float | None) -> int:
     The first refinement of a coordinate has no earlier doubling to measure the
     convergence by (:func:`_predicted_nodes`); the Chebyshev spectrum of the
     codebook along the coordinate gives the rate instead
-    (:func:`pgdcli.resolution.chebyshev_decay`). The caller trusts it only up to
+    (:func:`pgdcli.checks.resolution.chebyshev_decay`). It is trusted only up to
     :data:`MAX_ELEMENT_NODES` (beyond, the feature may be sharp: doubling and
-    measuring the gain decides between nodes and elements, as before) and takes
-    at most two doublings at once, so that a pre-asymptotic spectrum cannot ask
-    for an oversized grid.
+    measuring the gain decides between nodes and elements, as before: 0), and
+    gives at most two doublings at once, so that a pre-asymptotic spectrum cannot
+    ask for an oversized grid.
     """
     if decay is None or not decay >= MIN_DECAY or not ratio > 0.25:
         return 0
-    return int(np.ceil(c.nodes + np.log(ratio / 0.25) / decay))
+    predicted = _nodes_to_a_quarter(c.nodes, ratio, decay)
+    return 0 if predicted > MAX_ELEMENT_NODES else min(predicted, 4 * c.nodes - 3)
 
 
 def split_elements(problem, name: str, where: np.ndarray):
@@ -158,10 +163,7 @@ def _refine(problem, check, names, history, decay=None):
         past = history.setdefault(name, [])
         # P_GAIN per doubling of the nodes (a predicted jump can span several)
         slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN ** _doublings(past[-1][2], c.nodes) * ratio
-        spectral = 0 if past else _spectral_nodes(c, ratio, decay.get(name))
-        if spectral > MAX_ELEMENT_NODES:
-            spectral = 0  # a sharp feature, or a pre-asymptotic spectrum: double and measure the gain
-        predicted = _predicted_nodes(c, ratio, past) or min(spectral, 4 * c.nodes - 3)
+        predicted = _predicted_nodes(c, ratio, past) or (0 if past else _spectral_nodes(c, ratio, decay.get(name)))
         h_able = c.role == "parameter" and c.discretization == "chebyshev" and name in check.line_points
         if h_able and (slow or max(c.nodes, predicted) > MAX_ELEMENT_NODES):
             x, r = check.line_points[name]

@@ -51,7 +51,7 @@ def reduce_to_first_order(equations: Sequence, rates: Mapping[str, str], time: s
 
     Parameters
     ----------
-    equations : sequence of pgdcli.spec.Equation
+    equations : sequence of pgdcli.problem.model.Equation
         As parsed (``der(x, t, 2)`` is ``Atom(x, t, 2)``).
     rates : mapping of str to str
         Second-order unknown -> its rate unknown (those declared with ``{value, rate}``).
