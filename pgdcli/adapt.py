@@ -263,6 +263,8 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
         if check.passed:
             return _finish(result, problem, rounds, True, "the measured error meets the tolerance", started)
         limited = result.codebook.report.get("discretization_limited", 0)
+        if result.codebook.report.get("enrichment_stopped") and check.node_ratio > 1.0:
+            break  # the error at the nodes is the enrichment's, which more nodes do not lower
         refine, stuck = _to_refine(problem, check, march, limited)
         if not refine and not stuck:
             refine = _largest_off_node(problem, check, march)
@@ -275,15 +277,19 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
             pending = True
             break
         problem = refined
-    reason = _refusal(problem, check, march, result.codebook.report.get("discretization_limited", 0))
+    reason = _refusal(problem, check, march, result.codebook.report)
     if pending:
         reason = f"still refining after {MAX_ROUNDS} solves: {reason}"
     return _finish(result, problem, rounds, False, reason, started)
 
 
-def _refusal(problem, check, march: bool, limited) -> str:
+def _refusal(problem, check, march: bool, report) -> str:
     """Why the error is too large and what would reduce it, in one clause."""
-    refine, stuck = _to_refine(problem, check, march, limited)
+    stopped = report.get("enrichment_stopped")
+    if stopped and check.node_ratio > 1.0:
+        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the enrichment could not "
+                f"lower its residual further: {stopped}")
+    refine, stuck = _to_refine(problem, check, march, report.get("discretization_limited", 0))
     names = refine + stuck
     if names:
         def share(n):
