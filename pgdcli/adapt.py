@@ -263,10 +263,11 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
         if check.passed:
             return _finish(result, problem, rounds, True, "the measured error meets the tolerance", started)
         limited = result.codebook.report.get("discretization_limited", 0)
-        if result.codebook.report.get("enrichment_stopped") and check.node_ratio > 1.0:
-            break  # the error at the nodes is the enrichment's, which more nodes do not lower
+        # an enrichment stopped short of the residual the nodes ask for: its error at the nodes is not
+        # the discretization's, and only the coordinates that lack nodes between them are refined
+        stopped = result.codebook.report.get("enrichment_stopped") and check.node_ratio > 1.0
         refine, stuck = _to_refine(problem, check, march, limited)
-        if not refine and not stuck:
+        if not refine and not stuck and not stopped:
             refine = _largest_off_node(problem, check, march)
         if not refine:
             break
@@ -285,12 +286,12 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
 
 def _refusal(problem, check, march: bool, report) -> str:
     """Why the error is too large and what would reduce it, in one clause."""
-    stopped = report.get("enrichment_stopped")
-    if stopped and check.node_ratio > 1.0:
-        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the enrichment could not "
-                f"lower its residual further: {stopped}")
+    stopped = report.get("enrichment_stopped") if check.node_ratio > 1.0 else None
     refine, stuck = _to_refine(problem, check, march, report.get("discretization_limited", 0))
     names = refine + stuck
+    if stopped and not any(_lacks_nodes(check, n) for n in names):
+        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the enrichment could not "
+                f"lower its residual further: {stopped}")
     if names:
         def share(n):
             return max(check.coordinate_ratio.get(n, 0.0), check.tail_ratio.get(n, 0.0))

@@ -430,3 +430,19 @@ def test_a_second_enrichment_starts_from_the_residual_learned():
     assert learned["residual"] == attempts[-1, 0] < opts.tolerance
     assert second.codebook.report["enrichment_attempts"][:, 0].tolist() == [learned["residual"]]
     assert second.accurate is not False and second.check.node_ratio <= 1.0
+
+
+def test_an_enrichment_stopped_by_max_modes_is_named_not_blamed_on_nodes():
+    """The first solve meets its residual in 34 modes; the smaller residual the error at the nodes asks
+    for needs more. The refusal names max_modes; only k, whose error between nodes is large, is refined
+    (before, time was refined to the cap and blamed)."""
+    with threadpool_limits(1):
+        result = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 34\n", source="capped.yaml"))
+    assert result.status == INACCURATE and result.accurate is False
+    assert "enrichment could not lower its residual further" in result.message
+    assert "raise solver.max_modes" in result.message
+    rounds = result.codebook.report["resolution_rounds"]  # (rounds, t k c x0 + ratio)
+    assert np.all(rounds[:, 0] == rounds[0, 0])  # the time nodes were not refined for the enrichment's error
+    with threadpool_limits(1):
+        enough = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 60\n", source="enough.yaml"))
+    assert enough.accurate is True
