@@ -16,7 +16,8 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from .terms import Func1D, SepTerm, join_signed, named_variable, normalize_terms, term_text, term_tree
-from .trees import evaluate_tree, leaf_names, map_leaves, num, render_text, t_add, t_mul, values_by_name
+from .trees import (evaluate_tree, leaf_names, map_leaves, num, render_text, t_add, t_mul, values_at,
+                    values_by_name)
 
 __all__ = ["Joint", "Separable", "as_separable", "merge_to_function", "constant_tree_value", "joint_of",
            "tree_coordinates"]
@@ -273,7 +274,7 @@ def as_separable(value: object) -> Separable | None:
 
 def constant_tree_value(tree: tuple) -> float:
     """Value of a tree without variable (evaluated once, at a dummy point)."""
-    return float(evaluate_tree(tree, lambda leaf: np.zeros(())))
+    return float(evaluate_tree(tree, values_at(np.zeros(()))))
 
 
 def merge_to_function(sep: Separable) -> Func1D | None:

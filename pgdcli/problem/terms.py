@@ -13,7 +13,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .trees import evaluate_tree, format_number, map_leaves, num, num_value, render_text, t_div, t_mul, t_pow
+from .trees import evaluate_tree, format_number, map_leaves, num, num_value, render_text, t_div, t_mul, t_pow, values_at
 
 __all__ = ["Func1D", "SepTerm", "term_text", "term_tree", "named_variable", "join_signed", "normalize_terms"]
 
@@ -39,12 +39,9 @@ class Func1D:
     def __call__(self, x: np.ndarray | float) -> np.ndarray:
         """Evaluate at the points x; the result has the shape of x."""
         x = np.asarray(x, dtype=float)
-        result = evaluate_tree(self.tree, lambda leaf: x)
-        if result is x:  # never hand back the caller's own array for the identity function
-            return x.copy()
-        result = np.asarray(result, dtype=float)
-        # a tree without the variable (a constant) evaluates 0-d: it still has the shape of x
-        return result if result.shape == x.shape else np.full(x.shape, result)
+        result = evaluate_tree(self.tree, values_at(x))
+        # never hand back the caller's own array for the identity function
+        return x.copy() if result is x else np.asarray(result, dtype=float)
 
     def __str__(self) -> str:
         return render_text(self.tree, self.coordinate or "?")

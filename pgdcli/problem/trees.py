@@ -19,8 +19,8 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["FUNCTIONS", "BINARY", "evaluate_tree", "values_by_name", "map_leaves", "leaf_names", "num", "num_value",
-           "is_nonneg_int", "t_neg", "t_add", "t_mul", "t_div", "t_pow", "format_number", "render_text",
+__all__ = ["FUNCTIONS", "BINARY", "evaluate_tree", "values_at", "values_by_name", "map_leaves", "leaf_names", "num",
+           "num_value", "is_nonneg_int", "t_neg", "t_add", "t_mul", "t_div", "t_pow", "format_number", "render_text",
            "PRECEDENCE", "SYMBOL"]
 
 #: Functions allowed in expressions, with their numpy implementation (the parser's whitelist).
@@ -57,17 +57,16 @@ def evaluate_tree(tree: tuple, leaf: Callable[[tuple], np.ndarray]) -> np.ndarra
     ----------
     tree : tuple
     leaf : callable
-        ``leaf(node) -> array`` for every node that is not a number or an operation
+        ``leaf(node) -> array`` for every leaf: numbers (``('num', v)``) and variables
         (``('var',)``, ``('coord', n)``, ``('name', n)``); arrays broadcastable together.
+        :func:`values_at` and :func:`values_by_name` make the two in use.
 
     Returns
     -------
     ndarray or numpy scalar
-        The broadcast shape of the leaves' values; a number is 0-d.
+        The broadcast shape of the leaves' values.
     """
     kind = tree[0]
-    if kind == "num":
-        return np.asarray(tree[1])
     if kind == "call":
         return FUNCTIONS[tree[1]](evaluate_tree(tree[2], leaf))
     if kind == "neg":
@@ -78,9 +77,20 @@ def evaluate_tree(tree: tuple, leaf: Callable[[tuple], np.ndarray]) -> np.ndarra
     return operation(evaluate_tree(tree[1], leaf), evaluate_tree(tree[2], leaf))
 
 
+def values_at(x: np.ndarray) -> Callable[[tuple], np.ndarray]:
+    """The leaf callback of a one-variable tree at the points x (a float array).
+
+    Numbers are filled to the shape of x: numpy's power takes a faster path for a 0-d
+    exponent (``x**2`` as ``x*x``), which rounds differently from the full array.
+    """
+    shape = np.shape(x)
+    return lambda node: x if node[0] == "var" else np.full(shape, node[1])
+
+
 def values_by_name(values: Mapping[str, np.ndarray | float]) -> Callable[[tuple], np.ndarray]:
-    """The leaf callback of named leaves (``('coord', n)``, ``('name', n)``): ``values[n]`` as floats."""
-    return lambda node: np.asarray(values[node[1]], dtype=float)
+    """The leaf callback of named leaves (``('coord', n)``, ``('name', n)``): ``values[n]`` as floats,
+    numbers 0-d."""
+    return lambda node: np.asarray(node[1]) if node[0] == "num" else np.asarray(values[node[1]], dtype=float)
 
 
 def map_leaves(tree: tuple, replace: Callable[[tuple], tuple]) -> tuple:
