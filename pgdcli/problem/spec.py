@@ -18,13 +18,12 @@ Every error is a :class:`~pgdcli.errors.SpecError` with a one-line message
 Expressions are parsed by :mod:`pgdcli.problem.expressions` (never evaluated by Python).
 
 The coordinates and constants sections are parsed by :mod:`.spec_coordinates`, the name,
-description, solver and output sections by :mod:`.spec_options`; the unknowns and equations,
-which need all names, here.
+description, solver and output sections by :mod:`.spec_options`, the checks across sections are
+:mod:`.spec_checks`; the unknowns and equations, which need all names, are parsed here.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 from typing import Any, Iterable
 
@@ -33,6 +32,7 @@ from .checker import RESERVED_NAMES, Checker, NameRegistry, show_value
 from .expressions import ParseOptions, Separable, format_monomial, parse_equation, parse_expression
 from .model import Boundary, Coordinate, Equation, Problem, SolverOptions, Unknown
 from .second_order import INITIAL_KEYS, rate_name, reduce_to_first_order
+from .spec_checks import assign_space_roles, check_steady, check_time_derivatives
 from .spec_coordinates import parse_constants, parse_coordinate, parse_coordinate_names, parse_time
 from .spec_options import default_name, parse_description, parse_output, parse_problem_name, parse_solver
 from .yaml_input import MAX_SPEC_BYTES, MAX_SPEC_NODES, load_yaml
@@ -151,31 +151,6 @@ def _parse_boundary_side(check: Checker, coord: str, side: str, raw: Any, spath:
     return Boundary(kind, sep, text)
 
 
-def _assign_space_roles(check: Checker, coordinates: tuple, unknowns: tuple, equations: tuple, time: str) -> tuple:
-    """Coordinates with space derivatives are 'space'; each needs boundary conditions where it is
-    differentiated twice, and boundary conditions need derivatives."""
-    second: dict[tuple[str, str], int] = {}
-    space = set()
-    for eq in equations:
-        for atom in eq.polynomial.atoms:
-            if atom.order > 0 and atom.coordinate != time:
-                space.add(atom.coordinate)
-                if atom.order == 2:
-                    second.setdefault((atom.unknown, atom.coordinate), eq.index)
-    for u in unknowns:
-        for coord in u.boundary:
-            if coord not in space:
-                raise check.error(f"unknowns.{u.name}.boundary.{coord}",
-                                  f"{coord!r} has no derivative in the equations: it is a parameter, not space")
-    for (unknown, coord), index in second.items():
-        u = next(x for x in unknowns if x.name == unknown)
-        if coord not in u.boundary:
-            raise check.error(f"unknowns.{unknown}.boundary",
-                              f"missing the conditions at both ends of {coord!r} (der({unknown}, {coord}, 2) "
-                              f"appears in equations[{index}]), e.g. {{{coord}: {{low: 0, high: 0}}}}")
-    return tuple(dataclasses.replace(c, role="space") if c.name in space else c for c in coordinates)
-
-
 def _parse_equations(check: Checker, value: Any, names: ParseOptions, rates: dict[str, str]) -> tuple[Equation, ...]:
     unknowns, time = names.unknowns, names.time
     declared = [u for u in unknowns if u not in rates.values()]
@@ -202,44 +177,10 @@ def _parse_equations(check: Checker, value: Any, names: ParseOptions, rates: dic
         if errors:
             raise check.error("", errors[0])
     if time is None:
-        _check_steady(check, equations, unknowns)
+        check_steady(check, equations, unknowns)
     else:
-        _check_time_derivatives(check, equations, unknowns, time)
+        check_time_derivatives(check, equations, unknowns, time)
     return tuple(equations)
-
-
-def _check_steady(check: Checker, equations: list[Equation], unknowns: list[str]) -> None:
-    """Without time every unknown must appear in some equation, or the system is singular."""
-    appearing = {atom.unknown for equation in equations for atom in equation.polynomial.atoms}
-    for name in unknowns:
-        if name not in appearing:
-            raise check.error("equations", f"unknown '{name}' appears in no equation of this steady problem "
-                                           "(no time coordinate); each unknown needs an equation")
-
-
-def _check_time_derivatives(check: Checker, equations: list[Equation], unknowns: list[str], time: str) -> None:
-    """First-order time derivatives only; one in every equation, of every unknown somewhere."""
-    differentiated = set()
-    for equation in equations:
-        derivatives = [atom for atom in equation.polynomial.atoms if atom.order > 0 and atom.coordinate == time]
-        for atom in derivatives:
-            if atom.order > 1:
-                raise check.error(
-                    f"equations[{equation.index}]",
-                    f"'{atom.text(time)}' in '{equation.text}': time derivatives of order 1 or 2 only"
-                    " (write higher orders as first-order systems)",
-                )
-        if not derivatives:
-            raise check.error(
-                f"equations[{equation.index}]",
-                f"no time derivative in '{equation.text}'; each equation must contain der(<unknown>)",
-            )
-        differentiated.update(atom.unknown for atom in derivatives)
-    for name in unknowns:
-        if name not in differentiated:
-            raise check.error(
-                "equations", f"unknown '{name}' never appears as der({name}); each unknown needs its time derivative"
-            )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -332,7 +273,7 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
     parsed = [_parse_unknown(check, n, body, context) for n, body in unknown_bodies.items()]
     unknowns = tuple(u[0] for u in parsed) + tuple(u[1] for u in parsed if len(u) > 1)
     equations = _parse_equations(check, data["equations"], context, rates)
-    coordinates = _assign_space_roles(check, coordinates, unknowns, equations, time)
+    coordinates = assign_space_roles(check, coordinates, unknowns, equations, time)
     if time is None and not any(c.role == "space" for c in coordinates):
         raise check.error("time", "no coordinate is named 't' and no equation has a space derivative: name the time "
                                   "coordinate ('t' or 'time: <name>') for an initial-value problem, or add "
