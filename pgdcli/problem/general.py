@@ -28,7 +28,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from .trees import FUNCTIONS, PRECEDENCE, SYMBOL, evaluate_tree, leaf_names, values_by_name
+from .trees import FUNCTIONS, evaluate_tree, leaf_names, render_text, values_by_name
 
 __all__ = ["FUNCTIONS", "GENERAL", "is_general", "tree_of", "build_tree", "mentions", "render", "evaluate",
            "tree_names", "has_general"]
@@ -155,33 +155,6 @@ def tree_names(tree: tuple) -> frozenset[str]:
     return leaf_names(tree, "name")
 
 
-# least precedence of (left, right) operands written without parentheses
-_OPERANDS = {"add": (1, 2), "sub": (1, 2), "mul": (2, 3), "div": (2, 3), "pow": (5, 3)}
-
-
-def _precedence(tree: tuple) -> int:
-    if tree[0] == "num":
-        return 3 if tree[1] < 0 or math.copysign(1.0, tree[1]) < 0 else 5
-    return PRECEDENCE.get(tree[0], 5)
-
-
 def render(tree: tuple) -> str:
     """Text of a tree that parses back to the same tree (numbers exact: ``repr``)."""
-    kind = tree[0]
-    if kind == "num":
-        value = tree[1]
-        negative_zero = value == 0.0 and math.copysign(1.0, value) < 0
-        return str(int(value)) if value.is_integer() and abs(value) < 1e15 and not negative_zero else repr(value)
-    if kind == "name":
-        return tree[1]
-    if kind == "call":
-        return f"{tree[1]}({render(tree[2])})"
-    if kind == "neg":
-        return "-" + _wrapped(tree[1], 4)
-    left, right = _OPERANDS[kind]
-    return _wrapped(tree[1], left) + SYMBOL[kind] + _wrapped(tree[2], right)
-
-
-def _wrapped(tree: tuple, least: int) -> str:
-    text = render(tree)
-    return f"({text})" if _precedence(tree) < least else text
+    return render_text(tree, exact=True)

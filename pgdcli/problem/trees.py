@@ -15,6 +15,7 @@ Spec text never reaches ``eval``/``exec``: trees are built from whitelisted ``as
 
 from __future__ import annotations
 
+import math
 from typing import Callable, Mapping
 
 import numpy as np
@@ -223,13 +224,15 @@ def t_pow(a: tuple, b: tuple) -> tuple:
 
 
 # ----------------------------------------------------------------------------------------------
-# text for people (the canonical text of general terms is pgdcli.problem.general.render)
+# text: for people (fewest parentheses that read right) or exact (parses back to the same tree)
 # ----------------------------------------------------------------------------------------------
 #: Python precedences, so that rendered text parses back to the same tree
 PRECEDENCE = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3, "pow": 4}
 SYMBOL = {"add": " + ", "sub": " - ", "mul": "*", "div": "/", "pow": "**"}
-# minimum precedence of (left, right) operands that may go without parentheses
-_OPERAND_PRECEDENCE = {"add": (1, 1), "sub": (1, 2), "mul": (2, 2), "div": (2, 3), "pow": (5, 3)}
+# least precedence of the (left, right) operands written without parentheses; the exact text
+# also keeps a + (b + c) and a*(b*c), which are other trees than (a + b) + c and (a*b)*c
+_OPERANDS = {"add": (1, 1), "sub": (1, 2), "mul": (2, 2), "div": (2, 3), "pow": (5, 3)}
+_OPERANDS_EXACT = {**_OPERANDS, "add": (1, 2), "mul": (2, 3)}
 
 
 def format_number(value: float) -> str:
@@ -239,30 +242,38 @@ def format_number(value: float) -> str:
     return repr(float(value))
 
 
-def _tree_precedence(tree: tuple) -> int:
+def _negative_zero(value: float) -> bool:
+    return value == 0.0 and math.copysign(1.0, value) < 0
+
+
+def _tree_precedence(tree: tuple, exact: bool) -> int:
+    if tree[0] == "num":
+        negative = math.copysign(1.0, tree[1]) < 0 if exact else tree[1] < 0  # exact: -0.0 too
+        return 3 if negative else 5
+    return PRECEDENCE.get(tree[0], 5)  # leaves and calls bind tightest
+
+
+def render_text(tree: tuple, name: str = "?", min_precedence: int = 0, *, exact: bool = False) -> str:
+    """Text of a tree (``('var',)`` written ``name``), in parentheses if it binds less tightly than required.
+
+    With ``exact`` the text parses back to the same tree, numbers to the same float (-0.0 too):
+    the canonical text of a general term (:func:`pgdcli.problem.general.render`).
+    """
+    text = _render_bare(tree, name, exact)
+    return f"({text})" if _tree_precedence(tree, exact) < min_precedence else text
+
+
+def _render_bare(tree: tuple, name: str, exact: bool) -> str:
     kind = tree[0]
     if kind == "num":
-        return 3 if tree[1] < 0 else 5
-    return PRECEDENCE.get(kind, 5)  # leaves and calls bind tightest
-
-
-def render_text(tree: tuple, name: str, min_precedence: int = 0) -> str:
-    """Text of a tree (``('var',)`` written ``name``), in parentheses if it binds less tightly than required."""
-    text = _render_bare(tree, name)
-    return f"({text})" if _tree_precedence(tree) < min_precedence else text
-
-
-def _render_bare(tree: tuple, name: str) -> str:
-    kind = tree[0]
-    if kind == "num":
-        return format_number(tree[1])
+        return repr(tree[1]) if exact and _negative_zero(tree[1]) else format_number(tree[1])
     if kind == "var":
         return name
     if kind in ("coord", "name"):
         return tree[1]
     if kind == "call":
-        return f"{tree[1]}({render_text(tree[2], name)})"
+        return f"{tree[1]}({render_text(tree[2], name, exact=exact)})"
     if kind == "neg":
-        return "-" + render_text(tree[1], name, 4)
-    left, right = _OPERAND_PRECEDENCE[kind]
-    return render_text(tree[1], name, left) + SYMBOL[kind] + render_text(tree[2], name, right)
+        return "-" + render_text(tree[1], name, 4, exact=exact)
+    left, right = (_OPERANDS_EXACT if exact else _OPERANDS)[kind]
+    return render_text(tree[1], name, left, exact=exact) + SYMBOL[kind] + render_text(tree[2], name, right, exact=exact)
