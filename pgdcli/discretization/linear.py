@@ -13,8 +13,8 @@ its quadrature weights: the residual minimized is then the L2 norm of the
 *integrated* equation (u - u0 - int rhs), which is well conditioned and close
 to the error itself, so the tolerance means what it says.
 
-Over 400 lines: the per-coordinate operators, the time operators, the lifts and :func:`discretize`
-belong together (one weak form); :func:`discretize` reads as its steps (time and lifts, one term, the tensors).
+The one-dimensional operators (per coordinate, in time) are :mod:`pgdcli.discretization.operators_1d`;
+:func:`discretize` reads as its steps (time and lifts, one term, the tensors).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from ..tensors.cp import CPTensor, SeparatedOperator
 from .basis import Basis1D
 from .coefficients import SEPARATION_FRACTION, nodal_terms
 from .coordinates import coordinate_infos
+from .operators_1d import CoordinateOps, SteadyOps, TimeOps, boundary_kinds
 from .separate import MAX_SEPARATION_RANK
 
 __all__ = ["STATE", "Discretization", "discretize"]
@@ -144,125 +145,6 @@ def _merge_terms(terms: list[tuple[np.ndarray, ...]]) -> list[tuple[np.ndarray, 
     return [tuple(t) for t in merged]
 
 
-class _CoordinateOps:
-    """The 1D pieces of one non-time coordinate: test/trial nodes, matrices, left preconditioner.
-
-    Parameters are collocated (diagonal matrices). Space coordinates are in weak form with
-    the basis's quadrature: mass ``W``, stiffness ``K`` (Chebyshev ``D^T W D``; linear
-    elements the exact tridiagonal one), advection ``int f phi_i phi_j'`` (Chebyshev: exact
-    Gauss-Legendre; linear elements: f at the element midpoints); a Dirichlet
-    end drops its node from the trial and test functions (the lift carries the value), a
-    gradient (Neumann) end enters as a boundary flux. Every matrix is returned already
-    multiplied by the left preconditioner: ``1/sqrt(w)`` for parameters, and
-    ``sqrt(W) (M + tau K)^-1`` for space, which keeps the stiff operator bounded in the
-    minimal-residual normal equations (their conditioning is squared).
-    """
-
-    def __init__(self, name: str, basis: Basis1D, role: str, ends: tuple[str, str] | None, tau: float):
-        self.name, self.basis = name, basis
-        n = basis.nodes.size
-        w = basis.weights
-        self.space = role == "space"
-        keep = np.ones(n, dtype=bool)
-        if self.space and ends is not None:
-            keep[0] = ends[0] != "value"
-            keep[-1] = ends[1] != "value"
-        self.test = self.trial = np.flatnonzero(keep)
-        self.w = w
-        self.interp = None
-        if not self.space:
-            self.left = np.diag(1.0 / np.sqrt(w))
-            return
-        if basis.kind == "chebyshev":
-            # exact Galerkin integrals: Gauss-Legendre with n + 1 points integrates the products
-            # of two degree n - 1 polynomials exactly (Clenshaw-Curtis at the nodes would alias
-            # and converge only algebraically, measured)
-            xg, wg = np.polynomial.legendre.leggauss(n + 1)
-            low, high = basis.domain
-            self.quad_w = wg * (high - low) / 2.0
-            self.interp = basis.interpolation_matrix(low + (xg + 1.0) * (high - low) / 2.0)  # (n + 1, n)
-            self.interp_d = self.interp @ basis.derivative
-            self.derivative = basis.derivative
-            self.stiffness = self.interp_d.T @ (self.quad_w[:, None] * self.interp_d)
-            mass = self.interp.T @ (self.quad_w[:, None] * self.interp)
-        else:
-            h = np.diff(basis.nodes)
-            k = np.zeros((n, n))
-            for e, he in enumerate(h):
-                k[e:e + 2, e:e + 2] += np.array([[1.0, -1.0], [-1.0, 1.0]]) / he
-            self.derivative = None
-            self.interp = None
-            self.stiffness = k
-            self.h = h
-            mass = np.diag(w)  # lumped: second order, like the elements themselves
-        t = self.test
-        self.left = np.sqrt(w[t])[:, None] * np.linalg.inv(mass[np.ix_(t, t)] + tau * self.stiffness[np.ix_(t, t)])
-
-    def _rows(self, full: np.ndarray) -> np.ndarray:
-        return self.left @ full[self.test]
-
-    def _weighted(self, f: np.ndarray) -> np.ndarray:
-        """Quadrature weights times ``f`` at the quadrature points (f interpolated from the nodes)."""
-        return self.quad_w * (self.interp @ f)
-
-    def mass(self, f: np.ndarray) -> np.ndarray:
-        """``f u`` tested: (test, all nodes)."""
-        if not self.space or self.interp is None:
-            return self._rows(np.diag(self.w * f))
-        return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp))
-
-    def first(self, f: np.ndarray) -> np.ndarray:
-        """``f du/dx`` tested: (test, all nodes)."""
-        if self.derivative is not None:
-            return self._rows(self.interp.T @ (self._weighted(f)[:, None] * self.interp_d))
-        # hat functions: on element e, phi_j' = -+1/h and int phi_i = h/2, with f at the midpoint
-        n = self.basis.nodes.size
-        mid = 0.5 * (f[:-1] + f[1:])
-        a = np.zeros((n, n))
-        for e, fe in enumerate(mid):
-            a[e:e + 2, e:e + 2] += 0.5 * fe * np.array([[-1.0, 1.0], [-1.0, 1.0]])
-        return self._rows(a)
-
-    def second(self, f: np.ndarray) -> np.ndarray:
-        """``f d2u/dx2`` tested (weak form, boundary fluxes apart): (test, all nodes).
-
-        ``int f u'' phi = [f u' phi] - int f u' phi' - int f' u' phi``: a stiffness weighted by
-        ``f`` and an advection by ``f'`` (Chebyshev: the derivative of f's interpolant, both
-        integrals by the Gauss rule; linear elements: f at the element midpoints, f' the slope
-        of f on each element, second order).
-        """
-        if self.derivative is not None:
-            stiffness = self.interp_d.T @ (self._weighted(f)[:, None] * self.interp_d)
-            return self._rows(-stiffness) - self.first(self.derivative @ f)
-        n = self.basis.nodes.size
-        k = np.zeros((n, n))
-        a = np.zeros((n, n))
-        for e, he in enumerate(self.h):
-            k[e:e + 2, e:e + 2] += 0.5 * (f[e] + f[e + 1]) * np.array([[1.0, -1.0], [-1.0, 1.0]]) / he
-            a[e:e + 2, e:e + 2] += 0.5 * (f[e + 1] - f[e]) / he * np.array([[-1.0, 1.0], [-1.0, 1.0]])
-        return self._rows(-k - a)
-
-    def load(self, f: np.ndarray) -> np.ndarray:
-        """A source ``f`` tested: (test,)."""
-        if not self.space or self.interp is None:
-            return self.left @ (self.w * f)[self.test]
-        return self.left @ (self.interp.T @ self._weighted(f))[self.test]
-
-    def flux(self, side: int) -> np.ndarray:
-        """``[du/dx phi]`` at one end: +phi(high), -phi(low), tested: (test,)."""
-        e = np.zeros(self.basis.nodes.size)
-        e[0 if side == 0 else -1] = -1.0 if side == 0 else 1.0
-        return self.left @ e[self.test]
-
-
-def _boundary_kinds(problem, coord: str) -> tuple[str, str] | None:
-    kinds = {tuple(b.kind for b in u.boundary[coord]) for u in problem.unknowns if coord in u.boundary}
-    if len(kinds) > 1:
-        raise SolverError(f"{problem.source}: unknowns: every unknown needs the same kinds of boundary conditions "
-                          f"on {coord!r} (value or gradient at each end), found {sorted(kinds)}")
-    return kinds.pop() if kinds else None
-
-
 def _check_compatible_initial_values(problem, bases) -> None:
     """A Dirichlet value must equal the initial value there: the lift u0 carries it for all times."""
     rng = np.random.default_rng(0)
@@ -283,48 +165,6 @@ def _check_compatible_initial_values(problem, bases) -> None:
                         f"{problem.source}: unknowns.{u.name}: the initial value '{u.initial_text}' does not satisfy "
                         f"the boundary condition {coord} {end} = '{bc.text}' (they must agree at t = "
                         f"{problem.time_coordinate.domain[0]:g})")
-
-
-class _TimeOps:
-    """The time direction of the state mode: free nodes, the d/dt and mass rows, preconditioned.
-
-    The rows are multiplied by ``sqrt(weights) (d/dt)^-1``, so the residual is the L2 norm of
-    the time-integrated equation (see the module docstring).
-    """
-
-    def __init__(self, basis: Basis1D):
-        self.basis = basis
-        nt = basis.nodes.size
-        self.size = nt - 1  # v(t0) = 0: the first node is not free
-        integrate = np.linalg.inv(basis.time_stiffness(np.ones(nt))[:, 1:])
-        self.left = np.sqrt(basis.time_weights())[:, None] * integrate
-
-    def operator(self, values: np.ndarray, is_der: bool) -> np.ndarray:
-        """``c(t) du/dt`` or ``c(t) u`` on the free nodes: (size, size)."""
-        full = self.basis.time_stiffness(values) if is_der else self.basis.time_mass(values)
-        return self.left @ full[:, 1:]
-
-    def load(self, values: np.ndarray) -> np.ndarray:
-        """A source ``f(t)``: (size,)."""
-        return self.left @ self.basis.time_load(values)
-
-    def constant(self, values: np.ndarray) -> np.ndarray:
-        """``c(t) w`` for a ``w`` constant in time (the lift): (size,)."""
-        return self.left @ (self.basis.time_mass(values) @ np.ones(self.basis.nodes.size))
-
-
-class _SteadyOps:
-    """The time direction of a steady problem: none (one entry per unknown, no weight)."""
-
-    size = 1
-
-    def operator(self, values, is_der: bool) -> np.ndarray:
-        return np.ones((1, 1))
-
-    def load(self, values) -> np.ndarray:
-        return np.ones(1)
-
-    constant = load
 
 
 def _initial_lift(unknown, bases: dict[str, Basis1D], tolerance: float, reports: list,
@@ -392,7 +232,7 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
     cap = min(MAX_SEPARATION_RANK, problem.solver.max_rank)
     params = [c.name for c in coords if c.name != tname]
     time, tau, lifts = _time_and_lifts(problem, bases, delta, separations)
-    ops = {c: _CoordinateOps(c, bases[c], problem.coordinate(c).role, _boundary_kinds(problem, c), tau[c])
+    ops = {c: CoordinateOps(c, bases[c], problem.coordinate(c).role, boundary_kinds(problem, c), tau[c])
            for c in params}
     asm = _Assembly(len(problem.unknowns), params, ops, time, tname)
     index = {u.name: s for s, u in enumerate(problem.unknowns)}
@@ -423,12 +263,12 @@ def _time_and_lifts(problem, bases: dict[str, Basis1D], delta: float, separation
         # tau = L^2 makes (M + tau K)^-1 K bounded above and below in each space coordinate,
         # so the residual tracks the error (there is no time integration to do it)
         tau = {c.name: (c.domain[1] - c.domain[0]) ** 2 for c in coords}
-        return _SteadyOps(), tau, {u.name: _dirichlet_lift(u, bases) for u in problem.unknowns}
+        return SteadyOps(), tau, {u.name: _dirichlet_lift(u, bases) for u in problem.unknowns}
     span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
     tau = {c.name: span * TAU_FRACTION for c in coords}
     _check_compatible_initial_values(problem, bases)
     lifts = {u.name: _initial_lift(u, bases, delta, separations, problem.source) for u in problem.unknowns}
-    return _TimeOps(bases[tname]), tau, lifts
+    return TimeOps(bases[tname]), tau, lifts
 
 
 class _Assembly:

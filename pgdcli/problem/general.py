@@ -12,9 +12,8 @@ monomial ``(abs(v), v)``: the polynomial part of an equation keeps its exact
 path, and the general atoms beside it are evaluated pointwise by
 :func:`evaluate`, a vectorized walk of the tree (never ``eval``).
 
-Trees are tuples: ``('num', value)``, ``('name', name)``, ``('call', function,
-child)``, ``('neg', child)`` and ``(op, left, right)`` with op in ``add sub mul
-div pow``. Constants are folded into numbers when the tree is built. The text
+Trees are those of :mod:`pgdcli.problem.trees` with leaves ``('name', name)``, evaluated
+by its one evaluator. Constants are folded into numbers when the tree is built. The text
 of an atom renders the tree with the fewest parentheses that parse back to the
 same tree, so :func:`tree_of` recovers it from the atom alone (spec text never
 reaches ``eval``: the text is parsed with ``ast`` against the same whitelist).
@@ -29,29 +28,15 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from .trees import FUNCTIONS, evaluate_tree, leaf_names, render_text, values_by_name
+
 __all__ = ["FUNCTIONS", "GENERAL", "is_general", "tree_of", "build_tree", "mentions", "render", "evaluate",
            "tree_names", "has_general"]
-
-#: Functions allowed in expressions, with their numpy implementation (the whitelist of
-#: :mod:`pgdcli.problem.expressions` too, which imports it from here).
-FUNCTIONS = {
-    "sin": np.sin,
-    "cos": np.cos,
-    "tan": np.tan,
-    "exp": np.exp,
-    "log": np.log,
-    "sqrt": np.sqrt,
-    "sinh": np.sinh,
-    "cosh": np.cosh,
-    "tanh": np.tanh,
-    "abs": np.abs,
-}
 
 #: The ``coordinate`` of a general atom (not an identifier, so no coordinate can have it).
 GENERAL = "<general>"
 
 _BINARY_OPS = {ast.Add: "add", ast.Sub: "sub", ast.Mult: "mul", ast.Div: "div", ast.Pow: "pow"}
-_NUMPY = {"add": np.add, "sub": np.subtract, "mul": np.multiply, "div": np.divide, "pow": np.power}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -161,59 +146,15 @@ def evaluate(tree: tuple, values: Mapping[str, np.ndarray | float]) -> np.ndarra
     ndarray
         The broadcast shape of the values the tree uses (0-d for a number).
     """
-    kind = tree[0]
-    if kind == "num":
-        return np.asarray(tree[1])
-    if kind == "name":
-        return np.asarray(values[tree[1]], dtype=float)
     with np.errstate(all="ignore"):
-        if kind == "call":
-            return FUNCTIONS[tree[1]](evaluate(tree[2], values))
-        if kind == "neg":
-            return np.negative(evaluate(tree[1], values))
-        return _NUMPY[kind](evaluate(tree[1], values), evaluate(tree[2], values))
+        return evaluate_tree(tree, values_by_name(values))
 
 
 def tree_names(tree: tuple) -> frozenset[str]:
     """Names (coordinates and unknowns) the tree uses."""
-    if tree[0] == "name":
-        return frozenset((tree[1],))
-    if tree[0] == "num":
-        return frozenset()
-    children = tree[2:] if tree[0] == "call" else tree[1:]
-    return frozenset().union(*(tree_names(child) for child in children))
-
-
-# Python precedences: the rendered text parses back to the same tree
-_PRECEDENCE = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3, "pow": 4}
-_SYMBOL = {"add": " + ", "sub": " - ", "mul": "*", "div": "/", "pow": "**"}
-# least precedence of (left, right) operands written without parentheses
-_OPERANDS = {"add": (1, 2), "sub": (1, 2), "mul": (2, 3), "div": (2, 3), "pow": (5, 3)}
-
-
-def _precedence(tree: tuple) -> int:
-    if tree[0] == "num":
-        return 3 if tree[1] < 0 or math.copysign(1.0, tree[1]) < 0 else 5
-    return _PRECEDENCE.get(tree[0], 5)
+    return leaf_names(tree, "name")
 
 
 def render(tree: tuple) -> str:
     """Text of a tree that parses back to the same tree (numbers exact: ``repr``)."""
-    kind = tree[0]
-    if kind == "num":
-        value = tree[1]
-        negative_zero = value == 0.0 and math.copysign(1.0, value) < 0
-        return str(int(value)) if value.is_integer() and abs(value) < 1e15 and not negative_zero else repr(value)
-    if kind == "name":
-        return tree[1]
-    if kind == "call":
-        return f"{tree[1]}({render(tree[2])})"
-    if kind == "neg":
-        return "-" + _wrapped(tree[1], 4)
-    left, right = _OPERANDS[kind]
-    return _wrapped(tree[1], left) + _SYMBOL[kind] + _wrapped(tree[2], right)
-
-
-def _wrapped(tree: tuple, least: int) -> str:
-    text = render(tree)
-    return f"({text})" if _precedence(tree) < least else text
+    return render_text(tree, exact=True)

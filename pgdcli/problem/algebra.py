@@ -1,0 +1,196 @@
+"""The rules of separated algebra the expression parser applies: quotients, powers, functions.
+
+A mixin of :class:`pgdcli.problem.parser.Parser`, apart so that each module reads on its own:
+the parser walks the syntax, this module decides the separated form of ``a/b``, ``a**b`` and
+``f(a)`` for unknown-free operands (a product of one-coordinate functions where the algebra
+allows it, else a non-separable part, :class:`~pgdcli.problem.separable.Joint`). The methods
+use the parser's ``error``, ``quote``, ``multiply`` and ``general``.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+
+import numpy as np
+
+from .polynomial import Polynomial
+from .separable import Separable, constant_tree_value, joint_of, merge_to_function
+from .terms import Func1D, SepTerm
+from .trees import FUNCTIONS, format_number, is_nonneg_int, num, t_div, t_mul, t_pow
+
+__all__ = ["SeparatedAlgebra", "MAX_POWER"]
+
+#: Largest integer exponent expanded by repeated multiplication.
+MAX_POWER = 1_000
+
+
+class SeparatedAlgebra:
+    """Quotients, powers and function calls in separated form (a mixin of the parser)."""
+
+    # -- quotients -------------------------------------------------------------------------
+    def divide(self, numerator: Polynomial, denominator: Polynomial, node: ast.BinOp) -> Polynomial:
+        # the denominator context already rejected unknowns, so only () remains
+        den = denominator.coefficient(())
+        if den.constant_value == 0:
+            raise self.error(f"division by zero in {self.quote(node)}")
+        inverse = self.reciprocal(den, node)
+        result = self.multiply(numerator, Polynomial.from_separable(inverse), node)
+        return self.merge_quotients(numerator, den, result)
+
+    def merge_quotients(self, numerator: Polynomial, den: Separable, product: Polynomial) -> Polynomial:
+        """Turn ``(f1(k) + f2(k))/g(k)`` into one term ``(f1 + f2)/g`` instead of one per summand.
+
+        Fewer separated terms make the solver cheaper; coefficients that do not
+        depend on the denominator's coordinate alone keep the expanded form.
+        """
+        den_func = merge_to_function(den)
+        if den_func is None or den_func.coordinate is None:
+            return product
+        merged = dict(product.terms)
+        for monomial, sep in numerator.items():
+            func = merge_to_function(sep)
+            if func is not None and func.coordinate == den_func.coordinate and len(sep.terms) > 1:
+                merged[monomial] = Separable.of_function(Func1D(func.coordinate, t_div(func.tree, den_func.tree)))
+        return Polynomial(merged)
+
+    def reciprocal(self, den: Separable, node: ast.BinOp) -> Separable:
+        """``1/den`` in separated form, or as a non-separable part (a joint) when it is not separable."""
+        if len(den.terms) == 1 and not den.joints:
+            term = den.terms[0]
+            # 1/(c*f(k)*g(a)) = (1/c) * (1/f(k)) * (1/g(a))
+            return Separable((SepTerm(1.0 / term.coef, tuple((n, f.reciprocal()) for n, f in term.factors)),))
+        func = merge_to_function(den)
+        if func is not None:
+            return Separable.of_function(func.reciprocal())
+        return joint_of(("div", num(1.0), den.tree()))
+
+    def power(self, base: Polynomial, exponent: Polynomial, node: ast.BinOp) -> Polynomial:
+        exp_sep = exponent.coefficient(())
+        value = exp_sep.constant_value
+        if value is not None:
+            return self.constant_power(base, value, node)
+        return self.coordinate_power(base, exp_sep, node)
+
+    def constant_power(self, base: Polynomial, b: float, node: ast.BinOp) -> Polynomial:
+        """``base**b`` for a number b."""
+        if base.atoms:
+            if is_nonneg_int(b):
+                return self.expand_power(base, int(b), node)
+            if all(atom.order == 0 for atom in base.atoms):  # u**0.5, 1/u**2: a general atom
+                return self.general(node)
+            raise self.error(
+                f"non-polynomial term {self.quote(node)}: unknowns may only be raised to non-negative integer powers"
+            )
+        sep = base.coefficient(())
+        c = sep.constant_value
+        if c is not None:
+            return Polynomial.constant(self.fold_power(c, b, node))
+        if len(sep.terms) == 1 and not sep.joints and (sep.terms[0].coef > 0 or float(b).is_integer()):
+            # (c*f(k)*g(a))**b = c**b * f(k)**b * g(a)**b
+            term = sep.terms[0]
+            coef = self.fold_power(term.coef, b, node)
+            factors = tuple((n, f.power(b)) for n, f in term.factors)
+            return Polynomial.from_separable(Separable((SepTerm(coef, factors),)))
+        func = merge_to_function(sep)
+        if func is not None:
+            return Polynomial.from_separable(Separable.of_function(func.power(b)))
+        if is_nonneg_int(b):
+            return self.expand_power(base, int(b), node)
+        return Polynomial.from_separable(joint_of(("pow", sep.tree(), num(b))))
+
+    def expand_power(self, base: Polynomial, n: int, node: ast.BinOp) -> Polynomial:
+        """``base**n`` by repeated multiplication (polynomial degree grows with n)."""
+        if n > MAX_POWER:
+            raise self.error(f"exponent of {self.quote(node)} is too large to expand (at most {MAX_POWER})")
+        result = Polynomial.constant(1.0)
+        for _ in range(n):
+            result = self.multiply(result, base, node)
+        return result
+
+    def coordinate_power(self, base: Polynomial, exponent: Separable, node: ast.BinOp) -> Polynomial:
+        """``c**g`` for a positive constant c and an exponent depending on coordinates."""
+        if base.atoms and all(atom.order == 0 for atom in base.atoms):  # u**k: a general atom
+            return self.general(node)
+        if base.atoms:
+            raise self.error(
+                f"non-polynomial term {self.quote(node)}: unknowns may only be raised to non-negative integer powers"
+            )
+        c = base.coefficient(()).constant_value
+        if c is None:  # f(k)**g(a): a function of both, separated numerically by the solvers
+            return Polynomial.from_separable(joint_of(("pow", base.coefficient(()).tree(), exponent.tree())))
+        if c <= 0:
+            raise self.error(
+                f"{self.quote(node)}: a base raised to a coordinate-dependent power must be positive, got {format_number(c)}"
+            )
+        return self.exponential(exponent, node, base=c)
+
+    def fold_power(self, a: float, b: float, node: ast.AST) -> float:
+        """``a**b`` of numbers, with errors instead of complex, infinite or raised results."""
+        try:
+            value = a**b
+        except ZeroDivisionError:
+            raise self.error(f"division by zero in {self.quote(node)}") from None
+        except OverflowError:
+            raise self.error(f"{self.quote(node)} overflows") from None
+        if isinstance(value, complex):
+            raise self.error(f"{self.quote(node)} is not a real number (negative base, non-integer exponent)")
+        if not math.isfinite(value):
+            raise self.error(f"{self.quote(node)} overflows")
+        return float(value)
+
+
+    # -- functions -------------------------------------------------------------------------
+    def apply_function(self, name: str, arg: Separable, node: ast.Call) -> Separable:
+        """``name(arg)`` for an unknown-free argument, in separated form."""
+        value = arg.constant_value
+        if value is not None:
+            return Separable.constant(self.fold_call(name, value, node))
+        func = merge_to_function(arg)
+        if func is not None:
+            return Separable.of_function(func.apply(name))
+        if name == "exp":
+            # exp(f(k) + g(a) + h(w, t)) = exp(f(k)) * exp(g(a)) * exp(h(w, t))
+            return self.exponential(arg, node).coefficient(())
+        if name == "abs" and len(arg.terms) == 1 and not arg.joints:
+            # |c f(k) g(a)| = |c| |f(k)| |g(a)|
+            term = arg.terms[0]
+            return Separable((SepTerm(abs(term.coef), tuple((n, f.apply("abs")) for n, f in term.factors)),))
+        # a function of two or more coordinates jointly (sin(w*t)): kept as a tree, separated by the solvers
+        return joint_of(("call", name, arg.tree()))
+
+    def fold_call(self, name: str, value: float, node: ast.AST) -> float:
+        with np.errstate(all="ignore"):
+            result = float(FUNCTIONS[name](np.float64(value)))
+        if not math.isfinite(result):
+            raise self.error(f"{self.quote(node)} is not a finite real number")
+        return result
+
+    def exponential(self, arg: Separable, node: ast.AST, base: float | None = None) -> Polynomial:
+        """``exp(arg)`` (or ``base**arg``) as one product, grouping the terms by coordinate.
+
+        Terms of two or more coordinates (and non-separable parts) go into one joint
+        factor ``exp(rest)``, so ``exp(-k - a*t)`` is ``exp(-k)`` times a function of (a, t) only.
+        """
+        log_base = 1.0 if base is None else math.log(base)
+        single = tuple(term for term in arg.terms if len(term.factors) <= 1)
+        rest = Separable(tuple(term for term in arg.terms if len(term.factors) > 1), arg.joints)
+        if not rest.is_zero:
+            scaled = rest.tree() if base is None else t_mul(num(log_base), rest.tree())
+            joint = joint_of(("call", "exp", scaled))
+            return Polynomial.from_separable(self.exponential(Separable(single), node, base).coefficient(()) * joint)
+        groups: dict[str | None, list[SepTerm]] = {}
+        for term in single:
+            key = term.factors[0][0] if term.factors else None
+            groups.setdefault(key, []).append(term)
+        coef = 1.0
+        factors = []
+        for coordinate, terms in groups.items():
+            func = merge_to_function(Separable(tuple(terms)))
+            if coordinate is None:
+                coef = self.fold_call("exp", log_base * constant_tree_value(func.tree), node)
+            elif base is None:
+                factors.append((coordinate, func.apply("exp")))
+            else:
+                factors.append((coordinate, Func1D(coordinate, t_pow(num(base), func.tree))))
+        return Polynomial.from_separable(Separable((SepTerm(coef, tuple(factors)),)))
