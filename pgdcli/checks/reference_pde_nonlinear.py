@@ -28,13 +28,19 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import SolverError
-from ..problem.general import evaluate as general_tree_values, is_general, tree_of
-from .reference import barycentric_matrix, chebyshev_differentiation, chebyshev_points, chebyshev_weights
+from ..problem.general import evaluate as general_tree_values, has_general, is_general, tree_of
+from .collocation import barycentric_matrix, chebyshev_differentiation, chebyshev_points, chebyshev_weights
+from .reference_pde import PdeReferenceResult
 
-__all__ = ["NonlinearPdeReference", "solve_reference_nonlinear_pde", "START_NODES", "MAX_NODES"]
+__all__ = ["NonlinearPdeReference", "solve_reference_nonlinear_pde", "solve_reference_nonlinear_grid",
+           "is_nonlinear_pde", "START_NODES", "MAX_NODES"]
 
 START_NODES = 33
 MAX_NODES = 513
+#: Radau's rtol = atol.
+RTOL = 1e-11
+#: A sample whose two finest grids still differ by more than this (at MAX_NODES) counts as failed.
+SPACE_TOLERANCE_LIMIT = 1e-8
 
 
 @dataclass
@@ -172,26 +178,46 @@ class _Model:
         return np.concatenate([v[self.interior] for v in u0])
 
 
-def _solve_sample(problem, n: int, sample, times, points, rtol, atol) -> np.ndarray:
-    """Values (q, T, P) of one sample on an ``n``-node grid."""
+#: Solutions kept (dense output per sample and grid): the error gate checks the codebooks of successive
+#: rounds of the automatic resolution at the same parameter samples, and the reference is most of its time.
+CACHE_SIZE = 64
+_SOLUTIONS: dict = {}
+
+
+def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
+    """``(model, OdeSolution)`` of one sample on an ``n``-node grid over ``[t0, t_end]`` (cached)."""
     from scipy.integrate import solve_ivp
 
+    key = (problem.source_text, tuple(sorted((k, float(v)) for k, v in sample.items())), n, float(t_end), rtol, atol)
+    if key in _SOLUTIONS:
+        return _SOLUTIONS[key]
     model = _Model(problem, n, sample)
     t0 = float(next(c.domain[0] for c in problem.coordinates if c.name == problem.time))
-    sol = solve_ivp(model.rhs, (t0, float(np.max(times))), model.initial(problem), method="Radau",
-                    t_eval=np.asarray(times, dtype=float), rtol=rtol, atol=atol,
-                    jac=None if model.general else model.jacobian)
-    if sol.status != 0 or sol.y.shape[1] != len(times) or not np.isfinite(sol.y).all():
+    # solve_ivp's t_eval is read from the same dense output: keeping it changes nothing in accuracy
+    sol = solve_ivp(model.rhs, (t0, t_end), model.initial(problem), method="Radau", dense_output=True,
+                    rtol=rtol, atol=atol, jac=None if model.general else model.jacobian)
+    if sol.status != 0 or not np.isfinite(sol.y).all():
         raise SolverError(f"{problem.source}: the nonlinear method-of-lines reference failed at {dict(sample)} "
                           f"on {n} nodes: {sol.message}")
+    if len(_SOLUTIONS) >= CACHE_SIZE:
+        _SOLUTIONS.pop(next(iter(_SOLUTIONS)))
+    _SOLUTIONS[key] = (model, sol.sol)
+    return model, sol.sol
+
+
+def _solve_sample(problem, n: int, sample, times, points, rtol, atol) -> np.ndarray:
+    """Values (q, T, P) of one sample on an ``n``-node grid."""
+    t_end = float(next(c.domain[1] for c in problem.coordinates if c.name == problem.time))
+    model, sol = _sample_solution(problem, n, sample, max(t_end, float(np.max(times))), rtol, atol)
     W = barycentric_matrix(model.x, chebyshev_weights(n), points)
-    full = np.stack([model.full(sol.y[:, k]) for k in range(sol.y.shape[1])], axis=1)  # (q, T, n)
+    Y = sol(np.asarray(times, dtype=float))  # (q (n - 2), T)
+    full = np.stack([model.full(Y[:, k]) for k in range(Y.shape[1])], axis=1)  # (q, T, n)
     return full @ W.T
 
 
 def solve_reference_nonlinear_pde(problem, params: Mapping[str, np.ndarray], times: np.ndarray,
-                                  points: np.ndarray, *, space_tolerance: float = 1e-9, rtol: float = 1e-11,
-                                  atol: float = 1e-11, start_nodes: int = START_NODES,
+                                  points: np.ndarray, *, space_tolerance: float = 1e-9, rtol: float = RTOL,
+                                  atol: float = RTOL, start_nodes: int = START_NODES,
                                   max_nodes: int = MAX_NODES) -> NonlinearPdeReference:
     """The problem at samples x times x space points, on nested grids until they agree.
 
@@ -230,3 +256,50 @@ def solve_reference_nonlinear_pde(problem, params: Mapping[str, np.ndarray], tim
             break
         previous, n = current, 2 * n - 1
     return NonlinearPdeReference({u: current[:, i] for i, u in enumerate(names)}, estimate, n)
+
+
+def is_nonlinear_pde(problem) -> bool:
+    """A problem with space coordinates whose equations are not linear in the unknowns (this module's case)."""
+    space = any(getattr(c, "role", "") == "space" for c in problem.coordinates)
+    return space and any(eq.polynomial.degree >= 2 or has_general(eq.polynomial) for eq in problem.equations)
+
+
+def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], space_points: Mapping[str, np.ndarray],
+                                   times: np.ndarray, *, progress=None, **_ignored) -> PdeReferenceResult:
+    """:func:`solve_reference_nonlinear_pde` in the form of the linear reference's grid result (``pgd verify``).
+
+    Each sample is solved on its own (its grids refined until they agree), so that a failing sample is
+    reported alone (NaN values, ``success`` False, the message). The method-of-lines options of the linear
+    reference (``method``, ``space_nodes``, ...) do not apply and are ignored.
+
+    Returns
+    -------
+    pgdcli.checks.reference_pde.PdeReferenceResult
+        ``values[u]`` of shape (S, T, P) on the space points of the one space coordinate.
+    """
+    (x_name, points), = space_points.items()
+    S = int(np.broadcast_shapes(*(np.shape(v) for v in params.values()))[0]) if params else 1
+    arrays = {k: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for k, v in params.items()}
+    times = np.asarray(times, dtype=float)
+    names = list(problem.unknown_names)
+    values = {u: np.full((S, times.size, np.size(points)), np.nan) for u in names}
+    success, messages, nodes = np.zeros(S, dtype=bool), [""] * S, START_NODES
+    for i in range(S):
+        try:
+            ref = solve_reference_nonlinear_pde(problem, {k: v[i:i + 1] for k, v in arrays.items()}, times, points)
+        except SolverError as exc:
+            messages[i] = " ".join(str(exc).split())
+        else:
+            if ref.error_estimate > SPACE_TOLERANCE_LIMIT:
+                messages[i] = (f"the reference's grids did not agree (difference {ref.error_estimate:.2g} with "
+                               f"{ref.nodes} nodes)")
+            else:
+                success[i] = True
+                nodes = max(nodes, ref.nodes)
+                for u in names:
+                    values[u][i] = ref.values[u][0]
+        if progress is not None:
+            progress(i + 1)
+    return PdeReferenceResult(values=values, success=success, messages=messages, space=[x_name],
+                              space_points={x_name: np.asarray(points)}, nodes={x_name: nodes}, method="Radau",
+                              rtol=RTOL, atol=RTOL, times=times)
