@@ -33,6 +33,7 @@ import numpy as np
 
 from ..discretization.basis import chebyshev_unit_nodes
 from ..errors import SolverError
+from ..tensors.cross import tt_from_full
 from ..tensors.tt import TT, tt_hadamard, tt_rank_one, tt_round, tt_sum
 from .pde_phi import Eigen
 from .pde_system import PdeSystem, compile_pde_system
@@ -44,6 +45,8 @@ LOCAL_FRACTION, ROUND_FRACTION = 0.3, 0.02
 #: A step below this share of the time span ends the march.
 MIN_STEP = 1e-9
 SCHEMES = ("etdrk4", "lawson4")
+#: Largest grid (values) marched as a whole array instead of a tensor train.
+DENSE_LIMIT = 200_000
 
 
 @dataclass
@@ -87,6 +90,24 @@ class _Split:
     def full(self, w: TT) -> TT:
         return tt_sum([_on_x(w, self.s.Z), self.lift], [1.0, 1.0])
 
+    @staticmethod
+    def combine(terms, weights, delta: float) -> TT:
+        """The weighted sum, rounded to the Frobenius ``delta`` (0: exact, ranks added)."""
+        total = tt_sum(terms, weights)
+        return tt_round(total, absolute=delta) if delta > 0 else total
+
+    @staticmethod
+    def norm(w: TT) -> float:
+        return w.norm()
+
+    @staticmethod
+    def rank(w: TT) -> int:
+        return max(w.ranks, default=1)
+
+    def state(self, w: TT, delta: float) -> TT:
+        """``u`` of the interior state ``w`` as a train over the full nodes."""
+        return self.full(w)
+
     def nonlinear(self, w: TT, delta: float) -> TT:
         """``N(u)`` on the interior nodes, rounded to the Frobenius ``delta``."""
         self.evaluations += 1
@@ -110,23 +131,31 @@ class _Split:
         return TT(cores)
 
     def functions(self, h: float) -> np.ndarray:
-        """``phi_0 .. phi_3`` of ``h c_j A`` and of ``h c_j A / 2``: shape (2, 4, n_k, m, m)."""
+        """``phi_0 .. phi_3`` of ``h c_j A`` and of ``h c_j A / 2``: shape (2, 4, n_k, m) as spectra in the
+        eigenbasis of ``A`` (or (2, 4, n_k, m, m) as matrices when its eigenvectors are ill-conditioned)."""
         key = float(h)
         if key not in self.cache:
             if len(self.cache) > 8:
                 self.cache.clear()
             c = np.asarray(self.s.diffusion, dtype=float)
-            both = self.eigen.functions(np.concatenate([h * c, 0.5 * h * c]), 3)  # (4, 2 n_k, m, m)
+            scales = np.concatenate([h * c, 0.5 * h * c])
+            both = self.eigen.spectra(scales, 3)
+            if both is None:
+                both = self.eigen.functions(scales, 3)  # (4, 2 n_k, m, m)
             self.cache[key] = np.stack([both[:, :c.size], both[:, c.size:]])
         return self.cache[key]
 
     def apply(self, M: np.ndarray, w: TT, delta: float) -> TT:
-        """``M_j`` (n_k, m, m) applied per node j of mode 1 (or ``M_0`` on the ``x`` core), rounded to ``delta``."""
-        if M.shape[0] == 1:
-            return _on_x(w, M[0])
+        """A function of ``c_j A`` applied per node j of mode 1 (or of ``c A`` on the ``x`` core), rounded to
+        ``delta``. ``M``: spectra (n_k, m) or matrices (n_k, m, m)."""
         cores = list(w.cores)
+        if M.shape[0] == 1:
+            core = np.transpose(cores[0], (1, 0, 2))  # (m, 1, r)
+            core = self.eigen.apply(M, core) if M.ndim == 2 else np.einsum("ij,jab->iab", M[0], core)
+            cores[0] = np.transpose(core, (1, 0, 2))
+            return TT(cores)
         W = np.einsum("aib,bjc->ijc", cores[0], cores[1])  # (m, n_k, r2)
-        W = np.einsum("jil,ljc->ijc", M, W)
+        W = self.eigen.apply(M, W) if M.ndim == 2 else np.einsum("jil,ljc->ijc", M, W)
         m, nk, r2 = W.shape
         u, sv, vt = np.linalg.svd(W.reshape(m, nk * r2), full_matrices=False)
         tail = np.sqrt(np.cumsum((sv * sv)[::-1]))[::-1]
@@ -136,8 +165,62 @@ class _Split:
         return TT(cores)
 
 
-def _combine(terms, weights, delta: float) -> TT:
-    return tt_round(tt_sum(terms, weights), absolute=delta)
+class _Dense(_Split):
+    """The same operations on the whole grid (numpy arrays (m, n_2, ..., n_d)), no rounding.
+
+    Chosen while the grid has at most :data:`DENSE_LIMIT` values: on Fisher's 65 x 17 x 17 nodes
+    the whole grid is 18785 values, and the trains' QR and SVD roundings (rank ~20) took most of the
+    march's time.
+    """
+
+    def __init__(self, system: PdeSystem) -> None:
+        super().__init__(system)
+        self.lift_full = system.lift.reshape((-1,) + (1,) * (len(system.shape) - 1))
+
+    def initial(self):
+        return self.s.initial.full()
+
+    def full(self, w: np.ndarray) -> np.ndarray:
+        return np.tensordot(self.s.Z, w, axes=(1, 0)) + self.lift_full
+
+    @staticmethod
+    def combine(terms, weights, delta: float) -> np.ndarray:
+        return sum(b * t for t, b in zip(terms, weights))
+
+    @staticmethod
+    def norm(w: np.ndarray) -> float:
+        return float(np.linalg.norm(w))
+
+    @staticmethod
+    def rank(w) -> int:
+        return 0
+
+    def state(self, w: np.ndarray, delta: float) -> TT:
+        return tt_from_full(self.full(w), delta)
+
+    def nonlinear(self, w: np.ndarray, delta: float) -> np.ndarray:
+        self.evaluations += 1
+        u = self.full(w)
+        atoms = {0: u}
+        total = np.zeros_like(u)
+        for weight, vectors, orders in self.s.terms:
+            product = weight
+            for o in orders:
+                if o not in atoms:
+                    atoms[o] = np.tensordot(self.s.D1 if o == 1 else self.D2, u, axes=(1, 0))
+                product = product * atoms[o]
+            for k, v in enumerate(vectors):
+                product = product * v.reshape((1,) * k + (-1,) + (1,) * (len(vectors) - k - 1))
+            total = total + product
+        return total[1:-1]
+
+    def apply(self, M: np.ndarray, w: np.ndarray, delta: float) -> np.ndarray:
+        shape = w.shape
+        W = w.reshape(shape[0], shape[1] if len(shape) > 1 else 1, -1)  # (m, n_k, rest)
+        if M.shape[0] == 1:
+            W = w.reshape(shape[0], 1, -1)
+        out = self.eigen.apply(M, W) if M.ndim == 2 else np.einsum("jil,ljc->ijc", M, W)
+        return out.reshape(shape)
 
 
 def _etdrk4(split: _Split, w: TT, h: float, delta: float, Nw: TT | None = None) -> TT:
@@ -149,7 +232,7 @@ def _etdrk4(split: _Split, w: TT, h: float, delta: float, Nw: TT | None = None) 
     b1 = h * (full[1] - 3 * full[2] + 4 * full[3])
     b23 = h * (2 * full[2] - 4 * full[3])
     b4 = h * (4 * full[3] - full[2])
-    ap, nl = split.apply, split.nonlinear
+    ap, nl, _combine = split.apply, split.nonlinear, split.combine
     Na = nl(w, delta / h) if Nw is None else Nw
     E2w = ap(E2, w, delta)
     a = _combine([E2w, ap(Q, Na, delta)], [1.0, 1.0], delta)
@@ -167,20 +250,20 @@ def _lawson4(split: _Split, w: TT, h: float, delta: float, Nw: TT | None = None)
     """One integrating-factor (Lawson) RK4 step of ``w' = c A w + N(w)``."""
     F = split.functions(h)
     E, E2 = F[0][0], F[1][0]
-    ap, nl = split.apply, split.nonlinear
+    ap, nl, _combine = split.apply, split.nonlinear, split.combine
     k1 = nl(w, delta / h) if Nw is None else Nw
     half_w = ap(E2, w, delta)
     k2 = nl(_combine([half_w, ap(E2, k1, delta)], [1.0, h / 2], delta), delta / h)
     k3 = nl(_combine([half_w, k2], [1.0, h / 2], delta), delta / h)
     full_w = ap(E2, half_w, delta)
     k4 = nl(_combine([full_w, ap(E2, k3, delta)], [1.0, h], delta), delta / h)
-    combo = tt_sum([ap(E, k1, delta), ap(E2, tt_sum([k2, k3]), delta), k4], [1.0, 2.0, 1.0])
+    combo = _combine([ap(E, k1, delta), ap(E2, _combine([k2, k3], [1.0, 1.0], 0.0), delta), k4], [1.0, 2.0, 1.0], 0.0)
     return _combine([full_w, combo], [1.0, h / 6], delta)
 
 
 def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = None, *, scheme: str = "etdrk4",
               slab_nodes: int | None = None, max_steps: int = 20000, callback=None,
-              fixed_step: float | None = None) -> PdeMarchResult:
+              fixed_step: float | None = None, dense: bool | None = None) -> PdeMarchResult:
     """March ``w`` with step doubling; the states ``u`` at ``times`` or at per-step slab nodes.
 
     Parameters
@@ -196,6 +279,9 @@ def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = No
     fixed_step : float, optional
         Steps of this size (shortened to land on the output times), every one accepted: the scheme's
         order can be measured.
+    dense : bool, optional
+        March the whole grid as an array (default: when it has at most :data:`DENSE_LIMIT` values) or
+        as a tensor train.
     """
     from threadpoolctl import threadpool_limits
 
@@ -206,19 +292,23 @@ def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = No
     # steps in 33 s with one
     with threadpool_limits(1):
         return _march(system, tolerance, times, {"etdrk4": _etdrk4, "lawson4": _lawson4}[scheme], slab_nodes,
-                      max_steps, callback, fixed_step)
+                      max_steps, callback, fixed_step, dense)
 
 
-def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixed_step=None) -> PdeMarchResult:
-    split = _Split(system)
+def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixed_step=None,
+           dense=None) -> PdeMarchResult:
     t0, t1 = system.t_span
     T = t1 - t0
-    root = np.sqrt(split.size)
-    w, t, h = system.initial, t0, fixed_step or 1e-3 * T
+    size = float(np.prod(system.shape))
+    dense = size <= DENSE_LIMIT if dense is None else dense
+    split = _Dense(system) if dense else _Split(system)
+    root = np.sqrt(size)
+    w, t, h = (split.initial() if dense else system.initial), t0, fixed_step or 1e-3 * T
     targets = np.asarray([t1] if times is None else times, dtype=float)
     theta = (chebyshev_unit_nodes(slab_nodes) + 1.0) / 2.0 if slab_nodes else None  # nodes on [0, 1]
-    out_times, states = ([t0], [split.full(w)]) if slab_nodes else ([], [])
-    steps, rejected, max_rank, sizes = 0, 0, max(w.ranks, default=1), []
+    state_delta = ROUND_FRACTION * tolerance * root  # the stored states' rounding (dense: their TT-SVD)
+    out_times, states = ([t0], [split.state(w, state_delta)]) if slab_nodes else ([], [])
+    steps, rejected, max_rank, sizes = 0, 0, split.rank(w), []
     for target in targets:
         while t < target - 1e-14 * T:
             if steps + rejected > max_steps:
@@ -231,30 +321,31 @@ def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixe
             Nw = split.nonlinear(w, delta / h)
             whole = step(split, w, h, delta, Nw)
             half = step(split, step(split, w, h / 2, delta, Nw), h / 2, delta)
-            diff = tt_sum([half, whole], [1.0, -1.0])
-            err = diff.norm() / 15.0 / root
+            diff = split.combine([half, whole], [1.0, -1.0], 0.0)
+            err = split.norm(diff) / 15.0 / root
             allowed = LOCAL_FRACTION * tolerance * h / T
             if err <= allowed or fixed_step:
                 if slab_nodes:
                     for th in theta[1:-1]:
-                        states.append(split.full(step(split, w, th * h, delta, Nw)))
+                        states.append(split.state(step(split, w, th * h, delta, Nw), state_delta))
                         out_times.append(t + th * h)
-                w = _combine([half, diff], [1.0, 1.0 / 15.0], delta)
+                w = split.combine([half, diff], [1.0, 1.0 / 15.0], delta)
                 t += h
                 steps += 1
                 sizes.append(h)
-                max_rank = max(max_rank, max(w.ranks, default=1))
+                max_rank = max(max_rank, split.rank(w))
                 if slab_nodes:
-                    states.append(split.full(w))
+                    states.append(split.state(w, state_delta))
                     out_times.append(t)
                 if callback is not None:
-                    callback({"time": t, "end": t1, "steps": steps, "ranks": [list(w.ranks)]})  # per unknown
+                    callback({"time": t, "end": t1, "steps": steps, "ranks": [[max_rank]]})  # per unknown
             else:
                 rejected += 1
             h = fixed_step or h * min(2.0, max(0.2, SAFETY * (allowed / max(err, 1e-300)) ** 0.2))
         if not slab_nodes:
-            states.append(split.full(w))
+            states.append(split.state(w, state_delta))
             out_times.append(t)
+    max_rank = max(max_rank, max(max(s.ranks, default=1) for s in states))
     breakpoints = np.concatenate([[t0], np.cumsum(sizes) + t0]) if slab_nodes else None
     return PdeMarchResult(np.asarray(out_times), states, steps, rejected, max_rank, breakpoints, sizes,
                           split.evaluations)

@@ -45,9 +45,28 @@ class Eigen:
     def __init__(self, A: np.ndarray) -> None:
         self.A = A
         lam, V = np.linalg.eig(A)
+        if not np.iscomplexobj(A) and not np.any(lam.imag) and not np.any(V.imag):
+            lam, V = lam.real, V.real  # the usual case (real spectrum): real arithmetic below
         self.lam, self.V = lam, V
         self.condition = float(np.linalg.cond(V))
         self.Vinv = np.linalg.inv(V) if self.condition <= MAX_CONDITION else None
+
+    def spectra(self, scales: np.ndarray, k_max: int) -> np.ndarray | None:
+        """``phi_k(s lambda)`` for every scale: shape (k_max + 1, len(scales), m), None when ``V`` is ill-conditioned.
+
+        ``phi_k(s A) y = V (phi_k(s lambda) * (V^-1 y))``: :meth:`apply` uses these without forming matrices.
+        """
+        if self.Vinv is None:
+            return None
+        f = phi_scalars(np.asarray(scales, dtype=float)[:, None] * self.lam[None, :], k_max)
+        return f.real if np.isrealobj(self.V) else f
+
+    def apply(self, f: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """``V (f_j * (V^-1 Y_j))`` for ``Y`` (m, n_k, r) and spectra ``f`` (n_k, m) per node j (n_k may be 1)."""
+        m, nk, r = Y.shape
+        inner = (self.Vinv @ Y.reshape(m, nk * r)).reshape(m, nk, r) * f.T[:, :, None]
+        out = (self.V @ inner.reshape(m, nk * r)).reshape(m, nk, r)
+        return out.real if np.isrealobj(Y) and np.iscomplexobj(out) else out
 
     def functions(self, scales: np.ndarray, k_max: int) -> np.ndarray:
         """``phi_k(s A)`` for every scale ``s``: shape (k_max + 1, len(scales), m, m)."""
@@ -55,7 +74,9 @@ class Eigen:
             return np.stack([phi_matrices(s * self.A, k_max) for s in scales], axis=1)
         z = np.asarray(scales, dtype=float)[:, None] * self.lam[None, :]  # (S, m)
         f = phi_scalars(z, k_max)  # (K, S, m)
-        out = np.einsum("im,ksm,mj->ksij", self.V, f, self.Vinv)
+        if np.isrealobj(self.V):
+            f = f.real
+        out = (self.V * f[..., None, :]) @ self.Vinv  # batched products (BLAS), not a 3-operand einsum
         return out.real if np.isrealobj(self.A) else out
 
 

@@ -53,14 +53,15 @@ def _values(train, bases, modes, x, samples):
     return np.einsum("pa,sab->sp", left, right)
 
 
-@pytest.mark.parametrize("scheme", ["etdrk4", "lawson4"])
-def test_burgers_march_against_reference(scheme):
+@pytest.mark.parametrize("scheme, dense", [("etdrk4", True), ("etdrk4", False), ("lawson4", True)])
+def test_burgers_march_against_reference(scheme, dense):
+    """On the whole grid (an array) and as a tensor train."""
     problem = parse_spec(BURGERS_MILD, source="burgers_mild.yaml")
     bases = {"x": make_basis("chebyshev", (0, 1), 33), "nu": make_basis("chebyshev", (0.05, 0.1), 9)}
     system = compile_pde_system(problem, bases)
     times = np.array([0.1, 0.25, 0.5])
     with threadpool_limits(1):
-        result = march_pde(system, 1e-6, times, scheme=scheme)
+        result = march_pde(system, 1e-6, times, scheme=scheme, dense=dense)
     rng = np.random.default_rng(11)
     samples = {"nu": rng.uniform(0.05, 0.1, 4)}
     x = rng.uniform(0, 1, 30)  # 4 x 3 x 30 = 360 random points
