@@ -76,6 +76,7 @@ class _Model:
         D1 = chebyshev_differentiation(n, coord.domain)
         self.L = {0: None, 1: D1, 2: D1 @ D1}
         self.sample = {k: float(v) for k, v in sample.items()}
+        self._steady: dict = {}  # coefficients without time, by id of their (kept alive) Separable
         names = list(problem.unknown_names)
         self.index = {u: i for i, u in enumerate(names)}
         self.q, self.n = len(names), n
@@ -121,8 +122,14 @@ class _Model:
             self.rest.append(rest)
 
     def _coef(self, sep, t: float) -> np.ndarray:
+        steady = self.time not in sep.coordinates  # evaluated once (it was a quarter of the solve)
+        if steady and id(sep) in self._steady:
+            return self._steady[id(sep)]
         values = {**self.sample, self.x_name: self.x, self.time: np.asarray(t)}
-        return np.broadcast_to(np.asarray(sep.evaluate(**values), dtype=float), (self.n,))
+        out = np.broadcast_to(np.asarray(sep.evaluate(**values), dtype=float), (self.n,))
+        if steady:
+            self._steady[id(sep)] = out
+        return out
 
     def full(self, y: np.ndarray) -> np.ndarray:
         """Full nodal values (q, n) from the interior state (q (n - 2),)."""

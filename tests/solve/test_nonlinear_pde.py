@@ -99,3 +99,32 @@ equations:
     run = _pgd_solve(spec, tmp_path / "out.h5")
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode == 2 and len(lines) == 1 and "2 space coordinates (x, y)" in lines[0], run.stderr
+
+
+BURGERS_MILD = (ROOT / "problems" / "burgers.yaml").read_text().replace("[0.01, 0.1]", "[0.05, 0.1]")
+
+
+def test_burgers_mild_solves_and_verify_uses_the_nonlinear_reference(tmp_path):
+    """burgers.yaml with nu in [0.05, 0.1]: the codebook within the tolerance at 300 random points, and
+    pgd verify on it measures against the nonlinear method of lines."""
+    problem = pgdcli.parse_spec(BURGERS_MILD, source="burgers_mild.yaml")
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    assert worst_error(problem, result.codebook) <= 1e-6
+    path = tmp_path / "mild.h5"
+    result.codebook.save(path)
+    report = pgdcli.verify(path, samples=4, jobs=1, max_error=1e-6)
+    assert "nonlinear method of lines" in report.settings["method"]
+    assert report.passed(1e-6) and not report.failures
+
+
+def test_a_codebook_missing_the_tolerance_is_refused_and_not_written(tmp_path):
+    """Too few x nodes fixed by the spec: the gate measures the error against the nonlinear reference
+    and pgd solve exits 1 with nothing written."""
+    spec = tmp_path / "coarse.yaml"
+    spec.write_text(BURGERS_MILD.replace("x: {domain: [0, 1]}", "x: {domain: [0, 1], nodes: 9}"))
+    out = tmp_path / "coarse.h5"
+    run = _pgd_solve(spec, out)
+    assert run.returncode == 1, run.stderr
+    assert "tolerance not met" in run.stderr and "'x'" in run.stderr and "Traceback" not in run.stderr
+    assert not out.exists()
