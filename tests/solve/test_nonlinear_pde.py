@@ -32,7 +32,8 @@ def worst_error(problem, cb, seed: int = 14) -> float:
     samples = {c.name: rng.uniform(*c.domain, 5) for c in params}
     times = np.sort(rng.uniform(*t.domain, 6))
     points = rng.uniform(*x.domain, 10)
-    ref = solve_reference_nonlinear_pde(problem, samples, times, points)
+    # grids agreeing to 1e-8: 1% of the tolerances here, and fewer nodes than the default 1e-9 may need
+    ref = solve_reference_nonlinear_pde(problem, samples, times, points, space_tolerance=1e-8)
     assert ref.error_estimate < 1e-8
     T, X = np.meshgrid(times, points, indexing="ij")
     worst = 0.0
@@ -104,6 +105,7 @@ equations:
 BURGERS_MILD = (ROOT / "problems" / "burgers.yaml").read_text().replace("[0.01, 0.1]", "[0.05, 0.1]")
 
 
+@pytest.mark.slow
 def test_burgers_mild_solves_and_verify_uses_the_nonlinear_reference(tmp_path):
     """burgers.yaml with nu in [0.05, 0.1]: the codebook within the tolerance at 300 random points, and
     pgd verify on it measures against the nonlinear method of lines."""
@@ -118,6 +120,7 @@ def test_burgers_mild_solves_and_verify_uses_the_nonlinear_reference(tmp_path):
     assert report.passed(1e-6) and not report.failures
 
 
+@pytest.mark.slow
 def test_a_codebook_missing_the_tolerance_is_refused_and_not_written(tmp_path):
     """Too few x nodes fixed by the spec: the gate measures the error against the nonlinear reference
     and pgd solve exits 1 with nothing written."""
