@@ -89,20 +89,6 @@ def test_fisher_without_reaction_matches_linear_reference():
 
 
 def test_two_space_coordinates_are_refused():
-    text = """
-coordinates:
-  t: {domain: [0, 1]}
-  x: {domain: [0, 1]}
-  y: {domain: [0, 1]}
-unknowns:
-  u:
-    initial: "sin(pi*x)*sin(pi*y)"
-    boundary:
-      x: {low: 0, high: 0}
-      y: {low: 0, high: 0}
-equations:
-  - "der(u) = 0.1*(der(u, x, 2) + der(u, y, 2)) - u*der(u, x)"
-"""
-    problem = parse_spec(text, source="two.yaml")
+    problem = load_spec("tests/user_problems/burgers_2d.yaml")
     with pytest.raises(SolverError, match="one space coordinate"):
         solve_reference_nonlinear_pde(problem, {}, np.array([0.5]), np.array([0.5]))

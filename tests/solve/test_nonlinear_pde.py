@@ -82,22 +82,7 @@ def test_unsupported_forms_are_refused_with_one_line(edit, reason, tmp_path):
 
 
 def test_two_space_coordinates_are_refused(tmp_path):
-    spec = tmp_path / "two.yaml"
-    spec.write_text("""
-coordinates:
-  t: {domain: [0, 1]}
-  x: {domain: [0, 1]}
-  y: {domain: [0, 1]}
-unknowns:
-  u:
-    initial: "sin(pi*x)*sin(pi*y)"
-    boundary:
-      x: {low: 0, high: 0}
-      y: {low: 0, high: 0}
-equations:
-  - "der(u) = 0.1*(der(u, x, 2) + der(u, y, 2)) - u*der(u, x)"
-""")
-    run = _pgd_solve(spec, tmp_path / "out.h5")
+    run = _pgd_solve(ROOT / "tests" / "user_problems" / "burgers_2d.yaml", tmp_path / "out.h5")
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode == 2 and len(lines) == 1 and "2 space coordinates (x, y)" in lines[0], run.stderr
 
