@@ -19,7 +19,7 @@ import numpy as np
 from ..discretization.coordinates import CoordinateInfo, coordinate_infos
 from ..errors import SolverError
 from .march import SPACE_TIME_FRACTION, join_and_round
-from .pde_march import march_pde
+from .pde_march import UnderResolved, march_pde
 from .pde_system import compile_pde_system
 
 __all__ = ["solve_pde_march", "SLAB_NODES"]
@@ -48,15 +48,20 @@ def solve_pde_march(problem, tolerance: float, callback=None):
     system = compile_pde_system(problem, bases)
     tcoord = coords[names.index(problem.time)]
     auto = getattr(problem.solver, "time_slabs", "auto") == "auto" and tcoord.discretization == "chebyshev"
+    x = problem.coordinate(system.modes[0])
+    # the automatic resolution can add x nodes: stop an under-resolved march early (pde_march.TAIL_ABORT)
+    refinable = x.auto and x.nodes < problem.solver.max_nodes
     try:
         result = march_pde(system, tolerance, None if auto else tcoord.basis().nodes,
                            slab_nodes=SLAB_NODES if auto else None, max_steps=problem.solver.max_steps,
-                           callback=callback)
+                           callback=callback, tail_limit=refinable)
     except SolverError as exc:
         wall = _time.perf_counter() - started
         message = f"not converged: {exc}"
         report = {"converged": False, "status": 3, "message": message, "method": "pde march",
                   "tolerance": float(tolerance), "wall_time": wall, "steps": 0, "pgdcli_version": __version__}
+        if isinstance(exc, UnderResolved):
+            report["under_resolved"] = exc.coordinate  # pgdcli.adapt refines it and solves again
         order = tuple(names.index(m) for m in [problem.time] + system.modes)
         fields = {problem.unknowns[0].name: FieldTT(tuple(np.zeros((1, coords[j].nodes, 1)) for j in order), order)}
         cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,

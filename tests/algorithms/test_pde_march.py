@@ -115,3 +115,16 @@ equations:
     assert "2 unknowns" in pde_refusal(problem)
     with pytest.raises(SolverError, match="PDE march takes one unknown"):
         compile_pde_system(problem, {"x": make_basis("chebyshev", (0, 1), 17)})
+
+
+def test_an_under_resolved_front_stops_the_march():
+    """Burgers at nu = 0.01 on 17 x nodes: the steepening front's Chebyshev tail passes 10x the tolerance
+    and the march stops (pgdcli.adapt then adds x nodes) instead of shrinking its steps."""
+    from pgdcli.algorithms.pde_march import UnderResolved
+
+    problem = parse_spec(open("problems/burgers.yaml").read(), source="burgers.yaml")
+    bases = {"x": make_basis("chebyshev", (0, 1), 17), "nu": make_basis("chebyshev", (0.01, 0.1), 5)}
+    system = compile_pde_system(problem, bases)
+    with threadpool_limits(1), pytest.raises(UnderResolved) as caught:
+        march_pde(system, 1e-6, np.array([0.5]), tail_limit=True)
+    assert caught.value.coordinate == "x" and caught.value.tail > 1e-5 and caught.value.time < 0.5
