@@ -51,8 +51,9 @@ def solved(path: str):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("path", ["problems/fisher.yaml", "problems/burgers.yaml", "tests/user_problems/allen_cahn.yaml",
-                                  "tests/user_problems/nagumo.yaml", "tests/user_problems/burgers_source.yaml"])
+@pytest.mark.parametrize("path", ["problems/fisher.yaml", "problems/burgers.yaml",
+                                  "tests/user_problems/allen_cahn.yaml", "tests/user_problems/nagumo.yaml",
+                                  "tests/user_problems/burgers_source.yaml"])
 def test_solves_within_tolerance_at_random_points(path):
     problem, result = solved(path)
     assert result.accurate, result.message
