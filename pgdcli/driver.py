@@ -2,7 +2,8 @@
 
 Linear problems go to the PGD enrichment (:mod:`pgdcli.algorithms.enrichment` on the system of
 :mod:`pgdcli.discretization.linear`), nonlinear ones to the tensor-train time march
-(:mod:`pgdcli.algorithms.march`); either way the codebook is measured against the independent
+(:mod:`pgdcli.algorithms.march`; a nonlinear PDE in one space coordinate to the exponential PDE
+march, :mod:`pgdcli.algorithms.pde_solve`); either way the codebook is measured against the independent
 reference (:mod:`pgdcli.checks.check`) and, where the spec leaves the nodes to the solver, refined
 until the error meets the tolerance (:mod:`pgdcli.adapt`).
 """
