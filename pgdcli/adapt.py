@@ -255,6 +255,13 @@ def solve_to_tolerance(problem, solve_once, *, march: bool):
     for round_ in range(MAX_ROUNDS if auto else 1):
         result = solve_once(problem)
         if not result.converged:
+            lacking = result.codebook.report.get("under_resolved")  # a march stopped early for lack of nodes
+            if lacking and round_ < MAX_ROUNDS - 1:
+                refined = refined_nodes(problem, [lacking])
+                if total_nodes(refined.coordinate(lacking)) > total_nodes(problem.coordinate(lacking)):
+                    rounds.append([total_nodes(c) for c in problem.coordinates] + [float("inf")])  # stopped early
+                    problem = refined
+                    continue
             return result
         check = result.check
         rounds.append([total_nodes(c) for c in problem.coordinates] + [check.ratio])

@@ -2,7 +2,8 @@
 
 Linear problems go to the PGD enrichment (:mod:`pgdcli.algorithms.enrichment` on the system of
 :mod:`pgdcli.discretization.linear`), nonlinear ones to the tensor-train time march
-(:mod:`pgdcli.algorithms.march`); either way the codebook is measured against the independent
+(:mod:`pgdcli.algorithms.march`; a nonlinear PDE in one space coordinate to the exponential PDE
+march, :mod:`pgdcli.algorithms.pde_solve`); either way the codebook is measured against the independent
 reference (:mod:`pgdcli.checks.check`) and, where the spec leaves the nodes to the solver, refined
 until the error meets the tolerance (:mod:`pgdcli.adapt`).
 """
@@ -258,14 +259,17 @@ def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0
     ``learned`` (updated) carries the target that met the tolerance at the nodes to the next call.
     """
     from .algorithms.march import solve_march
+    from .algorithms.pde_solve import solve_pde_march
 
+    # a nonlinear PDE in one space coordinate (checked by _use_march): the exponential PDE march
+    marcher = solve_pde_march if any(c.role == "space" for c in problem.coordinates) else solve_march
     learned = {} if learned is None else learned
     target = learned.get("march_target", CHECK_FIRST * tolerance)
     kept = None
     attempts = []
     notes = []
     for _ in range(CHECK_ATTEMPTS):
-        result = solve_march(problem, target, callback=callback)
+        result = marcher(problem, target, callback=callback)
         if not result.converged:
             if kept is None:
                 # the report speaks of the user's tolerance; the march's own target beside it
@@ -335,11 +339,12 @@ def _use_march(problem) -> bool:
     if march and problem.time is None:
         raise SolverError(f"{problem.source}: equations: a steady problem (no time coordinate) needs equations linear "
                           f"in the unknowns and solver.method 'auto' or 'pgd' (the march steps in time)")
-    space = [c.name for c in problem.coordinates if c.role == "space"]
-    if march and space:
-        raise SolverError(f"{problem.source}: equations: the separated time march handles ODEs only; "
-                          f"{', '.join(space)} {'is a space coordinate' if len(space) == 1 else 'are space coordinates'}"
-                          f" (nonlinear PDEs are not supported yet)")
+    if march and any(c.role == "space" for c in problem.coordinates):
+        from .algorithms.pde_system import pde_refusal
+
+        reason = pde_refusal(problem)  # a nonlinear PDE in one space coordinate goes to the PDE march
+        if reason:
+            raise SolverError(reason)
     return march
 
 

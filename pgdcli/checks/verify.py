@@ -284,6 +284,7 @@ def verify(
         points (:class:`VerifyError`).
     """
     from .reference import DEFAULT_SPACE_NODES, solve_reference, solve_reference_pde
+    from .reference_pde_nonlinear import is_nonlinear_pde, solve_reference_nonlinear_grid
 
     started = _time.perf_counter()
     opts = _checked_options(samples=samples, times=times, seed=seed, max_corners=max_corners, jobs=jobs,
@@ -312,9 +313,13 @@ def verify(
     if space:
         space_grid = space_points_grid(cb, space, opts["seed"], opts["space_points"])
         nodes = DEFAULT_SPACE_NODES if space_nodes is None else space_nodes
-        result = solve_reference_pde(problem, sample_points, space_grid, None if time is None else all_times,
-                                     grid=True, method=method, rtol=rtol, atol=atol, jobs=opts["jobs"],
-                                     progress=report_progress, space_nodes=nodes)
+        nonlinear = is_nonlinear_pde(problem)  # its own method of lines (Radau, grids refined until they agree)
+        reference = solve_reference_nonlinear_grid if nonlinear else solve_reference_pde
+        result = reference(problem, sample_points, space_grid, None if time is None else all_times,
+                           grid=True, method=method, rtol=rtol, atol=atol, jobs=opts["jobs"],
+                           progress=report_progress, space_nodes=nodes)
+        if nonlinear:
+            settings.update(method=f"{result.method} (nonlinear method of lines)", rtol=result.rtol, atol=result.atol)
         if time is None:  # the placeholder time axis, as the codebook values have it
             result.values = {u: v[:, None] for u, v in result.values.items()}
         approx = codebook_on_space_grid(cb, sample_points, S, time, all_times, space_grid, unknowns)

@@ -195,7 +195,7 @@ def check_derivatives_linear(problem: Problem) -> None:
         for monomial in equation.polynomial:
             if len(monomial) >= 2 and any(atom.order > 0 for atom in monomial):
                 if all(atom.order == 0 or atom.coordinate != problem.time for atom in monomial):
-                    continue  # u*der(u, x): a valid nonlinear PDE, which the solver refuses (not supported yet)
+                    continue  # u*der(u, x): a valid nonlinear PDE (pgdcli.algorithms.pde_system decides)
                 raise SpecError(
                     f"{problem.source}: equations[{equation.index}]: term '{format_monomial(monomial, problem.time)}'"
                     f" in '{equation.text}' multiplies a derivative by an unknown; der(...) must appear linearly"

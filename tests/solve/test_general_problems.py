@@ -72,21 +72,6 @@ def test_within_tolerance_at_random_points(name):
     assert worst_error(name, result.codebook) <= problem.solver.tolerance
 
 
-@pytest.mark.parametrize("name, term", [("fisher", "x is a space coordinate"), ("burgers", "x is a space coordinate")])
-def test_nonlinear_pdes_are_refused_with_the_reason(name, term, tmp_path):
-    import subprocess
-    import sys
-
-    out = tmp_path / f"{name}.h5"
-    run = subprocess.run([sys.executable, "-c", "from pgdcli.cli.entry import main; main()", "solve",
-                          str(ROOT / "problems" / f"{name}.yaml"), "-o", str(out), "-q"], capture_output=True, text=True)
-    assert run.returncode == 2
-    lines = [line for line in run.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("Error: ") and "nonlinear PDEs are not supported yet" in lines[0]
-    assert term in lines[0] and "Traceback" not in run.stderr  # the march marches ODEs only
-    assert not out.exists()
-
-
 def test_verify_checks_a_codebook_with_functions_of_the_unknowns(tmp_path):
     problem = pgdcli.load_spec(ROOT / "problems" / "drag.yaml")
     result = pgdcli.solve(problem)

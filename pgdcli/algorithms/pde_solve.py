@@ -1,0 +1,96 @@
+"""``pgd solve`` of a nonlinear PDE in one space coordinate: the exponential march into a codebook.
+
+:func:`solve_pde_march` compiles the split system (:mod:`.pde_system`) on the codebook's nodes,
+marches it (:mod:`.pde_march`, ETDRK4) and joins the states at the time nodes into one tensor
+train over ``(time, x, parameters)`` (:func:`pgdcli.algorithms.march.join_and_round`), stored as a
+:class:`~pgdcli.codebook.fields.FieldTT`. With ``solver.time_slabs: auto`` (the default) the time
+coordinate has one slab per accepted step, :data:`SLAB_NODES` Chebyshev-Lobatto nodes each (a
+degree-4 polynomial per step matches the scheme's order 4); with a number of slabs the steps land
+on the time coordinate's nodes. The error gate (:mod:`pgdcli.checks.check`) measures the codebook
+against the independent nonlinear method of lines (:mod:`pgdcli.checks.reference_pde_nonlinear`).
+"""
+
+from __future__ import annotations
+
+import time as _time
+
+import numpy as np
+
+from ..discretization.coordinates import CoordinateInfo, coordinate_infos
+from ..errors import SolverError
+from .march import SPACE_TIME_FRACTION, join_and_round
+from .pde_march import UnderResolved, march_pde
+from .pde_system import compile_pde_system
+
+__all__ = ["solve_pde_march", "SLAB_NODES"]
+
+#: Time nodes per step (slab) of the automatic time grid.
+SLAB_NODES = 5
+
+
+def solve_pde_march(problem, tolerance: float, callback=None):
+    """March a nonlinear PDE in one space coordinate; see :func:`pgdcli.driver.solve`.
+
+    Returns
+    -------
+    pgdcli.algorithms.result.SolveResult
+        ``converged`` False, with the reason, when the march could not reach the end.
+    """
+    from .. import __version__
+    from ..codebook.codebook import Codebook
+    from ..codebook.fields import FieldTT
+    from .result import SolveResult
+
+    started = _time.perf_counter()
+    coords = coordinate_infos(problem, march=True)
+    names = [c.name for c in coords]
+    bases = {c.name: c.basis() for c in coords if c.name != problem.time}
+    system = compile_pde_system(problem, bases)
+    tcoord = coords[names.index(problem.time)]
+    auto = getattr(problem.solver, "time_slabs", "auto") == "auto" and tcoord.discretization == "chebyshev"
+    x = problem.coordinate(system.modes[0])
+    # the automatic resolution can add x nodes: stop an under-resolved march early (pde_march.TAIL_ABORT)
+    refinable = x.auto and x.nodes < problem.solver.max_nodes
+    try:
+        result = march_pde(system, tolerance, None if auto else tcoord.basis().nodes,
+                           slab_nodes=SLAB_NODES if auto else None, max_steps=problem.solver.max_steps,
+                           callback=callback, tail_limit=refinable)
+    except SolverError as exc:
+        wall = _time.perf_counter() - started
+        message = f"not converged: {exc}"
+        report = {"converged": False, "status": 3, "message": message, "method": "pde march",
+                  "tolerance": float(tolerance), "wall_time": wall, "steps": 0, "pgdcli_version": __version__}
+        if isinstance(exc, UnderResolved):
+            report["under_resolved"] = exc.coordinate  # pgdcli.adapt refines it and solves again
+        order = tuple(names.index(m) for m in [problem.time] + system.modes)
+        fields = {problem.unknowns[0].name: FieldTT(tuple(np.zeros((1, coords[j].nodes, 1)) for j in order), order)}
+        cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
+                      description=problem.description)
+        return SolveResult(cb, False, 3, message, np.array([np.inf]), np.zeros(0, dtype=int), wall)
+    states = result.states
+    if auto:
+        k = names.index(problem.time)
+        bp = result.breakpoints.copy()
+        bp[0], bp[-1] = tcoord.domain
+        coords[k] = CoordinateInfo(tcoord.name, tuple(tcoord.domain), len(states), "chebyshev", tcoord.role,
+                                   tuple(float(v) for v in bp))
+        assert np.allclose(coords[k].basis().nodes, result.times, rtol=0, atol=1e-12 * max(1.0, abs(bp[-1])))
+    size = float(np.prod(system.shape))
+    train = join_and_round([states], SPACE_TIME_FRACTION * tolerance * np.sqrt(size),
+                           np.random.default_rng(7), batched=False)[0]
+    order = tuple(names.index(m) for m in [problem.time] + system.modes)
+    fields = {problem.unknowns[0].name: FieldTT(tuple(train.cores), order)}
+    wall = _time.perf_counter() - started
+    message = (f"converged: reached {problem.time} = {tcoord.domain[1]:.6g} in {result.steps} steps "
+               f"({result.rejected} rejected)")
+    report = {
+        "converged": True, "status": 0, "message": message, "method": "pde march (ETDRK4)",
+        "modes": int(max(train.ranks, default=1)), "residual": float(tolerance), "tolerance": float(tolerance),
+        "steps": int(result.steps), "rejected_steps": int(result.rejected),
+        "step_sizes": np.array(result.step_sizes), "nonlinear_evaluations": int(result.evaluations),
+        "max_state_rank": int(result.max_rank), "wall_time": wall, "pgdcli_version": __version__,
+    }
+    cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
+                  description=problem.description)
+    return SolveResult(cb, True, 0, message, np.array([tolerance]), np.zeros(0, dtype=int), wall)
+

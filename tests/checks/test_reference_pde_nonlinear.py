@@ -1,0 +1,94 @@
+"""The nonlinear method-of-lines reference against exact solutions.
+
+Burgers: the Cole-Hopf solution, evaluated by the heat-kernel integral (the cosine series of
+phi cancels catastrophically for nu = 0.01: phi spans exp(-1/(pi nu)) ~ 1e-14). Fisher's reaction:
+a spatially uniform start with gradient conditions gives the logistic solution. Fisher's
+diffusion and value/gradient conditions: with r = 0 it is the linear heat equation, solved by the
+linear method-of-lines reference.
+"""
+
+import numpy as np
+import pytest
+
+from pgdcli.checks.reference import solve_reference_pde
+from pgdcli.checks.reference_pde_nonlinear import solve_reference_nonlinear_pde
+from pgdcli.errors import SolverError
+from pgdcli.problem.spec import load_spec, parse_spec
+
+BURGERS = "problems/burgers.yaml"
+
+
+def cole_hopf(nu: float, t: np.ndarray, x: np.ndarray, m: int = 8001) -> np.ndarray:
+    """Exact u (T, P) of u_t = nu u_xx - u u_x, u(0) = sin(pi x), u = 0 at 0 and 1.
+
+    u = -2 nu phi_x / phi with phi the heat solution from phi0 = exp(-(1 - cos(pi x)) / (2 pi nu))
+    (even and 2-periodic, so the whole-line kernel gives the Neumann solution):
+    u = int (s / t) G(s) phi0(x - s) ds / int G(s) phi0(x - s) ds, G(s) = exp(-s^2 / (4 nu t)),
+    by the trapezoid rule on a fine grid (exponentially accurate), exponents shifted by their max.
+    """
+    out = np.empty((t.size, x.size))
+    for i, ti in enumerate(t):
+        half = np.sqrt(4 * nu * ti * 50)  # the kernel below exp(-50)
+        s = np.linspace(-half, half, m)
+        for j, xj in enumerate(x):
+            E = -s ** 2 / (4 * nu * ti) - (1 - np.cos(np.pi * (xj - s))) / (2 * np.pi * nu)
+            w = np.exp(E - E.max())
+            out[i, j] = np.sum(s / ti * w) / np.sum(w)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("nu", [0.1, 0.01])
+def test_burgers_against_cole_hopf(nu):
+    problem = load_spec(BURGERS)
+    rng = np.random.default_rng(7)
+    x = rng.uniform(0, 1, 40)
+    t = np.sort(rng.uniform(0.01, 0.5, 8))  # 320 random points
+    ref = solve_reference_nonlinear_pde(problem, {"nu": np.array([nu])}, t, x)
+    error = np.abs(ref.values["u"][0] - cole_hopf(nu, t, x)).max()
+    assert error < 1e-9
+    assert ref.error_estimate < 1e-9
+
+
+FISHER_UNIFORM = """
+coordinates:
+  t: {domain: [0, 2]}
+  x: {domain: [0, 1]}
+  r: {domain: [1, 5]}
+  c: {domain: [0.1, 0.9]}
+unknowns:
+  u:
+    initial: c
+    boundary:
+      x: {low: {gradient: 0}, high: {gradient: 0}}
+equations:
+  - "der(u) = 0.05*der(u, x, 2) + r*u*(1 - u)"
+"""
+
+
+def test_fisher_reaction_is_logistic():
+    problem = parse_spec(FISHER_UNIFORM, source="uniform.yaml")
+    r, c = np.array([1.0, 5.0, 2.7]), np.array([0.1, 0.9, 0.4])
+    t = np.linspace(0, 2, 7)
+    x = np.random.default_rng(3).uniform(0, 1, 50)
+    ref = solve_reference_nonlinear_pde(problem, {"r": r, "c": c}, t, x)
+    e = np.exp(r[:, None] * t[None, :])
+    exact = c[:, None] * e / (1 - c[:, None] + c[:, None] * e)
+    assert np.abs(ref.values["u"] - exact[:, :, None]).max() < 1e-9
+
+
+def test_fisher_without_reaction_matches_linear_reference():
+    text = open("problems/fisher.yaml").read().replace("+ r*u*(1 - u)", "+ 0*r")
+    problem = parse_spec(text, source="heat.yaml")
+    D = np.array([0.01, 0.1])
+    t = np.array([0.1, 0.5, 1.0])
+    x = np.random.default_rng(4).uniform(0, 1, 60)
+    ref = solve_reference_nonlinear_pde(problem, {"D": D, "r": np.ones(2)}, t, x)
+    linear = solve_reference_pde(problem, {"D": D, "r": np.ones(2)}, {"x": x}, t, space_nodes=129)
+    assert np.abs(ref.values["u"] - linear.values["u"]).max() < 1e-8
+
+
+def test_two_space_coordinates_are_refused():
+    problem = load_spec("tests/user_problems/burgers_2d.yaml")
+    with pytest.raises(SolverError, match="one space coordinate"):
+        solve_reference_nonlinear_pde(problem, {}, np.array([0.5]), np.array([0.5]))
