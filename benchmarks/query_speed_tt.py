@@ -78,7 +78,7 @@ def _batch(fn, points, repeats: int = 5) -> float:
 
 def rowwise_before(cb, points: dict) -> dict:
     """The tensor-train batch algorithm before issue 15 (pgdcli <= 2026-11-24), same thread policy."""
-    import pgdcli.codebook.codebook as codebook_module
+    import pgdcli.codebook.threads as threads_module
 
     flat = [np.clip(points[c.name], *c.domain) for c in cb.coordinates]
     size = flat[0].size
@@ -101,7 +101,7 @@ def rowwise_before(cb, points: dict) -> dict:
             for u in cb.unknown_names:
                 values[u][lo:hi] = contract(cb.fields[u], mats)
 
-    codebook_module._run_chunks(run, codebook_module._chunk_bounds(size, 2048))
+    threads_module.run_chunks(run, threads_module.chunk_bounds(size, 2048))
     return values
 
 
@@ -123,7 +123,7 @@ def main() -> int:
     options = parser.parse_args()
     sys.path.insert(0, str(ROOT))
     import pgdcli
-    import pgdcli.codebook.codebook as codebook_module
+    import pgdcli.codebook.threads as threads_module
     from scipy.interpolate import RegularGridInterpolator
 
     names = ["coupled", "logistic"] + ([] if options.quick else ["rigid_body"])
@@ -150,12 +150,12 @@ def main() -> int:
             batch = _batch(cb.evaluate, pts)
             ref_batch = _batch(grid, stack)
             before = _batch(lambda p: rowwise_before(cb, p), pts)
-            saved = codebook_module._MAX_THREADS
-            codebook_module._MAX_THREADS = 1
+            saved = threads_module.MAX_THREADS
+            threads_module.MAX_THREADS = 1
             try:
                 batch1 = _batch(cb.evaluate, pts)
             finally:
-                codebook_module._MAX_THREADS = saved
+                threads_module.MAX_THREADS = saved
             target_us = {"coupled": 20, "rigid_body": 50}.get(name)
             rows.append((label, "single point, in-process", f"{single * 1e6:.1f} us",
                          f"RGI linear: {ref_single * 1e6:.1f} us", f"{ref_single / single:.2f}x",
