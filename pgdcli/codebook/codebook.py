@@ -196,6 +196,8 @@ class Codebook:
             values.append(self._checked(c, x.reshape(-1)))
         selected = self._select(fields)
         shape = tuple(v.size for v in values)
+        if 0 in shape:
+            return {u: np.empty(shape) for u in selected}
         return self._evaluator.grid(values, selected)
 
     def gradient(self, coordinates: Mapping[str, object], wrt: Sequence[str] | None = None,

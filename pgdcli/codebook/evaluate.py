@@ -95,7 +95,7 @@ class Evaluator:
     def tt_point(self, xs: list[float]) -> dict[str, np.ndarray]:
         """Every unknown at one point when :attr:`tt_all` holds them all (0-d arrays)."""
         stack = self.tt_all
-        return dict(zip(stack.names, map(np.array, stack.at_point(self.weights(xs)))))
+        return dict(zip(stack.names, map(np.array, stack.at_point(xs))))
 
     def point(self, xs: list[float], selected: list[str], shape: tuple) -> dict[str, np.ndarray]:
         """One point: per coordinate, its cardinal row times its modes (CP); tensor trains: :meth:`TTStack.at_point`.
@@ -117,7 +117,7 @@ class Evaluator:
                     out[u] = np.array(product[self.slices[u]] @ self.fields[u].alphas)
         stack = self.tt_stack
         if stack is not None and any(u in stack.index for u in selected):
-            values = stack.at_point(self.weights(xs))
+            values = stack.at_point(xs)
             for u in selected:
                 if u in stack.index:
                     out[u] = np.array(values[stack.index[u]])

@@ -526,7 +526,7 @@ def test_tensor_train_point_agrees_with_batch_and_plain_contraction(monkeypatch,
     # the first coordinate's window (a slab: 5 nodes, x: 7, an element of y: 2) is below the rank 9
     assert (stack.pair is not None) == (layout == "default")
     if layout == "vector first":
-        assert not any(through_table for _, through_table, *_ in stack.cores[1:])
+        assert not any(through_table for _, through_table, *_ in stack.tail)
     for p in _tt_points(cb):
         one = cb(**p)
         batch = cb(**{k: np.array([v, 0.5 * sum(c.domain)]) for c, (k, v) in zip(cb.coordinates, p.items())})
