@@ -26,7 +26,8 @@ Prints a table with ratios (latency: reference / pgdcli; throughput: pgdcli / re
 Targets (issue 15): batch >= RGI linear for coupled and the rigid body; single point <= 20 us
 (coupled), <= 50 us (rigid body). The machine is shared and noisy: medians, same process.
 
-    python benchmarks/query_speed_tt.py [--quick]   # --quick: coupled and logistic only
+    python benchmarks/query_speed_tt.py [--quick] [--before OLD/pgdcli]
+    # --quick: coupled and logistic only; --before: an earlier package side by side
 """
 
 from __future__ import annotations
@@ -132,9 +133,42 @@ def cli_points(path: Path, pts: dict, coords, tmp: str) -> float:
     return time.perf_counter() - t0
 
 
+def axes_of(cb, rng, name: str) -> dict:
+    """The grid row's axes: random sorted values, more along time."""
+    sizes = {"coupled": (64, 25), "logistic": (100, 100), "rigid_body": (8, 5)}[name]
+    return {c.name: np.sort(rng.uniform(*c.domain, sizes[0] if c.role == "time" else sizes[1]))
+            for c in cb.coordinates}
+
+
+def _before_rows(folder: Path, path: Path, label: str, spread: list, series: list, axes: dict) -> list:
+    """Single points (random, time series) and evaluate_grid of this version and the one in ``folder``,
+    interleaved run by run (benchmarks/layout_speed.py), medians of 9; per call in us, grid in ms."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from layout_speed import alternate, load_before
+
+    import pgdcli
+
+    before = sys.modules.get("pgdcli_before") or load_before(folder)
+    books = {"this": pgdcli.Codebook.load(path), "before": before.Codebook.load(path)}
+    rows = []
+    for what, calls in (("random points", spread), ("time series", series)):
+        t = alternate({k: (lambda b=b: [b(**p) for p in calls]) for k, b in books.items()}, 9)
+        rows.append((label, f"  {what}: this vs before (interleaved)", f"{t['this'] / len(calls) * 1e6:.1f} us",
+                     f"before: {t['before'] / len(calls) * 1e6:.1f} us", f"{t['before'] / t['this']:.2f}x", "", None))
+    t = alternate({k: (lambda b=b: b.evaluate_grid(axes)) for k, b in books.items()}, 9)
+    rows.append((label, "  evaluate_grid: this vs before (interleaved)", f"{t['this'] * 1e3:.1f} ms",
+                 f"before: {t['before'] * 1e3:.1f} ms", f"{t['before'] / t['this']:.2f}x", "", None))
+    diff = max(float(np.max(np.abs(books["this"].evaluate_grid(axes)[u] - books["before"].evaluate_grid(axes)[u])))
+               for u in books["this"].unknown_names)
+    rows.append((label, "  max |this - before| on the grid", f"{diff:.1e}", "", "", "", None))
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="coupled and logistic only")
+    parser.add_argument("--before", type=Path, help="package folder of an earlier version: its single points and "
+                        "grids side by side (interleaved) with this one's")
     options = parser.parse_args()
     sys.path.insert(0, str(ROOT))
     import pgdcli
@@ -169,6 +203,8 @@ def main() -> int:
             random_one = _each(cb, spread)
             ref_random = _each(lambda **p: grid(np.array([[p[c.name] for c in coords]])), spread)
             series_one = _each(cb, series)
+            if options.before is not None:
+                rows.extend(_before_rows(options.before, path, label, spread, series, axes_of(cb, rng, name)))
             stack = np.column_stack([pts[c.name] for c in coords])
             batch = _batch(cb.evaluate, pts)
             ref_batch = _batch(grid, stack)
@@ -203,9 +239,7 @@ def main() -> int:
             wall = cli_points(path, pts, coords, tmp)
             rows.append((label, "pgd query --points, 1e5 CSV rows, wall (one run)", f"{n / wall:.3g} pts/s",
                          "", "", "", None))
-            sizes = {"coupled": (64, 25), "logistic": (100, 100), "rigid_body": (8, 5)}[name]
-            axes = {c.name: np.sort(rng.uniform(*c.domain, sizes[0] if c.role == "time" else sizes[1]))
-                    for c in coords}
+            axes = axes_of(cb, rng, name)
             mesh = np.meshgrid(*[axes[c.name] for c in coords], indexing="ij")
             flat = {c.name: m.reshape(-1) for c, m in zip(coords, mesh)}
             m = mesh[0].size

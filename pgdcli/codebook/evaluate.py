@@ -205,14 +205,15 @@ def contract_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
 def grid_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
     """Tensor train on the grid of the points behind ``mats[j]`` (P_j, nodes_j): shape (P_1, ..., P_d).
 
-    Contracted from both ends toward the core with the longest axis: the running blocks
-    (points so far, r) times the unfolded cores, each new coordinate's rows applied to the
-    node axis. A grid with one long axis (a trajectory over time at one parameter point)
-    then costs one vector-core product per core plus the long axis times one core's nodes.
+    Contracted from both ends toward one core (the pivot, :func:`_pivot`): the running blocks
+    (points so far, r) times the unfolded cores, each new coordinate's rows applied to the node
+    axis. A grid with one long axis (a trajectory over time at one parameter point) pivots on
+    that axis and costs one vector-core product per other core; a grid whose largest cores sit in
+    the middle of the train (the rigid body) pivots at the end: the points pile up after those cores.
     """
     cores, order = fm.cores, fm.mode_order
     sizes = [mats[j].shape[0] for j in order]
-    k = int(np.argmax(sizes))
+    k = _pivot(cores, sizes)
     left = np.ones((1, 1))  # (points of cores < k, r)
     for core, j in zip(cores[:k], order[:k]):
         r0, n, r1 = core.shape
@@ -227,6 +228,23 @@ def grid_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
     block = np.matmul(np.matmul(left, middle), right)  # (P_k, left points, right points)
     block = np.moveaxis(block, 0, 1).reshape(sizes)
     return np.transpose(block, np.argsort(order))
+
+
+def _pivot(cores, sizes: list[int]) -> int:
+    """The core :func:`grid_tt` contracts toward: the least multiply-adds by the model
+    ``sum_i (points before core i on its side) n_i r0_i r1_i`` plus the pivot's own products."""
+    d = len(cores)
+    shapes = [c.shape for c in cores]
+    before = np.cumprod([1] + sizes[:-1])  # points piled up left of core i
+    after = np.cumprod(([1] + sizes[::-1])[:-1])[::-1]  # ... right of core i
+    work = [r0 * n * r1 for r0, n, r1 in shapes]
+    costs = []
+    for k in range(d):
+        r0, n, r1 = shapes[k]
+        cost = sum(before[i] * work[i] for i in range(k)) + sum(after[i] * work[i] for i in range(k + 1, d))
+        cost += sizes[k] * (n * r0 * r1 + before[k] * r0 * r1 + before[k] * r1 * after[k])
+        costs.append(cost)
+    return int(np.argmin(costs))
 
 
 def grid_cp(fm: FieldModes, mats: list[np.ndarray]) -> np.ndarray:

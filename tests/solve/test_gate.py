@@ -166,7 +166,7 @@ def test_relative_tolerance_relaxes_the_bound_where_the_solution_is_large():
 
 
 def test_max_nodes_reached_is_an_honest_refusal():
-    text = OSCILLATOR + "  max_nodes: 9\n"
+    text = spec_text(OSCILLATOR, solver={"tolerance": "1e-6", "max_nodes": "9"})
     result = pgdcli.solve(parse_spec(text, source="capped.yaml"))
     assert result.status == INACCURATE and result.accurate is False
     assert "solver.max_nodes = 9" in result.message and "lacks resolution" in result.message
