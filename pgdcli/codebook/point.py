@@ -10,6 +10,7 @@ numpy only (the query path). Measurements: benchmarks/query_speed_tt.py, benchma
 from __future__ import annotations
 
 from bisect import bisect_right
+from operator import itemgetter
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -164,8 +165,10 @@ class TTStack:
         self.tail = [self._table(j, core, points[j], True) if core.size <= ROW_FIRST_MAX * core.shape[2]
                      else self._vector_first(j, core, points[j]) for j, core in zip(order[::-1], cores[::-1])]
         self.tail_coordinates = tuple(j for j, *_ in self.tail)
+        # the cache key: the tail coordinates' values (a tuple, or the one value; () without a tail)
+        self._tail_key = itemgetter(*self.tail_coordinates) if self.tail_coordinates else (lambda xs: ())
         self.head_coordinates = tuple(j for j in range(len(points)) if j not in self.tail_coordinates)
-        self._cache = None  # (tail coordinates' values, tail vector (q, r, 1), its scale)
+        self._cache = None  # (tail coordinates' values, tail vector (q, 1, r), its scale)
 
     @staticmethod
     def _table(j: int, core: np.ndarray, point: PointData, transposed: bool = False) -> tuple:
@@ -212,10 +215,10 @@ class TTStack:
         table[:, :, -1] = 1.0  # the first weights' sum, then (second gemv) the product of both sums
         table = table.reshape(n1, -1)
         return (j1, j2, table, points[j1].windows(table), points[j2].window_bounds(), (n2, q * r2 + 1),
-                (q, 1, r2))
+                (q, r2, 1))
 
     def _at_pair(self, weights: list) -> tuple[np.ndarray, float]:
-        """The running vector (q, 1, r2) after the merged first two cores, and its scale."""
+        """The head's vector after the merged first two cores, as a column (q, r2, 1), and its scale."""
         j1, j2, table, windows, bounds, middle, shape = self.pair
         k, c = weights[j1]
         row = (table[k] if c is None else _dot(c, windows[k])).reshape(middle)  # (n2, q r2 + 1)
@@ -233,7 +236,7 @@ class TTStack:
         Raises QueryError for the first coordinate (codebook order) outside its domain.
         """
         points = self.points
-        key = tuple([xs[j] for j in self.tail_coordinates])
+        key = self._tail_key(xs)
         cache = self._cache
         if cache is not None and cache[0] == key:  # the tail's values were checked when cached
             weights = [None] * len(points)
@@ -251,14 +254,14 @@ class TTStack:
             j, _, rows, windows, shape = self.head
             k, c = weights[j]
             row = rows[k] if c is None else _dot(c, windows[k])  # the core slice at x, and sum(c)
-            v, scale = row[:-1].reshape(shape), row[-1]
+            v, scale = row[:-1].reshape(shape[0], shape[2], 1), row[-1]  # (q, 1, r1) as a column
         if tail is not None:
-            v = _matmul(v, tail)  # (q, 1, 1)
+            v = _matmul(tail, v)  # (q, 1, r) @ (q, r, 1)
         scale = float(scale * tail_scale)
         return [value / scale for value in v.reshape(-1).tolist()]
 
     def _at_tail(self, weights: list) -> tuple[np.ndarray | None, float]:
-        """The tail contracted from the right at the point's ``weights``: (q, r, 1) and its scale (None: no tail).
+        """The tail contracted from the right at the point's ``weights``: a row (q, 1, r) and its scale (None: no tail).
 
         The running vector is a row (q, 1, r1) times the transposed slices (q, r1, r0): every
         product then reads its matrix row by row, as the head's do (measured: the (74, 8, 63)
@@ -267,21 +270,21 @@ class TTStack:
         v, scale = None, 1.0
         for j, through_table, rows, windows, shape in self.tail:
             k, c = weights[j]
-            if v is None and not through_table:
-                v = np.ones((shape[0], 1, shape[1]))  # (q, 1, r_d = 1)
             if through_table:
                 row = rows[k] if c is None else _dot(c, windows[k])  # the core slice at x, and sum(c)
                 scale *= row[-1]
-                g = row[:-1].reshape(shape)  # (q, r1, r0)
-                v = g.reshape(shape[0], 1, -1) if v is None else _matmul(v, g)  # (q, 1, r0)
-            elif c is None:
+                g = row[:-1].reshape(shape)  # (q, r1, r0); the last core's (r1 = 1) is the row itself
+                v = g if v is None else _matmul(v, g)  # (q, 1, r0)
+                continue
+            if v is None:
+                v = np.ones((shape[0], 1, 1))  # (q, 1, r_d = 1)
+            if c is None:
                 v = _matmul(v, rows[k])
             else:
                 window, shape = windows[k]
                 scale *= _add_reduce(c)
-                v = _matmul(_matmul(v, window).reshape(shape), c)  # (q, r0, w) @ (w,) -> (q, r0)
-                v = v.reshape(shape[0], 1, -1)
-        return (None if v is None else v.reshape(v.shape[0], -1, 1)), scale
+                v = _matmul(_matmul(v, window).reshape(shape), c).reshape(shape[0], 1, -1)  # (q, r0, w) @ (w,)
+        return v, scale
 
     @classmethod
     def build(cls, fields: Mapping, points: Sequence) -> "TTStack | None":
