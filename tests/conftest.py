@@ -3,7 +3,10 @@
 The shipped problems are solved once per session (``solved``) and their
 codebooks written once to a session temporary directory (``codebook_path``).
 Exact solutions are written here from the comments of ``problems/*.yaml``;
-they never use pgdcli.
+they never use pgdcli. Inline YAML specs come from one factory, :func:`spec_text` (a base spec
+with top-level sections replaced, added or removed) and the ``write_spec`` fixture (the same,
+written to a file): write a new test's spec as ``spec_text(BASE, equations=[...])`` when it is a
+variant of another.
 """
 
 from __future__ import annotations
