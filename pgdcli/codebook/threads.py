@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import os
 import threading
+from contextlib import contextmanager
 
-__all__ = ["chunk_length", "chunk_bounds", "available_threads", "run_chunks", "BLAS_LIMIT_MIN_POINTS",
-           "PARALLEL_MIN_POINTS", "MAX_THREADS", "CHUNK_BYTES", "blas_users"]
+__all__ = ["chunk_length", "chunk_bounds", "available_threads", "run_chunks", "one_blas_thread",
+           "BLAS_LIMIT_MIN_POINTS", "PARALLEL_MIN_POINTS", "MAX_THREADS", "CHUNK_BYTES", "blas_users"]
 
 # Batches are evaluated in chunks of points whose working set (two (chunk, total rank) blocks and
 # two (chunk, nodes) blocks per coordinate) stays within a few MiB of cache. A batch of at most one
@@ -105,6 +106,18 @@ def run_chunks(run, bounds: list[tuple[int, int]]) -> None:
             raise errors[0]
     finally:
         _unlimit_blas()
+
+
+@contextmanager
+def one_blas_thread(points: int):
+    """BLAS limited to one thread while the block runs, for work on ``points`` points (from
+    BLAS_LIMIT_MIN_POINTS; fewer: BLAS as is), shared with the batches running (see run_chunks)."""
+    limited = points >= BLAS_LIMIT_MIN_POINTS and _limit_blas()
+    try:
+        yield
+    finally:
+        if limited:
+            _unlimit_blas()
 
 
 def _limit_blas() -> bool:
