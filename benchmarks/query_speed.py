@@ -168,7 +168,7 @@ def cli_env(bytecode_cache: str | None) -> dict:
 # measurements
 # ----------------------------------------------------------------------------------------------
 def measure_in_process(name: str, path: Path, rows: list, quick: bool) -> None:
-    import pgdcli.codebook.codebook as codebook_module
+    import pgdcli.codebook.threads as threads_module
     from pgdcli.codebook.codebook import Codebook
     from threadpoolctl import threadpool_limits
 
@@ -207,18 +207,18 @@ def measure_in_process(name: str, path: Path, rows: list, quick: bool) -> None:
                      fmt_rate(BATCH / policy),
                      f"RGI {m}: {fmt_rate(BATCH / theirs)}", f"{theirs / policy:.2f}x",
                      ">= 2e6 pts/s" if i == 0 else "", BATCH / policy >= TARGET_BATCH if i == 0 else None))
-    saved = (codebook_module._MAX_THREADS, codebook_module._BLAS_LIMIT_MIN_POINTS)
+    saved = (threads_module.MAX_THREADS, threads_module.BLAS_LIMIT_MIN_POINTS)
     try:
-        codebook_module._MAX_THREADS = 1
+        threads_module.MAX_THREADS = 1
         serial = once(lambda: cb.evaluate(points), repeats)
-        codebook_module._BLAS_LIMIT_MIN_POINTS = 1 << 62
+        threads_module.BLAS_LIMIT_MIN_POINTS = 1 << 62
         serial_blas = once(lambda: cb.evaluate(points), repeats)
     finally:
-        codebook_module._MAX_THREADS, codebook_module._BLAS_LIMIT_MIN_POINTS = saved
+        threads_module.MAX_THREADS, threads_module.BLAS_LIMIT_MIN_POINTS = saved
     unchunked = once(lambda: unchunked_evaluation(cb, points), max(3, repeats // 3))
     with threadpool_limits(1):
         unchunked_1 = once(lambda: unchunked_evaluation(cb, points), max(3, repeats // 3))
-    threads = f"{codebook_module._threads()} threads"
+    threads = f"{threads_module.available_threads()} threads"
     for what, seconds in [
         (f"  batch, chunks on 1 thread (policy: {threads}), BLAS 1 thread", serial),
         ("  batch, chunks on 1 thread, BLAS default threads", serial_blas),

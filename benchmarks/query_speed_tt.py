@@ -4,7 +4,9 @@ Solves problems/coupled.yaml, problems/logistic.yaml and problems/rigid_body.yam
 temporary directory, then measures in one process, per codebook:
 
 - single point, in-process: ``codebook(t=..., ...)`` with Python floats; median of 15 blocks
-  of 200 calls;
+  of 200 calls: one point repeated (since the tail cache of ``pgdcli.codebook.point``, only the
+  first core(s) are contracted again: a best case), 200 random points (every core contracted:
+  the target's row), and a time series of 200 random times at one random parameter point;
 - batch: ``codebook.evaluate`` at 1e5 uniform random points, median of 5 runs, with the batch
   policy (one BLAS thread, up to 2 threads of our own: benchmarks/README.md) and on one thread;
   beside it, in the same run, the batch algorithm before issue 15 (per block of 2048 points the
@@ -24,7 +26,8 @@ Prints a table with ratios (latency: reference / pgdcli; throughput: pgdcli / re
 Targets (issue 15): batch >= RGI linear for coupled and the rigid body; single point <= 20 us
 (coupled), <= 50 us (rigid body). The machine is shared and noisy: medians, same process.
 
-    python benchmarks/query_speed_tt.py [--quick]   # --quick: coupled and logistic only
+    python benchmarks/query_speed_tt.py [--quick] [--before OLD/pgdcli]
+    # --quick: coupled and logistic only; --before: an earlier package side by side
 """
 
 from __future__ import annotations
@@ -66,6 +69,19 @@ def _single(cb, args: dict) -> float:
     return statistics.median(blocks)
 
 
+def _each(fn, calls: list) -> float:
+    """Median seconds per call of ``fn(**kwargs)`` over ``calls`` (a list of keyword dicts): 15 blocks."""
+    for kwargs in calls:
+        fn(**kwargs)
+    blocks = []
+    for _ in range(15):
+        t0 = time.perf_counter()
+        for kwargs in calls:
+            fn(**kwargs)
+        blocks.append((time.perf_counter() - t0) / len(calls))
+    return statistics.median(blocks)
+
+
 def _batch(fn, points, repeats: int = 5) -> float:
     fn(points)
     runs = []
@@ -78,7 +94,7 @@ def _batch(fn, points, repeats: int = 5) -> float:
 
 def rowwise_before(cb, points: dict) -> dict:
     """The tensor-train batch algorithm before issue 15 (pgdcli <= 2026-11-24), same thread policy."""
-    import pgdcli.codebook.codebook as codebook_module
+    import pgdcli.codebook.threads as threads_module
 
     flat = [np.clip(points[c.name], *c.domain) for c in cb.coordinates]
     size = flat[0].size
@@ -101,7 +117,7 @@ def rowwise_before(cb, points: dict) -> dict:
             for u in cb.unknown_names:
                 values[u][lo:hi] = contract(cb.fields[u], mats)
 
-    codebook_module._run_chunks(run, codebook_module._chunk_bounds(size, 2048))
+    threads_module.run_chunks(run, threads_module.chunk_bounds(size, 2048))
     return values
 
 
@@ -117,13 +133,46 @@ def cli_points(path: Path, pts: dict, coords, tmp: str) -> float:
     return time.perf_counter() - t0
 
 
+def axes_of(cb, rng, name: str) -> dict:
+    """The grid row's axes: random sorted values, more along time."""
+    sizes = {"coupled": (64, 25), "logistic": (100, 100), "rigid_body": (8, 5)}[name]
+    return {c.name: np.sort(rng.uniform(*c.domain, sizes[0] if c.role == "time" else sizes[1]))
+            for c in cb.coordinates}
+
+
+def _before_rows(folder: Path, path: Path, label: str, spread: list, series: list, axes: dict) -> list:
+    """Single points (random, time series) and evaluate_grid of this version and the one in ``folder``,
+    interleaved run by run (benchmarks/layout_speed.py), medians of 9; per call in us, grid in ms."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from layout_speed import alternate, load_before
+
+    import pgdcli
+
+    before = sys.modules.get("pgdcli_before") or load_before(folder)
+    books = {"this": pgdcli.Codebook.load(path), "before": before.Codebook.load(path)}
+    rows = []
+    for what, calls in (("random points", spread), ("time series", series)):
+        t = alternate({k: (lambda b=b: [b(**p) for p in calls]) for k, b in books.items()}, 9)
+        rows.append((label, f"  {what}: this vs before (interleaved)", f"{t['this'] / len(calls) * 1e6:.1f} us",
+                     f"before: {t['before'] / len(calls) * 1e6:.1f} us", f"{t['before'] / t['this']:.2f}x", "", None))
+    t = alternate({k: (lambda b=b: b.evaluate_grid(axes)) for k, b in books.items()}, 9)
+    rows.append((label, "  evaluate_grid: this vs before (interleaved)", f"{t['this'] * 1e3:.1f} ms",
+                 f"before: {t['before'] * 1e3:.1f} ms", f"{t['before'] / t['this']:.2f}x", "", None))
+    diff = max(float(np.max(np.abs(books["this"].evaluate_grid(axes)[u] - books["before"].evaluate_grid(axes)[u])))
+               for u in books["this"].unknown_names)
+    rows.append((label, "  max |this - before| on the grid", f"{diff:.1e}", "", "", "", None))
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="coupled and logistic only")
+    parser.add_argument("--before", type=Path, help="package folder of an earlier version: its single points and "
+                        "grids side by side (interleaved) with this one's")
     options = parser.parse_args()
     sys.path.insert(0, str(ROOT))
     import pgdcli
-    import pgdcli.codebook.codebook as codebook_module
+    import pgdcli.codebook.threads as threads_module
     from scipy.interpolate import RegularGridInterpolator
 
     names = ["coupled", "logistic"] + ([] if options.quick else ["rigid_body"])
@@ -146,20 +195,35 @@ def main() -> int:
             single = _single(cb, mid)
             point = np.array([[mid[c.name] for c in coords]])
             ref_single = _single(_PointCall(grid, point), {})
+            # 200 random points (no two share a coordinate value: every query contracts every core), and a
+            # time series of 200 random times at one random parameter point (the tail cache of codebook.point)
+            spread = [{c.name: float(rng.uniform(*c.domain)) for c in coords} for _ in range(200)]
+            fixed = dict(spread[0])
+            series = [{**fixed, coords[0].name: float(t)} for t in rng.uniform(*coords[0].domain, 200)]
+            random_one = _each(cb, spread)
+            ref_random = _each(lambda **p: grid(np.array([[p[c.name] for c in coords]])), spread)
+            series_one = _each(cb, series)
+            if options.before is not None:
+                rows.extend(_before_rows(options.before, path, label, spread, series, axes_of(cb, rng, name)))
             stack = np.column_stack([pts[c.name] for c in coords])
             batch = _batch(cb.evaluate, pts)
             ref_batch = _batch(grid, stack)
             before = _batch(lambda p: rowwise_before(cb, p), pts)
-            saved = codebook_module._MAX_THREADS
-            codebook_module._MAX_THREADS = 1
+            saved = threads_module.MAX_THREADS
+            threads_module.MAX_THREADS = 1
             try:
                 batch1 = _batch(cb.evaluate, pts)
             finally:
-                codebook_module._MAX_THREADS = saved
+                threads_module.MAX_THREADS = saved
             target_us = {"coupled": 20, "rigid_body": 50}.get(name)
-            rows.append((label, "single point, in-process", f"{single * 1e6:.1f} us",
-                         f"RGI linear: {ref_single * 1e6:.1f} us", f"{ref_single / single:.2f}x",
-                         f"<= {target_us} us" if target_us else "", single * 1e6 <= target_us if target_us else None))
+            rows.append((label, "single point, in-process, same point repeated", f"{single * 1e6:.1f} us",
+                         f"RGI linear: {ref_single * 1e6:.1f} us", f"{ref_single / single:.2f}x", "", None))
+            rows.append((label, "single point, 200 random points", f"{random_one * 1e6:.1f} us",
+                         f"RGI linear: {ref_random * 1e6:.1f} us", f"{ref_random / random_one:.2f}x",
+                         f"<= {target_us} us" if target_us else "",
+                         random_one * 1e6 <= target_us if target_us else None))
+            rows.append((label, "  time series: 200 random times, fixed parameters", f"{series_one * 1e6:.1f} us",
+                         f"random points: {random_one * 1e6:.1f} us", f"{random_one / series_one:.1f}x", "", None))
             targeted = name in ("coupled", "rigid_body")
             rows.append((label, "batch of 1e5 random points (policy: BLAS 1 thread, our threads)",
                          f"{n / batch:.3g} pts/s", f"RGI linear: {n / ref_batch:.3g} pts/s", f"{ref_batch / batch:.2f}x",
@@ -175,9 +239,7 @@ def main() -> int:
             wall = cli_points(path, pts, coords, tmp)
             rows.append((label, "pgd query --points, 1e5 CSV rows, wall (one run)", f"{n / wall:.3g} pts/s",
                          "", "", "", None))
-            sizes = {"coupled": (64, 25), "logistic": (100, 100), "rigid_body": (8, 5)}[name]
-            axes = {c.name: np.sort(rng.uniform(*c.domain, sizes[0] if c.role == "time" else sizes[1]))
-                    for c in coords}
+            axes = axes_of(cb, rng, name)
             mesh = np.meshgrid(*[axes[c.name] for c in coords], indexing="ij")
             flat = {c.name: m.reshape(-1) for c, m in zip(coords, mesh)}
             m = mesh[0].size

@@ -3,13 +3,18 @@
 The shipped problems are solved once per session (``solved``) and their
 codebooks written once to a session temporary directory (``codebook_path``).
 Exact solutions are written here from the comments of ``problems/*.yaml``;
-they never use pgdcli.
+they never use pgdcli. Inline YAML specs come from one factory, :func:`spec_text` (a base spec
+with top-level sections replaced, added or removed) and the ``write_spec`` fixture (the same,
+written to a file): write a new test's spec as ``spec_text(BASE, equations=[...])`` when it is a
+variant of another.
 """
 
 from __future__ import annotations
 
 import itertools
+import textwrap
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 import pytest
@@ -69,6 +74,74 @@ def max_abs_error(cb, exact, points) -> dict:
     values = cb(**points)
     ref = exact(points)
     return {u: float(np.max(np.abs(values[u] - ref[u]))) for u in ref}
+
+
+# ----------------------------------------------------------------------------------------------
+# inline YAML specs: one factory (a base spec with top-level sections replaced, added or removed)
+# ----------------------------------------------------------------------------------------------
+#: The minimal spec: one time coordinate, one unknown, one equation (YAML text of each section, as
+#: written after ``key:``).
+MINIMAL_SECTIONS = {"coordinates": "\n  t: {domain: [0, 1], nodes: 4}", "unknowns": "\n  u: {initial: 0}",
+                    "equations": "\n  - der(u) = -u"}
+
+
+def spec_sections(text: str) -> dict[str, str]:
+    """The top-level sections of a YAML spec, in order: ``{key: the text after 'key:'}`` (lines of
+    its block included; comments between sections stay with the section before them)."""
+    out: dict[str, str] = {}
+    key = None
+    for line in textwrap.dedent(text).strip("\n").splitlines():
+        top = line[:1] not in ("", " ", "\t", "#", "-") and ":" in line
+        if top:
+            key, rest = line.split(":", 1)
+            out[key] = rest
+        elif key is not None:
+            out[key] += "\n" + line
+    return out
+
+
+def _section_text(value) -> str:
+    """A section value as YAML text after ``key:``: text as is; a mapping as one ``name: value`` line per
+    entry (values are inline YAML text); a list as ``- item`` lines (items are YAML text)."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, Mapping):
+        return "".join(f"\n  {k}: {v}" for k, v in value.items())
+    return "".join(f"\n  - {item}" for item in value)
+
+
+def spec_text(base: str | Mapping[str, str] | None = None, **sections) -> str:
+    """YAML text of a test problem: ``base`` with top-level sections replaced or added, or removed (None).
+
+    Parameters
+    ----------
+    base : str or mapping, optional
+        A spec's YAML text, or its sections (see :func:`spec_sections`); default: the minimal spec
+        (:data:`MINIMAL_SECTIONS`).
+    **sections
+        Section name -> YAML text after ``key:`` (e.g. ``" {tolerance: 1e-9}"`` or
+        ``"\n  t: {domain: [0, 2], nodes: 8}"``), a mapping ``{entry: inline YAML}``, a list of YAML
+        items (equations), or None to remove the section.
+    """
+    merged = dict(MINIMAL_SECTIONS if base is None else spec_sections(base) if isinstance(base, str) else base)
+    for key, value in sections.items():
+        if value is None:
+            merged.pop(key, None)
+        else:
+            merged[key] = _section_text(value)
+    return "".join(f"{key}:{value}\n" for key, value in merged.items())
+
+
+@pytest.fixture
+def write_spec(tmp_path):
+    """``write_spec(base=None, name="spec.yaml", **sections)`` -> Path of :func:`spec_text` written in ``tmp_path``."""
+
+    def write(base: str | Mapping[str, str] | None = None, name: str = "spec.yaml", **sections) -> Path:
+        path = tmp_path / name
+        path.write_text(spec_text(base, **sections))
+        return path
+
+    return write
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,10 +1,10 @@
-"""Strong-form Chebyshev-Gauss-Lobatto collocation for the method-of-lines reference: nodes,
-differentiation matrices, barycentric interpolation, the tensor grid, the linear operator of a
-problem and its boundary elimination. Written here from scratch so that it shares nothing with the
-PGD solver's weak-form discretization (pgdcli.discretization).
+"""The linear operator of a problem on the collocation grid of :mod:`.collocation_grid`, for the
+method-of-lines reference: its boundary elimination (:class:`PdeModel`) and its time-dependent
+assembly per sample (:class:`PdeSystem`). Written here from scratch so that it shares nothing with
+the PGD solver's weak-form discretization (pgdcli.discretization).
 
-Over 400 lines: ``PdeModel`` and ``PdeSystem`` are the one linear operator of a problem and its
-time-dependent assembly; ``PdeModel.__init__`` (146 lines) still assembles every term in one pass.
+A little over 400 lines: ``PdeModel`` and ``PdeSystem`` are the one linear operator of a problem,
+built once and assembled per sample and time; they read best side by side.
 """
 
 from __future__ import annotations
@@ -14,104 +14,11 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import SolverError
+from .collocation_grid import (SpaceGrid, barycentric_matrix, chebyshev_differentiation, chebyshev_points,
+                               chebyshev_weights)
 from .reference_base import ReferenceBudgetExceeded, sampled_coordinates, space_coordinates
 
 __all__ = ["chebyshev_points", "chebyshev_weights", "chebyshev_differentiation", "barycentric_matrix"]
-
-
-def chebyshev_points(n: int, domain: tuple[float, float] = (-1.0, 1.0)) -> np.ndarray:
-    """The ``n`` Chebyshev-Gauss-Lobatto points of ``domain``, ascending, ends exact.
-
-    ``x_j = low + (1 + s_j) (high - low) / 2`` with ``s_j = -cos(pi j / (n - 1))``
-    (computed as a sine, so that the points are symmetric to rounding).
-    """
-    if n < 2:
-        raise ValueError(f"need at least 2 Chebyshev points, got {n}")
-    low, high = map(float, domain)
-    j = np.arange(n)
-    s = np.sin(np.pi * (2 * j - (n - 1)) / (2 * (n - 1)))
-    x = low + (1.0 + s) * (0.5 * (high - low))
-    x[0], x[-1] = low, high
-    return x
-
-
-def chebyshev_weights(n: int) -> np.ndarray:
-    """Barycentric weights of the Chebyshev-Gauss-Lobatto points (ascending order)."""
-    w = (-1.0) ** np.arange(n)
-    w[0] *= 0.5
-    w[-1] *= 0.5
-    return w
-
-
-def chebyshev_differentiation(n: int, domain: tuple[float, float] = (-1.0, 1.0)) -> np.ndarray:
-    """First-derivative collocation matrix ``D`` on :func:`chebyshev_points` (``(D u)_i = u'(x_i)``
-    for polynomials of degree < n).
-
-    Off-diagonal ``D_ij = (w_j / w_i) / (x_i - x_j)`` with the barycentric weights, the node
-    differences from trigonometric identities (no cancellation near the ends), and the diagonal
-    from the negative sum of its row (exact derivative of constants).
-    """
-    low, high = map(float, domain)
-    theta = np.pi * np.arange(n) / (n - 1)  # x = low + (1 - cos theta) (high - low) / 2
-    ti, tj = theta[:, None], theta[None, :]
-    diff = (high - low) * np.sin(0.5 * (ti + tj)) * np.sin(0.5 * (ti - tj))  # x_i - x_j
-    w = chebyshev_weights(n)
-    with np.errstate(divide="ignore"):
-        D = (w[None, :] / w[:, None]) / diff
-    np.fill_diagonal(D, 0.0)
-    np.fill_diagonal(D, -D.sum(axis=1))
-    return D
-
-
-def barycentric_matrix(nodes: np.ndarray, weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Interpolation matrix ``W`` (P, n): ``W @ f(nodes)`` interpolates at ``points``
-    (barycentric formula of the second kind; a point on a node takes that node's value)."""
-    nodes = np.asarray(nodes, dtype=float)
-    points = np.atleast_1d(np.asarray(points, dtype=float))
-    diff = points[:, None] - nodes[None, :]
-    scale = max(1.0, float(np.max(np.abs(nodes))))
-    hit = np.abs(diff) <= 1e-15 * scale
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = weights[None, :] / diff
-        W = r / r.sum(axis=1, keepdims=True)
-    rows = hit.any(axis=1)
-    if rows.any():
-        W[rows] = 0.0
-        W[rows, np.argmax(hit[rows], axis=1)] = 1.0
-    return W
-
-
-class SpaceGrid:
-    """Tensor-product Chebyshev-Gauss-Lobatto grid over the space coordinates (C order, spec order)."""
-
-    def __init__(self, coordinates, nodes: Mapping[str, int]) -> None:
-        import scipy.sparse as sp
-
-        self.names = [c.name for c in coordinates]
-        self.domains = {c.name: tuple(map(float, c.domain)) for c in coordinates}
-        self.points = {c.name: chebyshev_points(nodes[c.name], c.domain) for c in coordinates}
-        self.weights = {n: chebyshev_weights(x.size) for n, x in self.points.items()}
-        self.shape = tuple(self.points[n].size for n in self.names)
-        self.n = int(np.prod(self.shape))
-        self.index = {n: ix.reshape(-1) for n, ix in zip(self.names, np.indices(self.shape))}
-        self.values = {n: self.points[n][self.index[n]] for n in self.names}
-        self._ops: dict = {}
-        self._sp = sp
-
-    def derivative(self, name: str, order: int):
-        """Sparse (n, n) matrix of ``d^order/dx^order`` along one coordinate on the full grid."""
-        key = (name, order)
-        if key not in self._ops:
-            sp = self._sp
-            D = chebyshev_differentiation(self.points[name].size, self.domains[name])
-            if order == 2:
-                D = D @ D
-            k = self.names.index(name)
-            before = int(np.prod(self.shape[:k]))
-            after = int(np.prod(self.shape[k + 1:]))
-            self._ops[key] = sp.kron(sp.kron(sp.identity(before), sp.csr_matrix(D)), sp.identity(after),
-                                     format="csr")
-        return self._ops[key]
 
 
 def _term_parts(term, time: str, space: list[str]):
@@ -153,87 +60,25 @@ class PdeModel:
         grid = SpaceGrid(coords, nodes)
         self.grid = grid
         n = grid.n
-        names = list(problem.unknown_names)
-        index = {u: i for i, u in enumerate(names)}
-        q = self.q = len(names)
-
-        # -- the unknown each equation belongs to (its rows at boundary points are replaced) -------
-        owners = []
-        for equation in problem.equations:
-            ders = {a.unknown for m in equation.polynomial for a in m if a.order == 1 and a.coordinate == time}
-            owners.append(index[next(iter(ders))] if len(ders) == 1 else None)
-        if None in owners or len(set(owners)) != q:
-            owners = list(range(q))  # equations in unknown order
-        self.owners = owners
+        self.index = {u: i for i, u in enumerate(problem.unknown_names)}
+        q = self.q = len(self.index)
+        self.owners = self._equation_owners(problem, self.index, q)
 
         # -- boundary points, conditions and the elimination u = Z y + h ----------------------------
         interior_cols, z_blocks, self.boundary = [], [], []
         offsets = np.zeros(q + 1, dtype=int)
         for s, unknown in enumerate(problem.unknowns):
-            conds = {c: ends for c, ends in unknown.boundary.items() if c in self.space}
-            on_end = np.zeros(n, dtype=bool)
-            for c in conds:
-                ix = grid.index[c]
-                on_end |= (ix == 0) | (ix == grid.shape[grid.names.index(c)] - 1)
-            B = np.flatnonzero(on_end)
-            Iidx = np.flatnonzero(~on_end)
-            choice = []  # (point, coordinate, side, Boundary)
-            for p in B:
-                candidates = []
-                for c in grid.names:
-                    if c not in conds:
-                        continue
-                    ix = grid.index[c][p]
-                    last = grid.shape[grid.names.index(c)] - 1
-                    if ix == 0 or ix == last:
-                        side = 0 if ix == 0 else 1
-                        candidates.append((c, side, conds[c][side]))
-                values = [cand for cand in candidates if cand[2].kind == "value"]
-                choice.append((int(p),) + (values[0] if values else candidates[0]))
-            E = np.zeros((B.size, Iidx.size))
-            lu = None
-            if B.size:
-                import scipy.linalg as sla
-
-                C = np.zeros((B.size, n))
-                for row, (p, c, side, bc) in enumerate(choice):
-                    if bc.kind == "value":
-                        C[row, p] = 1.0
-                    else:
-                        C[row] = grid.derivative(c, 1)[p].toarray().ravel()
-                CBB, CBI = C[:, B], C[:, Iidx]
-                cond = np.linalg.cond(CBB)
-                if not cond < 1e12:
-                    raise SolverError(f"{problem.source}: unknowns.{unknown.name}.boundary: the boundary conditions "
-                                      "do not determine the boundary values of the method-of-lines reference "
-                                      f"(condition number {cond:.3g})")
-                lu = sla.lu_factor(CBB)
-                E = -sla.lu_solve(lu, CBI)
-                E[np.abs(E) <= 1e-15 * max(1.0, float(np.max(np.abs(E))))] = 0.0
+            B, Iidx, choice, lu, Zs = self._eliminate_boundary(unknown)
             self.boundary.append((B, Iidx, choice, lu))
-            # Z_s: (n, |I|) with identity rows at I and E rows at B
-            Zs = sp.lil_matrix((n, Iidx.size))
-            Zs[Iidx, np.arange(Iidx.size)] = 1.0
-            if B.size:
-                Zs[B, :] = E
-            z_blocks.append(Zs.tocsr())
+            z_blocks.append(Zs)
             interior_cols.append(Iidx)
             offsets[s + 1] = offsets[s] + Iidx.size
         self.interior = interior_cols
         self.offsets = offsets
         self.m = int(offsets[-1])
         self.Z = sp.block_diag(z_blocks, format="csr")
-        rows = np.concatenate([r * n + interior_cols[owners[r]] for r in range(q)])
-        self.rows = rows  # kept rows of the full (q n) system, in the order of the interior unknowns
-
-        # -- operator and source terms ---------------------------------------------------------
-        def place(r: int, s: int, block):
-            blocks = [[None] * q for _ in range(q)]
-            blocks[r][s] = block
-            for i in range(q):  # bmat needs every block row and column sized
-                if blocks[i][i] is None:
-                    blocks[i][i] = sp.csr_matrix((n, n))
-            return sp.bmat(blocks, format="csr")
+        # kept rows of the full (q n) system, in the order of the interior unknowns
+        self.rows = np.concatenate([r * n + interior_cols[self.owners[r]] for r in range(q)])
 
         self.ops = []  # (kind 'mass'|'op', time key, time func, param factors, coef, R A Z, R A (for h))
         self.sources = []  # (time key, time func, param factors, coef, R-rows vector)
@@ -241,45 +86,7 @@ class PdeModel:
         self.joint_ops = []  # (equation row, unknown, derivative or None, Joint): non-separable coefficients
         for r, equation in enumerate(problem.equations):
             for monomial, sep in equation.polynomial.items():
-                if len(monomial) > 1:
-                    from ..problem.expressions import format_monomial
-
-                    raise SolverError(
-                        f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
-                        "method-of-lines reference supports equations linear in the unknowns"
-                    )
-                if sep.joints and monomial:
-                    atom = monomial[0]
-                    if atom.order == 1 and atom.coordinate == time:
-                        raise SolverError(
-                            f"{problem.source}: equations[{r}]: the method-of-lines reference does not support a "
-                            f"non-separable coefficient of der({atom.unknown}) ('{sep.joints[0].function_text()}')")
-                    L = None if atom.order == 0 else grid.derivative(atom.coordinate, atom.order)
-                    self.joint_ops += [(r, index[atom.unknown], L, joint) for joint in sep.joints]
-                elif sep.joints:
-                    self.joint_sources += [(r, joint) for joint in sep.joints]
-                for term in sep.terms:
-                    coef, tfunc, pf, sf = _term_parts(term, time, self.space)
-                    values = np.ones(n)
-                    for name, func in sf:
-                        values = values * np.broadcast_to(func(grid.values[name]), (n,))
-                    key = None if tfunc is None else tfunc.tree
-                    if not monomial:
-                        full = np.zeros(q * n)
-                        full[r * n:(r + 1) * n] = values
-                        self.sources.append((key, tfunc, pf, coef, full[rows]))
-                        continue
-                    atom = monomial[0]
-                    s = index[atom.unknown]
-                    if atom.order == 1 and atom.coordinate == time:
-                        kind, L = "mass", None
-                    elif atom.order == 0:
-                        kind, L = "op", None
-                    else:
-                        kind, L = "op", grid.derivative(atom.coordinate, atom.order)
-                    block = sp.diags(values) if L is None else sp.diags(values) @ L
-                    A = place(r, s, sp.csr_matrix(block))[rows]
-                    self.ops.append((kind, key, tfunc, pf, coef, (A @ self.Z).tocsr(), A))
+                self._add_term(r, monomial, sep)
         self.time_funcs = {}
         for entry in self.ops:
             if entry[1] is not None:
@@ -288,6 +95,134 @@ class PdeModel:
             if entry[0] is not None:
                 self.time_funcs[entry[0]] = entry[1]
         self.static_mass = all(key is None for kind, key, *_ in self.ops if kind == "mass")
+
+    @staticmethod
+    def _equation_owners(problem, index: Mapping[str, int], q: int) -> list[int]:
+        """The unknown each equation belongs to (its rows at boundary points are replaced): the one
+        whose ``der()`` it holds, or the unknowns in order when that does not assign them one to one."""
+        owners = []
+        for equation in problem.equations:
+            ders = {a.unknown for m in equation.polynomial for a in m if a.order == 1 and a.coordinate == problem.time}
+            owners.append(index[next(iter(ders))] if len(ders) == 1 else None)
+        if None in owners or len(set(owners)) != q:
+            owners = list(range(q))  # equations in unknown order
+        return owners
+
+    def _boundary_choice(self, conds: Mapping, B: np.ndarray) -> list[tuple]:
+        """Per boundary point ``p``: ``(p, coordinate, side, Boundary)``, a value condition of one of
+        its coordinates if there is one, else the first coordinate's (gradient) condition."""
+        grid = self.grid
+        choice = []
+        for p in B:
+            candidates = []
+            for c in grid.names:
+                if c not in conds:
+                    continue
+                ix = grid.index[c][p]
+                last = grid.shape[grid.names.index(c)] - 1
+                if ix == 0 or ix == last:
+                    side = 0 if ix == 0 else 1
+                    candidates.append((c, side, conds[c][side]))
+            values = [cand for cand in candidates if cand[2].kind == "value"]
+            choice.append((int(p),) + (values[0] if values else candidates[0]))
+        return choice
+
+    def _eliminate_boundary(self, unknown) -> tuple:
+        """One unknown's boundary points ``B``, interior points ``I``, conditions, the LU of ``C_BB`` (or
+        None) and ``Z_s`` (n, |I|): identity rows at ``I``, ``E = -C_BB^-1 C_BI`` at ``B``."""
+        import scipy.sparse as sp
+
+        grid, n = self.grid, self.grid.n
+        conds = {c: ends for c, ends in unknown.boundary.items() if c in self.space}
+        on_end = np.zeros(n, dtype=bool)
+        for c in conds:
+            ix = grid.index[c]
+            on_end |= (ix == 0) | (ix == grid.shape[grid.names.index(c)] - 1)
+        B = np.flatnonzero(on_end)
+        Iidx = np.flatnonzero(~on_end)
+        choice = self._boundary_choice(conds, B)
+        E = np.zeros((B.size, Iidx.size))
+        lu = None
+        if B.size:
+            import scipy.linalg as sla
+
+            C = np.zeros((B.size, n))
+            for row, (p, c, side, bc) in enumerate(choice):
+                if bc.kind == "value":
+                    C[row, p] = 1.0
+                else:
+                    C[row] = grid.derivative(c, 1)[p].toarray().ravel()
+            CBB, CBI = C[:, B], C[:, Iidx]
+            cond = np.linalg.cond(CBB)
+            if not cond < 1e12:
+                raise SolverError(f"{self.problem.source}: unknowns.{unknown.name}.boundary: the boundary conditions "
+                                  "do not determine the boundary values of the method-of-lines reference "
+                                  f"(condition number {cond:.3g})")
+            lu = sla.lu_factor(CBB)
+            E = -sla.lu_solve(lu, CBI)
+            E[np.abs(E) <= 1e-15 * max(1.0, float(np.max(np.abs(E))))] = 0.0
+        Zs = sp.lil_matrix((n, Iidx.size))
+        Zs[Iidx, np.arange(Iidx.size)] = 1.0
+        if B.size:
+            Zs[B, :] = E
+        return B, Iidx, choice, lu, Zs.tocsr()
+
+    def _place(self, r: int, s: int, block):
+        """The (q n, q n) matrix with ``block`` at block row ``r`` (equation), column ``s`` (unknown)."""
+        import scipy.sparse as sp
+
+        q, n = self.q, self.grid.n
+        blocks = [[None] * q for _ in range(q)]
+        blocks[r][s] = block
+        for i in range(q):  # bmat needs every block row and column sized
+            if blocks[i][i] is None:
+                blocks[i][i] = sp.csr_matrix((n, n))
+        return sp.bmat(blocks, format="csr")
+
+    def _add_term(self, r: int, monomial, sep) -> None:
+        """Equation ``r``'s term in ``monomial`` (no unknown: a source; one unknown, maybe differentiated:
+        an operator) into :attr:`ops`, :attr:`sources`, :attr:`joint_ops` or :attr:`joint_sources`."""
+        import scipy.sparse as sp
+
+        problem, time, grid, n = self.problem, self.time, self.grid, self.grid.n
+        if len(monomial) > 1:
+            from ..problem.expressions import format_monomial
+
+            raise SolverError(
+                f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
+                "method-of-lines reference supports equations linear in the unknowns"
+            )
+        if sep.joints and monomial:
+            atom = monomial[0]
+            if atom.order == 1 and atom.coordinate == time:
+                raise SolverError(
+                    f"{problem.source}: equations[{r}]: the method-of-lines reference does not support a "
+                    f"non-separable coefficient of der({atom.unknown}) ('{sep.joints[0].function_text()}')")
+            L = None if atom.order == 0 else grid.derivative(atom.coordinate, atom.order)
+            self.joint_ops += [(r, self.index[atom.unknown], L, joint) for joint in sep.joints]
+        elif sep.joints:
+            self.joint_sources += [(r, joint) for joint in sep.joints]
+        for term in sep.terms:
+            coef, tfunc, pf, sf = _term_parts(term, time, self.space)
+            values = np.ones(n)
+            for name, func in sf:
+                values = values * np.broadcast_to(func(grid.values[name]), (n,))
+            key = None if tfunc is None else tfunc.tree
+            if not monomial:
+                full = np.zeros(self.q * n)
+                full[r * n:(r + 1) * n] = values
+                self.sources.append((key, tfunc, pf, coef, full[self.rows]))
+                continue
+            atom = monomial[0]
+            if atom.order == 1 and atom.coordinate == time:
+                kind, L = "mass", None
+            elif atom.order == 0:
+                kind, L = "op", None
+            else:
+                kind, L = "op", grid.derivative(atom.coordinate, atom.order)
+            block = sp.diags(values) if L is None else sp.diags(values) @ L
+            A = self._place(r, self.index[atom.unknown], sp.csr_matrix(block))[self.rows]
+            self.ops.append((kind, key, tfunc, pf, coef, (A @ self.Z).tocsr(), A))
 
     # -- per-sample data ---------------------------------------------------------------------------
     @staticmethod

@@ -1,8 +1,9 @@
 """The method-of-lines reference of problems with space coordinates (BDF/Radau with the exact
-Jacobian, or sparse LU for steady problems) on the collocation grid of :mod:`.collocation`.
+Jacobian, or sparse LU for steady problems) on the collocation grid of :mod:`.collocation`;
+the interpolation to the points asked is in :mod:`.reference_pde_points`.
 
-Over 400 lines: the method-of-lines integration, its failure isolation and the interpolation
-to the asked points are one path; the collocation itself is in :mod:`.collocation`.
+A little over 400 lines: the integration (transient, steady, chunked over workers) and its failure
+isolation per sample are one path that reads best in one file.
 """
 
 from __future__ import annotations
@@ -16,12 +17,14 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import SolverError
-from .collocation import PdeModel, PdeSystem, barycentric_matrix
+from .collocation import PdeModel, PdeSystem
 from .reference_base import (DEFAULT_MAX_EVALUATIONS, DEFAULT_SPACE_NODES, PDE_ATOL, PDE_METHODS, PDE_RTOL,
                              ReferenceBudgetExceeded, ReferenceResult, check_tolerances, checked_params,
                              reference_times, run_in_chunks, sample_subset, sampled_coordinates, space_coordinates,
                              start_time)
 from .reference_ode import parse_cached, scores
+from .reference_pde_points import (at_points, checked_space_points, clipped_to_domain, interpolation_matrices,
+                                   values_at_space_points)
 
 __all__ = ["PdeReferenceResult", "solve_reference_pde"]
 
@@ -266,32 +269,6 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     return values, success, messages, model, unique, inverse
 
 
-def _interpolation_matrices(model: PdeModel, points: Mapping[str, np.ndarray]) -> list[np.ndarray]:
-    grid = model.grid
-    return [barycentric_matrix(grid.points[c], grid.weights[c], points[c]) for c in grid.names]
-
-
-def _on_grid(full: np.ndarray, shape: tuple, mats: list[np.ndarray]) -> np.ndarray:
-    """(..., n) nodal values -> (..., X_1, ..., X_d) on the tensor grid of the points."""
-    lead = full.shape[:-1]
-    V = full.reshape(lead + shape)
-    for k, W in enumerate(mats):
-        axis = len(lead) + k
-        V = np.moveaxis(np.tensordot(V, W, axes=([axis], [1])), -1, axis)
-    return V
-
-
-def _at_points(full: np.ndarray, shape: tuple, mats: list[np.ndarray]) -> np.ndarray:
-    """(A, n) nodal values -> (A, P) at scattered points (row p of every matrix)."""
-    A = full.shape[0]
-    V = full.reshape((A,) + shape)
-    V = np.tensordot(V, mats[0], axes=([1], [1]))  # (A, N_2, ..., N_d, P)
-    V = np.moveaxis(V, -1, 1)  # (A, P, N_2, ..., N_d)
-    for W in mats[1:]:
-        V = np.einsum("ap...j,pj->ap...", V, W) if V.ndim > 3 else np.einsum("apj,pj->ap", V, W)
-    return V
-
-
 def solve_reference_pde(
     problem,
     params: Mapping[str, np.ndarray],
@@ -376,65 +353,19 @@ def solve_reference_pde(
     t0 = start_time(problem)
     times = reference_times(problem, times)
 
-    if space_points is None:
-        points = None
-    else:
-        extra = [k for k in space_points if k not in space]
-        if extra:
-            raise SolverError(f"space_points: {extra[0]!r} is not a space coordinate ({', '.join(space)})")
-        missing = [k for k in space if k not in space_points]
-        if missing:
-            raise SolverError(f"space_points: missing coordinate(s) {', '.join(missing)}")
-        points = {k: np.atleast_1d(np.asarray(space_points[k], dtype=float)) for k in space}
-        if any(p.ndim != 1 or p.size == 0 for p in points.values()):
-            raise SolverError("space_points: expected non-empty 1-D arrays")
-        if not grid and len({p.size for p in points.values()}) > 1:
-            raise SolverError("space_points: scattered points (grid=False) need arrays of one length")
-        for c in space_coordinates(problem):
-            low, high = map(float, c.domain)
-            slack = 1e-12 * max(1.0, abs(low), abs(high))
-            x = points[c.name]
-            if not (np.isfinite(x).all() and (x >= low - slack).all() and (x <= high + slack).all()):
-                bad = x[~(np.isfinite(x) & (x >= low - slack) & (x <= high + slack))][0]
-                raise SolverError(f"space_points: {c.name} = {float(bad)!r} is outside the domain "
-                                  f"[{low:g}, {high:g}]")
-            points[c.name] = np.clip(x, low, high)
+    points = checked_space_points(problem, space_points, space, grid)
 
     states, success, messages, model, unique, inverse = _grid_states(
         problem, arrays, S, times, nodes=nodes, method=method, rtol=rtol, atol=atol, jobs=jobs,
         chunk_size=chunk_size, progress=progress, max_evaluations=max_evaluations)
-    shape = model.grid.shape
-    out: dict[str, np.ndarray] = {}
     if points is None:
         result_points = {c: model.grid.points[c].copy() for c in space}
-        for s, u in enumerate(problem.unknown_names):
-            out[u] = states[:, s][:, inverse].reshape((S, times.size) + shape)
+        out = {u: states[:, s][:, inverse].reshape((S, times.size) + model.grid.shape)
+               for s, u in enumerate(problem.unknown_names)}
     else:
         result_points = points
-        mats = _interpolation_matrices(model, points)
-        at_start = unique == t0
-        for s, u in enumerate(problem.unknown_names):
-            full = states[:, s]  # (S, Tu, n)
-            if grid:
-                vals = _on_grid(full, shape, mats)
-            else:
-                vals = _at_points(full.reshape(-1, model.grid.n), shape, mats).reshape(S, unique.size, -1)
-            if at_start.any():  # the initial value exactly at the points
-                initial = problem.unknowns[s].initial
-                if grid:
-                    mesh = np.meshgrid(*[points[c] for c in space], indexing="ij")
-                    at = {c: m[None] for c, m in zip(space, mesh)}
-                    at.update({p: arrays[p].reshape((S,) + (1,) * len(space)) for p in names})
-                    exact = np.broadcast_to(initial.evaluate(**at), (S,) + mesh[0].shape) if initial.terms else 0.0
-                else:
-                    at = {c: points[c][None, :] for c in space}
-                    at.update({p: arrays[p][:, None] for p in names})
-                    P = points[space[0]].size
-                    exact = np.broadcast_to(initial.evaluate(**at), (S, P)) if initial.terms else 0.0
-                j = int(np.flatnonzero(at_start)[0])
-                ok = success
-                vals[ok, j] = exact[ok] if np.ndim(exact) else 0.0
-            out[u] = vals[:, inverse]
+        out = values_at_space_points(problem, model, states, success, arrays, points, grid, unique == t0)
+        out = {u: v[:, inverse] for u, v in out.items()}
     if problem.time is None:
         out = {u: v[:, 0] for u, v in out.items()}
     return PdeReferenceResult(values=out, success=success, messages=messages, space=space,
@@ -462,13 +393,7 @@ def solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, c
     space = [c.name for c in space_coordinates(problem)]
     sampled = [c.name for c in sampled_coordinates(problem)]
     for c in space_coordinates(problem):
-        low, high = map(float, c.domain)
-        slack = 1e-12 * max(1.0, abs(low), abs(high))
-        x = arrays[c.name]
-        outside = (x < low - slack) | (x > high + slack)
-        if outside.any():
-            raise SolverError(f"params: {c.name} = {float(x[outside][0])!r} is outside the domain [{low:g}, {high:g}]")
-        arrays[c.name] = np.clip(x, low, high)
+        arrays[c.name] = clipped_to_domain(c, arrays[c.name], "params")
     nodes = _space_nodes(problem, space_nodes)
     t0 = start_time(problem)
     times = reference_times(problem, times)
@@ -500,9 +425,9 @@ def solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, c
                 messages[i] = msgs[g]
             if not ok[g]:
                 continue
-            mats = _interpolation_matrices(model, {c: arrays[c][rows] for c in space})
+            mats = interpolation_matrices(model, {c: arrays[c][rows] for c in space})
             for s, u in enumerate(problem.unknown_names):
-                v = _at_points(states[g, s], shape, mats)  # (Tu, P)
+                v = at_points(states[g, s], shape, mats)  # (Tu, P)
                 values[u][rows] = v[inverse].T
         if at_start.any():  # the initial value exactly at the points
             columns = times == t0

@@ -18,7 +18,7 @@ into a table of ``(w n_2, r_2)``: per point ``w n_2 r_2`` multiply-adds instead 
 ``w r_1 + r_1 n_2 r_2`` and one product less.
 
 The values equal those of the core-by-core row-wise contraction
-(``pgdcli.codebook.codebook._contract_tt``) to rounding: the same sums in another order.
+(:func:`pgdcli.codebook.evaluate.contract_tt`) to rounding: the same sums in another order.
 Measurements: ``benchmarks/query_speed_tt.py`` and benchmarks/README.md.
 """
 

@@ -10,7 +10,9 @@ linear elements have the piecewise-constant slope of the element on the right
 of the point (the last element at the upper end). The derivative rows then
 replace the cardinal rows of one coordinate in the same contraction as the
 evaluation (CP sum or tensor train), so a gradient costs about one
-evaluation per coordinate differentiated.
+evaluation per coordinate differentiated. The contractions are the evaluation's own
+(:func:`~pgdcli.codebook.evaluate.contract_tt`, :func:`~pgdcli.codebook.evaluate.grid_tt`,
+:func:`~pgdcli.codebook.evaluate.grid_cp`).
 
 This module imports numpy only.
 """
@@ -23,6 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis
+from .evaluate import contract_tt, grid_cp, grid_tt
 from .fields import FieldTT
 
 __all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
@@ -106,7 +109,7 @@ def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[
     for u in selected:
         fm = fields[u]
         if isinstance(fm, FieldTT):
-            out[u] = [_tt_points(fm, _swap(mats, j, dmats[j])) for j in wrt]
+            out[u] = [contract_tt(fm, _swap(mats, j, dmats[j])) for j in wrt]
         else:
             vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P, rank)
             out[u] = []
@@ -123,19 +126,6 @@ def _swap(mats: list, j: int, replacement: np.ndarray) -> list:
     out = list(mats)
     out[j] = replacement
     return out
-
-
-def _tt_points(fm, mats: list[np.ndarray]) -> np.ndarray:
-    """Tensor train at points whose rows per coordinate are ``mats[j]`` (P, nodes_j): shape (P,)."""
-    v = None
-    for core, j in zip(fm.cores, fm.mode_order):
-        r0, n, r1 = core.shape
-        if v is None:
-            v = mats[j] @ core[0]
-        else:
-            kr = (v[:, :, None] * mats[j][:, None, :]).reshape(v.shape[0], r0 * n)
-            v = kr @ core.reshape(r0 * n, r1)
-    return v[:, 0]
 
 
 def gradient_grid(fields, bases, axes, wrt: Sequence[int], selected: Sequence[str], values: bool = False) -> dict:
@@ -161,40 +151,9 @@ def gradient_grid(fields, bases, axes, wrt: Sequence[int], selected: Sequence[st
     out = {}
     for u in selected:
         fm = fields[u]
-        grid = _tt_grid if isinstance(fm, FieldTT) else _cp_grid
+        grid = grid_tt if isinstance(fm, FieldTT) else grid_cp
         out[u] = [grid(fm, m) for m in variants]
     return out
-
-
-def _cp_grid(fm, mats: list[np.ndarray]) -> np.ndarray:
-    vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P_j, rank)
-    letters = "abcdefghijklmnopqrstuvwxyz"[: len(vs)]
-    return np.einsum(",".join(f"{l}z" for l in letters) + ",z->" + letters, *vs, fm.alphas, optimize=True)
-
-
-def _tt_grid(fm, mats: list[np.ndarray]) -> np.ndarray:
-    """Tensor train on a grid, contracted from both ends toward the core with the longest axis.
-
-    A grid with one long axis (a trajectory over time at one parameter point) then costs
-    one vector-core product per core plus the long axis times one core's node count.
-    """
-    cores, order = fm.cores, fm.mode_order
-    sizes = [mats[j].shape[0] for j in order]
-    k = int(np.argmax(sizes))
-    left = np.ones((1, 1))  # (points of cores < k, r)
-    for core, j in zip(cores[:k], order[:k]):
-        r0, n, r1 = core.shape
-        partial = (left @ core.reshape(r0, n * r1)).reshape(left.shape[0], n, r1)
-        left = np.matmul(mats[j], partial).reshape(-1, r1)
-    right = np.ones((1, 1))  # (r, points of cores > k), the later cores' points varying fastest
-    for core, j in zip(cores[:k:-1], order[:k:-1]):
-        r0, n, r1 = core.shape
-        partial = (core.reshape(r0 * n, r1) @ right).reshape(r0, n, -1)  # (r0, n, points so far)
-        right = np.matmul(mats[j], partial).reshape(r0, -1)  # (r0, P_j x points so far)
-    middle = np.tensordot(mats[order[k]], cores[k], axes=(1, 1))  # (P_k, r0, r1)
-    block = np.matmul(np.matmul(left, middle), right)  # (P_k, left points, right points)
-    block = np.moveaxis(block, 0, 1).reshape(sizes)
-    return np.transpose(block, np.argsort(order))
 
 
 class TrajectoryModel:

@@ -256,7 +256,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
         Unreadable or invalid data, unknown or out-of-domain fixed coordinates, nothing free,
         fewer residuals than free coordinates.
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # noqa: F401 -- imported before `began`, as qmc below
 
     from ..codebook.codebook import Codebook
 
@@ -270,12 +270,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
     data = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in data.items()}
     check_finite(data, label)
     coords, observed, sig = split_columns(cb, data, label)
-    for u, s in (sigma or {}).items():
-        if u not in observed:
-            raise FitError(f"--sigma {u}: not an observed unknown (observed: {', '.join(observed)})")
-        if not float(s) > 0:
-            raise FitError(f"--sigma {u}={s}: must be positive")
-        sig.setdefault(u, np.full(len(data[u]), float(s)))
+    _add_sigma(sig, sigma, observed, data)
     fixed = fixed_values(cb, fix, coords)
     free = [n for n in cb.coordinate_names if n not in coords and n not in fixed]
     if not free:
@@ -287,13 +282,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
     if int(starts) < 1:
         raise FitError(f"starts must be at least 1, got {starts}")
     bounds = np.array([[cb.coordinate(n).domain[0] for n in free], [cb.coordinate(n).domain[1] for n in free]])
-    best, nfev = None, 0
-    for x0 in sobol_starts(bounds, int(starts), seed):
-        res = least_squares(model.residual, x0, jac=lambda x, *_: model.jacobian(x), bounds=bounds, method="trf",
-                            x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, args=(data,))
-        nfev += res.nfev
-        if best is None or res.cost < best.cost:
-            best = res
+    best, nfev = _best_of_starts(model, data, bounds, int(starts), seed, tolerance)
     jac = model.jacobian(best.x)
     errors = _stderr(jac, best.fun)
     fitted = {n: v.copy() for n, v in coords.items()}
@@ -309,6 +298,30 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
         _reference_check(cb, result, coords, model, label)
         result.check_elapsed = _time.perf_counter() - began
     return result
+
+
+def _add_sigma(sig: dict, sigma: Mapping[str, float] | None, observed, data) -> None:
+    """``--sigma`` constants into ``sig`` (unknown -> per-row sigma) where no column gave one."""
+    for u, s in (sigma or {}).items():
+        if u not in observed:
+            raise FitError(f"--sigma {u}: not an observed unknown (observed: {', '.join(observed)})")
+        if not float(s) > 0:
+            raise FitError(f"--sigma {u}={s}: must be positive")
+        sig.setdefault(u, np.full(len(data[u]), float(s)))
+
+
+def _best_of_starts(model, data, bounds: np.ndarray, starts: int, seed: int, tolerance: float) -> tuple:
+    """The least-squares solve of lowest cost over the Sobol starts, and the evaluations of all of them."""
+    from scipy.optimize import least_squares
+
+    best, nfev = None, 0
+    for x0 in sobol_starts(bounds, starts, seed):
+        res = least_squares(model.residual, x0, jac=lambda x, *_: model.jacobian(x), bounds=bounds, method="trf",
+                            x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, args=(data,))
+        nfev += res.nfev
+        if best is None or res.cost < best.cost:
+            best = res
+    return best, nfev
 
 
 def _message(res, free: Sequence[str], bounds: np.ndarray) -> str:

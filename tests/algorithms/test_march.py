@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
-from conftest import PROBLEMS, assert_solved
+from conftest import PROBLEMS, assert_solved, spec_text
 from scipy.integrate import solve_ivp
 
 import pgdcli
@@ -539,18 +539,11 @@ def test_method_pgd_on_nonlinear_problem_is_a_solver_error(tmp_path):
     assert not out.exists()
 
 
-_SMALL = """
-coordinates:
-  t: {domain: [0, 0.5], nodes: 6}
-  a: {domain: [0, 1], nodes: 4}
-  b: {domain: [0, 1], nodes: 4}
-unknowns:
-  u1: {initial: a}
-  u2: {initial: b}
-equations:
-  - "%s"
-  - "der(u2) = u1*u1"
-"""
+_SMALL = spec_text(
+    coordinates={'t': '{domain: [0, 0.5], nodes: 6}', 'a': '{domain: [0, 1], nodes: 4}', 'b': '{domain: [0, 1], nodes: 4}'},
+    unknowns={'u1': '{initial: a}', 'u2': '{initial: b}'},
+    equations=['"%s"', '"der(u2) = u1*u1"'],
+)
 
 
 def test_compile_rejects_two_derivatives_in_one_equation():
@@ -573,13 +566,13 @@ def test_rank_cap_is_a_failure_not_a_silent_truncation():
 
 
 def test_nonlinear_problem_with_time_only_is_one_trajectory():
-    text = """
-name: single
-coordinates: {t: {domain: [0, 3], nodes: 8}}
-unknowns: {u: {initial: 0.2}}
-equations: ["der(u) = 1.5*u*(1 - u)"]
-solver: {tolerance: 1e-10}
-"""
+    text = spec_text(
+        name=' single',
+        coordinates=' {t: {domain: [0, 3], nodes: 8}}',
+        unknowns=' {u: {initial: 0.2}}',
+        equations=' ["der(u) = 1.5*u*(1 - u)"]',
+        solver=' {tolerance: 1e-10}',
+    )
     result = pgdcli.solve(parse_spec(text, source="single.yaml"))
     assert result.converged, result.message
     cb = result.codebook

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
-from conftest import PROBLEMS
+from conftest import PROBLEMS, spec_text
 
 import pgdcli
 from pgdcli import driver as solver, load_spec, parse_spec
@@ -169,17 +169,13 @@ def test_solve_and_info_print_the_measured_error(tmp_path):
 
 
 def test_march_without_parameters_checks_its_one_point():
-    text = """
-name: single
-coordinates:
-  t: {domain: [0, 2], nodes: 8}
-unknowns:
-  u: {initial: 0.3}
-equations:
-  - "der(u) = 1.5*u*(1 - u)"
-solver:
-  tolerance: 1e-10
-"""
+    text = spec_text(
+        name=' single',
+        coordinates={'t': '{domain: [0, 2], nodes: 8}'},
+        unknowns={'u': '{initial: 0.3}'},
+        equations=['"der(u) = 1.5*u*(1 - u)"'],
+        solver={'tolerance': '1e-10'},
+    )
     result = pgdcli.solve(parse_spec(text, source="single.yaml"))
     rep = result.codebook.report
     assert rep["check_points"] == 1 and "at 1 check point against scipy" in result.message

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import spec_text
 from pgdcli.errors import PgdError
 from pgdcli.checks.reference import METHODS, solve_reference
 from pgdcli.problem.spec import load_spec, parse_spec
@@ -24,21 +25,17 @@ def rel_err(a, b):
     return float(np.max(np.abs(a - b)) / max(1.0, float(np.max(np.abs(b)))))
 
 
-RELAX = """
-coordinates:
-  t: {domain: [0, 2], nodes: 8}
-  k: {domain: [0.5, 5], nodes: 8}
-  u0: {domain: [-1, 1], nodes: 2, discretization: linear}
-unknowns:
-  u: {initial: u0}
-equations:
-  - "der(u) = -k*u"
-"""
+RELAX = spec_text(
+    coordinates={'t': '{domain: [0, 2], nodes: 8}', 'k': '{domain: [0.5, 5], nodes: 8}', 'u0': '{domain: [-1, 1], nodes: 2, discretization: linear}'},
+    unknowns={'u': '{initial: u0}'},
+    equations=['"der(u) = -k*u"'],
+)
 
 
 def test_reference_imports_nothing_of_the_solver():
     imported = set()
-    sources = ("reference.py", "reference_base.py", "reference_ode.py", "reference_pde.py", "collocation.py")
+    sources = ("reference.py", "reference_base.py", "reference_ode.py", "reference_pde.py", "reference_pde_points.py", "collocation_grid.py",
+               "collocation.py")
     trees = [ast.parse((ROOT / "pgdcli" / "checks" / name).read_text()) for name in sources]
     for node in (node for tree in trees for node in ast.walk(tree)):
         if isinstance(node, ast.ImportFrom):
@@ -106,18 +103,11 @@ def test_every_method(method):
 
 def test_coupled_and_time_dependent_der_coefficients():
     # the spring with a non-diagonal, time-dependent matrix of der() coefficients
-    text = """
-coordinates:
-  t: {domain: [0, 4], nodes: 8}
-  k: {domain: [1, 4], nodes: 4}
-  c: {domain: [0.1, 0.5], nodes: 4}
-unknowns:
-  x: {initial: 1}
-  v: {initial: 0}
-equations:
-  - "(1 + t)*der(x) = (1 + t)*v"
-  - "(2 + t)*(der(v) + 3*der(x)) = (2 + t)*(-k*x - c*v + 3*v)"
-"""
+    text = spec_text(
+        coordinates={'t': '{domain: [0, 4], nodes: 8}', 'k': '{domain: [1, 4], nodes: 4}', 'c': '{domain: [0.1, 0.5], nodes: 4}'},
+        unknowns={'x': '{initial: 1}', 'v': '{initial: 0}'},
+        equations=['"(1 + t)*der(x) = (1 + t)*v"', '"(2 + t)*(der(v) + 3*der(x)) = (2 + t)*(-k*x - c*v + 3*v)"'],
+    )
     from conftest import exact_spring
 
     p = {"k": np.array([1.0, 4.0, 2.5]), "c": np.array([0.1, 0.5, 0.2])}
@@ -132,47 +122,33 @@ equations:
 
 def test_polynomial_nonlinearities():
     # logistic growth: u' = r u (1 - u)
-    logistic = """
-coordinates:
-  t: {domain: [0, 3], nodes: 8}
-  r: {domain: [0.5, 3], nodes: 4}
-unknowns:
-  u: {initial: 0.1}
-equations:
-  - "der(u) = r*u - r*u**2"
-"""
+    logistic = spec_text(
+        coordinates={'t': '{domain: [0, 3], nodes: 8}', 'r': '{domain: [0.5, 3], nodes: 4}'},
+        unknowns={'u': '{initial: 0.1}'},
+        equations=['"der(u) = r*u - r*u**2"'],
+    )
     r = np.array([0.5, 1.3, 3.0])
     times = np.linspace(0, 3, 7)
     result = solve_reference(spec(logistic), {"r": r}, times)
     exact = 1.0 / (1.0 + 9.0 * np.exp(-r[:, None] * times[None, :]))
     assert np.max(np.abs(result.values["u"] - exact)) < 1e-10
     # a product of two unknowns: x' = -x y, y' = 0, y(0) = k  ->  x = exp(-k t)
-    product = """
-coordinates:
-  t: {domain: [0, 2], nodes: 8}
-  k: {domain: [0, 2], nodes: 4}
-unknowns:
-  x: {initial: 1}
-  y: {initial: k}
-equations:
-  - "der(x) = -x*y"
-  - "der(y) = 0"
-"""
+    product = spec_text(
+        coordinates={'t': '{domain: [0, 2], nodes: 8}', 'k': '{domain: [0, 2], nodes: 4}'},
+        unknowns={'x': '{initial: 1}', 'y': '{initial: k}'},
+        equations=['"der(x) = -x*y"', '"der(y) = 0"'],
+    )
     k = np.array([0.0, 0.7, 2.0])
     result = solve_reference(spec(product), {"k": k}, times[:5])
     assert np.max(np.abs(result.values["x"] - np.exp(-k[:, None] * times[None, :5]))) < 1e-10
     assert np.max(np.abs(result.values["y"] - k[:, None])) == 0.0
 
 
-BLOWUP = """
-coordinates:
-  t: {domain: [0, 2], nodes: 8}
-  u0: {domain: [0.2, 1], nodes: 4}
-unknowns:
-  u: {initial: u0}
-equations:
-  - "der(u) = u*u"
-"""
+BLOWUP = spec_text(
+    coordinates={'t': '{domain: [0, 2], nodes: 8}', 'u0': '{domain: [0.2, 1], nodes: 4}'},
+    unknowns={'u': '{initial: u0}'},
+    equations=['"der(u) = u*u"'],
+)
 
 
 @pytest.mark.parametrize("jobs", [1, 2])
@@ -214,14 +190,10 @@ def test_times_keep_their_order_and_repeats():
 
 
 def test_no_parameters_is_one_trajectory():
-    text = """
-coordinates:
-  t: {domain: [0, 1], nodes: 4}
-unknowns:
-  u: {initial: 2}
-equations:
-  - "der(u) = -u + sin(t)"
-"""
+    text = spec_text(
+        unknowns={'u': '{initial: 2}'},
+        equations=['"der(u) = -u + sin(t)"'],
+    )
     times = np.linspace(0, 1, 5)
     result = solve_reference(spec(text), {}, times)
     exact = 2.5 * np.exp(-times) + 0.5 * (np.sin(times) - np.cos(times))

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import spec_text
 import pgdcli
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
@@ -23,52 +24,23 @@ from pgdcli.checks.reference import (
 
 PI = np.pi
 
-HEAT_1D = """
-name: heat1d
-coordinates:
-  x: {domain: [0, 1], nodes: 40}
-  t: {domain: [0, 0.5], nodes: 24}
-  kappa: {domain: [0.1, 1], nodes: 16}
-unknowns:
-  u:
-    initial: "sin(pi*x)"
-    boundary:
-      x: {low: 0, high: 0}
-equations:
-  - "der(u) = kappa*der(u, x, 2)"
-"""
+HEAT_1D = spec_text(
+    name=' heat1d',
+    coordinates={'x': '{domain: [0, 1], nodes: 40}', 't': '{domain: [0, 0.5], nodes: 24}', 'kappa': '{domain: [0.1, 1], nodes: 16}'},
+    unknowns={'u': '\n    initial: "sin(pi*x)"\n    boundary:\n      x: {low: 0, high: 0}'},
+    equations=['"der(u) = kappa*der(u, x, 2)"'],
+)
 
-HEAT_2D = """
-coordinates:
-  x: {domain: [0, 1], nodes: 40}
-  y: {domain: [0, 1], nodes: 40}
-  t: {domain: [0, 0.5], nodes: 24}
-  kappa: {domain: [0.1, 1], nodes: 16}
-  g: {domain: [-1, 1], nodes: 4}
-  q: {domain: [0, 2], nodes: 4}
-unknowns:
-  u:
-    initial: "g*x + sin(pi*x)*cos(pi*y)"
-    boundary:
-      x: {low: 0, high: g}
-      y: {low: {gradient: 0}, high: {gradient: 0}}
-equations:
-  - "der(u) = kappa*(der(u, x, 2) + der(u, y, 2)) + q*sin(pi*x)"
-"""
+HEAT_2D = spec_text(
+    coordinates={'x': '{domain: [0, 1], nodes: 40}', 'y': '{domain: [0, 1], nodes: 40}', 't': '{domain: [0, 0.5], nodes: 24}', 'kappa': '{domain: [0.1, 1], nodes: 16}', 'g': '{domain: [-1, 1], nodes: 4}', 'q': '{domain: [0, 2], nodes: 4}'},
+    unknowns={'u': '\n    initial: "g*x + sin(pi*x)*cos(pi*y)"\n    boundary:\n      x: {low: 0, high: g}\n      y: {low: {gradient: 0}, high: {gradient: 0}}'},
+    equations=['"der(u) = kappa*(der(u, x, 2) + der(u, y, 2)) + q*sin(pi*x)"'],
+)
 
-NEUMANN_1D = """
-coordinates:
-  x: {domain: [0, 1], nodes: 40}
-  t: {domain: [0, 0.5], nodes: 24}
-  kappa: {domain: [0.1, 1], nodes: 16}
-unknowns:
-  u:
-    initial: "x + cos(pi*x)"
-    boundary:
-      x: {low: {gradient: 1}, high: {gradient: 1}}
-equations:
-  - "der(u) = kappa*der(u, x, 2)"
-"""
+NEUMANN_1D = spec_text(  # HEAT_1D with gradient conditions
+    HEAT_1D, name=None,
+    unknowns={'u': '\n    initial: "x + cos(pi*x)"\n    boundary:\n      x: {low: {gradient: 1}, high: {gradient: 1}}'},
+)
 
 
 def spec(text: str):
@@ -155,20 +127,11 @@ def test_neumann_1d_exact():
 
 def test_pure_neumann_2d_and_corners():
     # gradient conditions on both coordinates: the corners take the first coordinate's condition
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 8}
-  y: {domain: [0, 2], nodes: 8}
-  t: {domain: [0, 0.2], nodes: 8}
-unknowns:
-  u:
-    initial: "cos(pi*x)*cos(pi*y/2) + 0.5*y"
-    boundary:
-      x: {low: {gradient: 0}, high: {gradient: 0}}
-      y: {low: {gradient: 0.5}, high: {gradient: 0.5}}
-equations:
-  - "der(u) = der(u, x, 2) + der(u, y, 2)"
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 8}', 'y': '{domain: [0, 2], nodes: 8}', 't': '{domain: [0, 0.2], nodes: 8}'},
+        unknowns={'u': '\n    initial: "cos(pi*x)*cos(pi*y/2) + 0.5*y"\n    boundary:\n      x: {low: {gradient: 0}, high: {gradient: 0}}\n      y: {low: {gradient: 0.5}, high: {gradient: 0.5}}'},
+        equations=['"der(u) = der(u, x, 2) + der(u, y, 2)"'],
+    )
     result = solve_reference_pde(spec(text), {}, {"x": [0, 0.3, 1], "y": [0, 0.7, 2]}, [0.2], space_nodes=16)
     X, Y = np.meshgrid([0, 0.3, 1], [0, 0.7, 2], indexing="ij")
     exact = np.exp(-1.25 * PI**2 * 0.2) * np.cos(PI * X) * np.cos(PI * Y / 2) + 0.5 * Y
@@ -178,20 +141,11 @@ equations:
 
 def test_boundary_value_depending_on_the_other_space_coordinate():
     # u = (1 - x) cos(pi y) + exp(-2 pi^2 t) sin(pi x) cos(pi y): u(0, y) = cos(pi y)
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 8}
-  y: {domain: [0, 1], nodes: 8}
-  t: {domain: [0, 0.1], nodes: 8}
-unknowns:
-  u:
-    initial: "(1 - x)*cos(pi*y) + sin(pi*x)*cos(pi*y)"
-    boundary:
-      x: {low: "cos(pi*y)", high: 0}
-      y: {low: {gradient: 0}, high: {gradient: 0}}
-equations:
-  - "der(u) = der(u, x, 2) + der(u, y, 2) + pi**2*(1 - x)*cos(pi*y)"
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 8}', 'y': '{domain: [0, 1], nodes: 8}', 't': '{domain: [0, 0.1], nodes: 8}'},
+        unknowns={'u': '\n    initial: "(1 - x)*cos(pi*y) + sin(pi*x)*cos(pi*y)"\n    boundary:\n      x: {low: "cos(pi*y)", high: 0}\n      y: {low: {gradient: 0}, high: {gradient: 0}}'},
+        equations=['"der(u) = der(u, x, 2) + der(u, y, 2) + pi**2*(1 - x)*cos(pi*y)"'],
+    )
     x, y = np.array([0.0, 0.2, 0.9]), np.array([0.0, 0.45, 1.0])
     result = solve_reference_pde(spec(text), {}, {"x": x, "y": y}, [0.05, 0.1], space_nodes=20)
     T, X, Y = np.array([0.05, 0.1])[:, None, None], x[None, :, None], y[None, None, :]
@@ -203,20 +157,11 @@ def test_advection_time_dependent_terms_and_systems():
     # u: manufactured exp(-t) sin(pi x) with advection and a time-dependent source;
     # v: time-dependent diffusivity, exact exp(-kappa pi^2 (t + t^2/2)) sin(pi x);
     # w: a space-dependent der() coefficient, exact as the heat equation
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 40}
-  t: {domain: [0, 1], nodes: 16}
-  kappa: {domain: [0.1, 1], nodes: 8}
-unknowns:
-  u: {initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}
-  v: {initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}
-  w: {initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}
-equations:
-  - "der(u) = kappa*der(u, x, 2) - der(u, x) + exp(-t)*((kappa*pi**2 - 1)*sin(pi*x) + pi*cos(pi*x))"
-  - "der(v) = kappa*(1 + t)*der(v, x, 2)"
-  - "(2 + x)*der(w) = (2 + x)*kappa*der(w, x, 2)"
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 40}', 't': '{domain: [0, 1], nodes: 16}', 'kappa': '{domain: [0.1, 1], nodes: 8}'},
+        unknowns={'u': '{initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}', 'v': '{initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}', 'w': '{initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}'},
+        equations=['"der(u) = kappa*der(u, x, 2) - der(u, x) + exp(-t)*((kappa*pi**2 - 1)*sin(pi*x) + pi*cos(pi*x))"', '"der(v) = kappa*(1 + t)*der(v, x, 2)"', '"(2 + x)*der(w) = (2 + x)*kappa*der(w, x, 2)"'],
+    )
     kappa = np.array([0.1, 0.6, 1.0])
     x = np.linspace(0, 1, 13)
     times = np.array([0.0, 0.3, 1.0])
@@ -229,20 +174,11 @@ equations:
 
 def test_coupled_and_time_dependent_der_coefficients_in_worker_processes():
     # der() of two unknowns per equation (a non-diagonal mass), and a time-dependent one
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 40}
-  t: {domain: [0, 1], nodes: 16}
-  kappa: {domain: [0.1, 1], nodes: 8}
-unknowns:
-  u: {initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}
-  v: {initial: "2*sin(2*pi*x)", boundary: {x: {low: 0, high: 0}}}
-  w: {initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}
-equations:
-  - "der(u) + der(v) = kappa*(der(u, x, 2) + der(v, x, 2))"
-  - "der(u) - der(v) = kappa*(der(u, x, 2) - der(v, x, 2))"
-  - "(1 + t)*der(w) = (1 + t)*kappa*der(w, x, 2)"
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 40}', 't': '{domain: [0, 1], nodes: 16}', 'kappa': '{domain: [0.1, 1], nodes: 8}'},
+        unknowns={'u': '{initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}', 'v': '{initial: "2*sin(2*pi*x)", boundary: {x: {low: 0, high: 0}}}', 'w': '{initial: "sin(pi*x)", boundary: {x: {low: 0, high: 0}}}'},
+        equations=['"der(u) + der(v) = kappa*(der(u, x, 2) + der(v, x, 2))"', '"der(u) - der(v) = kappa*(der(u, x, 2) - der(v, x, 2))"', '"(1 + t)*der(w) = (1 + t)*kappa*der(w, x, 2)"'],
+    )
     kappa = np.array([0.1, 0.6, 1.0])
     x = np.linspace(0, 1, 13)
     times = np.array([0.0, 0.3, 1.0])

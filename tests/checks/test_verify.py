@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import spec_text
 import pgdcli
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
@@ -213,16 +214,12 @@ def test_worker_processes_give_the_same_figures(accurate):
     assert result.exit_code == 0, stderr_of(result)
 
 
-BLOWUP = """
-name: blowup
-coordinates:
-  t: {domain: [0, 2], nodes: 4}
-  u0: {domain: [0.2, 1], nodes: 2, discretization: linear}
-unknowns:
-  u: {initial: u0}
-equations:
-  - "der(u) = u*u"
-"""
+BLOWUP = spec_text(
+    name=' blowup',
+    coordinates={'t': '{domain: [0, 2], nodes: 4}', 'u0': '{domain: [0.2, 1], nodes: 2, discretization: linear}'},
+    unknowns={'u': '{initial: u0}'},
+    equations=['"der(u) = u*u"'],
+)
 
 
 def test_reference_failure_is_reported_and_fails(tmp_path):

@@ -13,7 +13,7 @@ import textwrap
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import PROBLEMS
+from conftest import PROBLEMS, spec_text
 
 import pgdcli
 from pgdcli.cli.main import cli
@@ -336,15 +336,9 @@ def test_solve_bad_yaml(runner, tmp_path):
 def test_solve_unknown_key(runner, tmp_path):
     spec = tmp_path / "unknown.yaml"
     spec.write_text(textwrap.dedent(
-        """\
-        coordinates:
-          t: {domain: [0, 1], nodes: 4}
-        unknowns:
-          u: {initial: 0}
-        equations:
-          - der(u) = -u
-        bogus: 1
-        """
+        spec_text(
+            bogus=' 1',
+        )
     ))
     _assert_usage_error(_invoke(runner, ["solve", spec, "-o", tmp_path / "x.h5"]), str(spec), "bogus")
     assert not (tmp_path / "x.h5").exists()

@@ -28,7 +28,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import pgdcli.codebook.codebook as codebook_module
+import pgdcli.codebook.point as point_module
+import pgdcli.codebook.threads as threads_module
 from pgdcli.codebook import batch_eval
 from pgdcli.cli import query as _query
 from pgdcli.cli.main import cli
@@ -332,19 +333,19 @@ def test_batches_threads_and_chunks(solved, monkeypatch, name):
     """Threads never change a value; chunk lengths only through the BLAS kernel a product shape takes."""
     cb = solved(name).codebook
     rng = np.random.default_rng(8)
-    size = codebook_module._PARALLEL_MIN_POINTS + 3 * 1024 + 65
+    size = threads_module.PARALLEL_MIN_POINTS + 3 * 1024 + 65
     p = _with_nodes(cb, {c.name: rng.uniform(*c.domain, size) for c in cb.coordinates}, rng)
     ref = cb(**p)
     plain = _plain_evaluation(cb, p)
     for u in cb.unknown_names:
         np.testing.assert_allclose(ref[u], plain[u], rtol=1e-13, atol=1e-13)
     for threads in (1, 2, 3):
-        monkeypatch.setattr(codebook_module, "_threads", lambda: threads)
+        monkeypatch.setattr(threads_module, "available_threads", lambda: threads)
         other = cb(**p)
         for u in cb.unknown_names:
             assert other[u].tobytes() == ref[u].tobytes(), threads
     for chunk_bytes in (1, 1 << 18, 1 << 22):  # chunks of 64 points up to 4096
-        monkeypatch.setattr(codebook_module, "_CHUNK_BYTES", chunk_bytes)
+        monkeypatch.setattr(threads_module, "CHUNK_BYTES", chunk_bytes)
         other = cb(**p)
         for u in cb.unknown_names:
             np.testing.assert_allclose(other[u], ref[u], rtol=1e-14, atol=1e-14)
@@ -355,14 +356,14 @@ def test_tensor_train_batches_threads_and_chunks(solved, monkeypatch):
     one-point evaluation (the point past the last full chunk, which joins it, included)."""
     cb = solved("logistic").codebook
     rng = np.random.default_rng(9)
-    size = codebook_module._PARALLEL_MIN_POINTS + 2 * batch_eval.MAX_BLOCK + 1
+    size = threads_module.PARALLEL_MIN_POINTS + 2 * batch_eval.MAX_BLOCK + 1
     p = {c.name: rng.uniform(*c.domain, size) for c in cb.coordinates}
     ref = cb(**p)
     for i in list(rng.choice(size, 20, replace=False)) + [size - 1]:
         one = cb(**{k: float(v[i]) for k, v in p.items()})
         np.testing.assert_allclose(ref["u"][i], one["u"], rtol=1e-13, atol=1e-14)
     for threads in (1, 2, 3):
-        monkeypatch.setattr(codebook_module, "_threads", lambda: threads)
+        monkeypatch.setattr(threads_module, "available_threads", lambda: threads)
         assert cb(**p)["u"].tobytes() == ref["u"].tobytes(), threads
 
 
@@ -370,7 +371,7 @@ def test_batch_of_one_chunk_is_the_plain_algorithm_bitwise(solved):
     """Up to one chunk, a batch makes exactly the numpy/BLAS calls of the plain algorithm."""
     cb = solved("spring").codebook
     rng = np.random.default_rng(10)
-    chunk = codebook_module._chunk_length(cb._stacked[0].shape[1], max(b.size for b in cb._bases))
+    chunk = threads_module.chunk_length(cb._stacked[0].shape[1], max(b.size for b in cb._bases))
     for size in (2, 3, 7, 63, 64, 65, chunk - 1, chunk):
         p = _with_nodes(cb, {c.name: rng.uniform(*c.domain, size) for c in cb.coordinates}, rng)
         ours, plain = cb(**p), _plain_evaluation(cb, p)
@@ -445,13 +446,13 @@ def test_blas_limit_is_restored_after_batches(solved):
     threadpoolctl = pytest.importorskip("threadpoolctl")
     cb = solved("spring").codebook
     before = _blas_threads(threadpoolctl)
-    for n in (codebook_module._BLAS_LIMIT_MIN_POINTS, codebook_module._PARALLEL_MIN_POINTS + 1):
+    for n in (threads_module.BLAS_LIMIT_MIN_POINTS, threads_module.PARALLEL_MIN_POINTS + 1):
         cb(t=np.linspace(0, 4, n), k=np.full(n, 2.0), c=np.full(n, 0.3))
         assert _blas_threads(threadpoolctl) == before
     # batches running at the same time share one limit, lifted when the last one ends
     import threading
 
-    n = codebook_module._PARALLEL_MIN_POINTS + 1
+    n = threads_module.PARALLEL_MIN_POINTS + 1
     p = {"t": np.linspace(0, 4, n), "k": np.full(n, 2.0), "c": np.full(n, 0.3)}
     ref = cb(**p)["x"]
     results = []
@@ -462,7 +463,7 @@ def test_blas_limit_is_restored_after_batches(solved):
         t.join()
     assert len(results) == 4 and all(r.tobytes() == ref.tobytes() for r in results)
     assert _blas_threads(threadpoolctl) == before
-    assert codebook_module._blas_users == 0
+    assert threads_module.blas_users() == 0
 
 
 # ----------------------------------------------------------------------------------------------
@@ -517,15 +518,15 @@ def _tt_points(cb):
 @pytest.mark.parametrize("layout", ["default", "no pair", "vector first"])
 def test_tensor_train_point_agrees_with_batch_and_plain_contraction(monkeypatch, order, layout):
     if layout != "default":
-        monkeypatch.setattr(codebook_module, "_PAIR_MAX", 0)
+        monkeypatch.setattr(point_module, "PAIR_MAX", 0)
     if layout == "vector first":
-        monkeypatch.setattr(codebook_module, "_ROW_FIRST_MAX", 0)
+        monkeypatch.setattr(point_module, "ROW_FIRST_MAX", 0)
     cb = _small_tt_codebook(order)
     stack = cb._tt_stack
     # the first coordinate's window (a slab: 5 nodes, x: 7, an element of y: 2) is below the rank 9
     assert (stack.pair is not None) == (layout == "default")
     if layout == "vector first":
-        assert not any(through_table for _, through_table, *_ in stack.cores[1:])
+        assert not any(through_table for _, through_table, *_ in stack.tail)
     for p in _tt_points(cb):
         one = cb(**p)
         batch = cb(**{k: np.array([v, 0.5 * sum(c.domain)]) for c, (k, v) in zip(cb.coordinates, p.items())})

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import pgdcli.codebook.codebook as codebook_module
+import pgdcli.codebook.point as point_module
+import pgdcli.codebook.threads as threads_module
 from pgdcli.codebook.batch_eval import TTBatch
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
 
@@ -108,7 +109,7 @@ def test_batch_equals_pointwise_contraction_hand_made(name):
 
 @pytest.mark.parametrize("name", sorted(HAND_MADE))
 def test_batch_equals_one_point_path(name):
-    """The batch path and the one-point path (a different algorithm: _TTStack) agree."""
+    """The batch path and the one-point path (a different algorithm: TTStack) agree."""
     cb = HAND_MADE[name]
     points = _points(cb, 200, 11)
     batch = cb(**points)
@@ -128,11 +129,11 @@ def test_batch_equals_pointwise_contraction_march_codebooks(solved, name):
 def test_blocks_and_threads_never_change_a_value(solved, monkeypatch):
     """Blocks are cut from the sorted points the same way whatever the threads: bitwise equal."""
     cb = solved("coupled").codebook
-    size = codebook_module._PARALLEL_MIN_POINTS + 3000
+    size = threads_module.PARALLEL_MIN_POINTS + 3000
     points = _points(cb, size, 6)
     ref = cb(**points)
     for threads in (1, 2, 3):
-        monkeypatch.setattr(codebook_module, "_threads", lambda: threads)
+        monkeypatch.setattr(threads_module, "available_threads", lambda: threads)
         other = cb(**points)
         for u in cb.unknown_names:
             assert other[u].tobytes() == ref[u].tobytes(), threads

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from conftest import spec_text
 import pgdcli
 from pgdcli.errors import PgdError
 from pgdcli.problem.expressions import Atom, parse_equation
@@ -68,32 +69,32 @@ def test_constants_fold_and_coordinates_stay_names():
 
 
 def test_initial_value_with_a_function_of_an_unknown_is_refused():
-    spec = """
-coordinates: {t: {domain: [0, 1]}}
-unknowns: {u: {initial: sin(u)}}
-equations: ["der(u) = -u"]
-"""
+    spec = spec_text(
+        coordinates=' {t: {domain: [0, 1]}}',
+        unknowns=' {u: {initial: sin(u)}}',
+        equations=' ["der(u) = -u"]',
+    )
     with pytest.raises(PgdError, match="must not depend on unknowns"):
         pgdcli.parse_spec(spec, source="s.yaml")
 
 
 def test_enrichment_solver_refuses_general_terms():
-    spec = """
-coordinates: {t: {domain: [0, 1]}, k: {domain: [1, 2], nodes: 5}}
-unknowns: {u: {initial: 1}}
-equations: ["der(u) = -k*sin(u)"]
-solver: {method: pgd}
-"""
+    spec = spec_text(
+        coordinates=' {t: {domain: [0, 1]}, k: {domain: [1, 2], nodes: 5}}',
+        unknowns=' {u: {initial: 1}}',
+        equations=' ["der(u) = -k*sin(u)"]',
+        solver=' {method: pgd}',
+    )
     with pytest.raises(PgdError, match="linear in the unknowns only"):
         pgdcli.solve(pgdcli.parse_spec(spec, source="s.yaml"))
 
 
-PENDULUM = """
-coordinates: {t: {domain: [0, 2]}, L: {domain: [0.5, 2], nodes: 5}, th0: {domain: [0.1, 2.5], nodes: 5}}
-constants: {grav: 9.81}
-unknowns: {th: {initial: th0}, w: {initial: 0}}
-equations: ["der(th) = w", "der(w) = -(grav/L)*sin(th + 0*t)"]
-"""
+PENDULUM = spec_text(
+    coordinates=' {t: {domain: [0, 2]}, L: {domain: [0.5, 2], nodes: 5}, th0: {domain: [0.1, 2.5], nodes: 5}}',
+    constants=' {grav: 9.81}',
+    unknowns=' {th: {initial: th0}, w: {initial: 0}}',
+    equations=' ["der(th) = w", "der(w) = -(grav/L)*sin(th + 0*t)"]',
+)
 
 
 def test_reference_evaluates_general_terms():
@@ -111,11 +112,11 @@ def test_reference_evaluates_general_terms():
 
 
 def test_undefined_function_is_named_in_the_failure():
-    spec = """
-coordinates: {t: {domain: [0, 3]}, u0: {domain: [0.5, 1], nodes: 5}}
-unknowns: {u: {initial: u0}}
-equations: ["der(u) = -sqrt(u)"]
-"""
+    spec = spec_text(
+        coordinates=' {t: {domain: [0, 3]}, u0: {domain: [0.5, 1], nodes: 5}}',
+        unknowns=' {u: {initial: u0}}',
+        equations=' ["der(u) = -sqrt(u)"]',
+    )
     result = pgdcli.solve(pgdcli.parse_spec(spec, source="s.yaml"))
     assert not result.converged
     assert "not finite" in result.message and "sqrt or log of a negative number" in result.message
@@ -141,12 +142,12 @@ def test_march_reports_its_crosses_and_pgd_info_prints_them(tmp_path):
 
 
 def test_single_trajectory_with_a_function_of_the_unknown():
-    spec = """
-coordinates: {t: {domain: [0, 3]}}
-unknowns: {u: {initial: 1}}
-equations: ["der(u) = -sin(u) + exp(-u)*t"]
-solver: {tolerance: 1e-8}
-"""
+    spec = spec_text(
+        coordinates=' {t: {domain: [0, 3]}}',
+        unknowns=' {u: {initial: 1}}',
+        equations=' ["der(u) = -sin(u) + exp(-u)*t"]',
+        solver=' {tolerance: 1e-8}',
+    )
     result = pgdcli.solve(pgdcli.parse_spec(spec, source="one.yaml"))
     assert result.accurate, result.message
     ts = np.linspace(0, 3, 301)

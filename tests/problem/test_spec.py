@@ -10,6 +10,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from conftest import spec_text
 from pgdcli.errors import ExpressionError, SpecError
 from pgdcli.problem.expressions import Atom
 from pgdcli.problem.spec import Coordinate, Equation, Problem, SolverOptions, check_linear, load_spec, parse_spec
@@ -39,24 +40,8 @@ FULL = textwrap.dedent(
     """
 )
 
-MINIMAL = textwrap.dedent(
-    """\
-    coordinates:
-      t: {domain: [0, 1], nodes: 4}
-    unknowns:
-      u: {initial: 0}
-    equations:
-      - der(u) = -u
-    """
-)
-
-
-def spec(**sections: str) -> str:
-    """The minimal spec with some top-level sections replaced or added (YAML text values)."""
-    base = {"coordinates": "\n  t: {domain: [0, 1], nodes: 4}", "unknowns": "\n  u: {initial: 0}",
-            "equations": "\n  - der(u) = -u"}
-    base.update(sections)
-    return "".join(f"{key}:{value}\n" for key, value in base.items() if value is not None)
+MINIMAL = spec_text()  # the shared factory's minimal spec (tests/conftest.py)
+spec = spec_text  # the minimal spec with some top-level sections replaced, added or removed (None)
 
 
 def error_of(text: str, **kwargs) -> str:

@@ -12,7 +12,7 @@ import textwrap
 
 import numpy as np
 import pytest
-from conftest import EXACT, PROBLEMS, codebook_points, exact_spring, max_abs_error, random_points, assert_solved
+from conftest import EXACT, PROBLEMS, codebook_points, exact_spring, max_abs_error, random_points, assert_solved, spec_text
 from scipy.integrate import solve_ivp
 
 from pgdcli import Codebook, load_spec, parse_spec, solve
@@ -109,16 +109,11 @@ def test_linear_time_elements_converge_at_second_order():
 def test_linear_elements_exact_for_solution_linear_in_parameter():
     # u' = -u + a, u(0) = 0  ->  u = a (1 - exp(-t)): linear in a, so 3 hat functions are exact
     spec = textwrap.dedent(
-        """\
-        coordinates:
-          t: {domain: [0, 2], nodes: 20}
-          a: {domain: [-1, 2], nodes: 3, discretization: linear}
-        unknowns:
-          u: {initial: 0}
-        equations:
-          - der(u) = -u + a
-        solver: {tolerance: 1e-12}
-        """
+        spec_text(
+            coordinates={'t': '{domain: [0, 2], nodes: 20}', 'a': '{domain: [-1, 2], nodes: 3, discretization: linear}'},
+            equations=['der(u) = -u + a'],
+            solver=' {tolerance: 1e-12}',
+        )
     )
     result = solve(parse_spec(spec))
     assert result.converged, result.message
@@ -139,18 +134,12 @@ def test_galerkin_formulation_solves_parametric_problem():
 
 def test_coupled_system_with_time_dependent_coefficient_matches_solve_ivp():
     spec = textwrap.dedent(
-        """\
-        coordinates:
-          t: {domain: [0, 3], nodes: 40}
-          k: {domain: [1, 3], nodes: 16}
-        unknowns:
-          x: {initial: 1}
-          v: {initial: 0}
-        equations:
-          - der(x) = v
-          - der(v) = -k*x - 0.3*cos(t)*v + exp(-t)*k
-        solver: {tolerance: 1e-12}
-        """
+        spec_text(
+            coordinates={'t': '{domain: [0, 3], nodes: 40}', 'k': '{domain: [1, 3], nodes: 16}'},
+            unknowns={'x': '{initial: 1}', 'v': '{initial: 0}'},
+            equations=['der(x) = v', 'der(v) = -k*x - 0.3*cos(t)*v + exp(-t)*k'],
+            solver=' {tolerance: 1e-12}',
+        )
     )
     result = solve(parse_spec(spec))
     assert_solved(result)
@@ -181,16 +170,11 @@ def _solve_text(text):
 
 def test_time_need_not_be_the_first_coordinate():
     cb = _solve_text(
-        """\
-        coordinates:
-          k: {domain: [1, 10], nodes: 56}
-          t: {domain: [0, 10], nodes: 8}
-        unknowns:
-          u: {initial: 0}
-        equations:
-          - "k*(der(u) + 1) = 10"
-        solver: {tolerance: 1e-12}
-        """
+        spec_text(
+            coordinates={'k': '{domain: [1, 10], nodes: 56}', 't': '{domain: [0, 10], nodes: 8}'},
+            equations=['"k*(der(u) + 1) = 10"'],
+            solver=' {tolerance: 1e-12}',
+        )
     )
     assert cb.coordinate_names == ["k", "t"]
     p = random_points({"k": (1.0, 10.0), "t": (0.0, 10.0)}, 600, seed=31)
@@ -200,17 +184,13 @@ def test_time_need_not_be_the_first_coordinate():
 def test_shifted_time_origin_named_tau_and_expression_initial_value():
     # du/dtau = -k u, u(1) = exp(-k)  ->  u = exp(-k tau)
     cb = _solve_text(
-        """\
-        coordinates:
-          tau: {domain: [1, 3], nodes: 24}
-          k: {domain: [0.5, 2], nodes: 20}
-        time: tau
-        unknowns:
-          u: {initial: "exp(-k)"}
-        equations:
-          - der(u) = -k*u
-        solver: {tolerance: 1e-12}
-        """
+        spec_text(
+            coordinates={'tau': '{domain: [1, 3], nodes: 24}', 'k': '{domain: [0.5, 2], nodes: 20}'},
+            time=' tau',
+            unknowns={'u': '{initial: "exp(-k)"}'},
+            equations=['der(u) = -k*u'],
+            solver=' {tolerance: 1e-12}',
+        )
     )
     p = random_points({"tau": (1.0, 3.0), "k": (0.5, 2.0)}, 600, seed=32)
     assert np.max(np.abs(cb(**p)["u"] - np.exp(-p["k"] * p["tau"]))) <= 1e-10
@@ -219,16 +199,12 @@ def test_shifted_time_origin_named_tau_and_expression_initial_value():
 def test_time_dependent_coefficient_on_the_derivative():
     # (1 + t) u' = -k u, u(0) = 1  ->  u = (1 + t)^-k
     cb = _solve_text(
-        """\
-        coordinates:
-          t: {domain: [0, 2], nodes: 30}
-          k: {domain: [1, 2], nodes: 10}
-        unknowns:
-          u: {initial: 1}
-        equations:
-          - (1 + t)*der(u) = -k*u
-        solver: {tolerance: 1e-12}
-        """
+        spec_text(
+            coordinates={'t': '{domain: [0, 2], nodes: 30}', 'k': '{domain: [1, 2], nodes: 10}'},
+            unknowns={'u': '{initial: 1}'},
+            equations=['(1 + t)*der(u) = -k*u'],
+            solver=' {tolerance: 1e-12}',
+        )
     )
     p = random_points({"t": (0.0, 2.0), "k": (1.0, 2.0)}, 600, seed=33)
     assert np.max(np.abs(cb(**p)["u"] - (1.0 + p["t"]) ** -p["k"])) <= 1e-10
@@ -237,15 +213,12 @@ def test_time_dependent_coefficient_on_the_derivative():
 def test_problem_with_time_as_the_only_coordinate():
     # u' = -u + sin(t), u(0) = 1: no parameter coordinates at all
     cb = _solve_text(
-        """\
-        coordinates:
-          t: {domain: [0, 2], nodes: 24}
-        unknowns:
-          u: {initial: 1}
-        equations:
-          - der(u) = -u + sin(t)
-        solver: {tolerance: 1e-12}
-        """
+        spec_text(
+            coordinates={'t': '{domain: [0, 2], nodes: 24}'},
+            unknowns={'u': '{initial: 1}'},
+            equations=['der(u) = -u + sin(t)'],
+            solver=' {tolerance: 1e-12}',
+        )
     )
     t = random_points({"t": (0.0, 2.0)}, 600, seed=34)["t"]
     exact = 1.5 * np.exp(-t) + (np.sin(t) - np.cos(t)) / 2.0
@@ -254,15 +227,10 @@ def test_problem_with_time_as_the_only_coordinate():
 
 def test_zero_problem_gives_zero_codebook(tmp_path):
     cb = _solve_text(
-        """\
-        coordinates:
-          t: {domain: [0, 1], nodes: 6}
-          k: {domain: [0.5, 2], nodes: 5}
-        unknowns:
-          u: {initial: 0}
-        equations:
-          - der(u) = -k*u
-        """
+        spec_text(
+            coordinates={'t': '{domain: [0, 1], nodes: 6}', 'k': '{domain: [0.5, 2], nodes: 5}'},
+            equations=['der(u) = -k*u'],
+        )
     )
     cb.save(tmp_path / "zero.h5")
     out = Codebook.load(tmp_path / "zero.h5")(t=[0.0, 0.5, 1.0], k=1.0)["u"]

@@ -15,61 +15,36 @@ import pytest
 from click.testing import CliRunner
 from threadpoolctl import threadpool_limits
 
+from conftest import spec_text
 import pgdcli
 from pgdcli import parse_spec
 from pgdcli.adapt import INACCURATE
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, InaccurateCodebookWarning
 
-OSCILLATOR = """
-name: oscillator
-coordinates:
-  t: {domain: [0, 5]}
-  k: {domain: [1, 4]}
-  c: {domain: [0.1, 0.5]}
-  x0: {domain: [-1, 1]}
-unknowns:
-  x: {initial: x0}
-  v: {initial: 0}
-equations:
-  - "der(x) = v"
-  - "der(v) = -k*x - c*v"
-solver:
-  tolerance: 1e-6
-"""
+OSCILLATOR = spec_text(
+    name=' oscillator',
+    coordinates={'t': '{domain: [0, 5]}', 'k': '{domain: [1, 4]}', 'c': '{domain: [0.1, 0.5]}', 'x0': '{domain: [-1, 1]}'},
+    unknowns={'x': '{initial: x0}', 'v': '{initial: 0}'},
+    equations=['"der(x) = v"', '"der(v) = -k*x - c*v"'],
+    solver={'tolerance': '1e-6'},
+)
 
-SIR = """
-name: sir
-coordinates:
-  t: {domain: [0, 20]}
-  b: {domain: [0.8, 1.2]}
-  g: {domain: [0.2, 0.4]}
-unknowns:
-  S: {initial: 0.99}
-  I: {initial: 0.01}
-  R: {initial: 0}
-equations:
-  - "der(S) = -b*S*I"
-  - "der(I) = b*S*I - g*I"
-  - "der(R) = g*I"
-solver:
-  tolerance: 1e-6
-"""
+SIR = spec_text(
+    name=' sir',
+    coordinates={'t': '{domain: [0, 20]}', 'b': '{domain: [0.8, 1.2]}', 'g': '{domain: [0.2, 0.4]}'},
+    unknowns={'S': '{initial: 0.99}', 'I': '{initial: 0.01}', 'R': '{initial: 0}'},
+    equations=['"der(S) = -b*S*I"', '"der(I) = b*S*I - g*I"', '"der(R) = g*I"'],
+    solver={'tolerance': '1e-6'},
+)
 
-COARSE = """
-name: coarse
-coordinates:
-  t: {domain: [0, 5], nodes: 12}
-  k: {domain: [1, 4], nodes: 5}
-unknowns:
-  x: {initial: 1}
-  v: {initial: 0}
-equations:
-  - "der(x) = v"
-  - "der(v) = -k*x"
-solver:
-  tolerance: 1e-6
-"""
+COARSE = spec_text(
+    name=' coarse',
+    coordinates={'t': '{domain: [0, 5], nodes: 12}', 'k': '{domain: [1, 4], nodes: 5}'},
+    unknowns={'x': '{initial: 1}', 'v': '{initial: 0}'},
+    equations=['"der(x) = v"', '"der(v) = -k*x"'],
+    solver={'tolerance': '1e-6'},
+)
 
 
 def _max_error_vs_solve_ivp(cb, rhs, initial, n=300, seed=5):
@@ -165,18 +140,13 @@ def test_an_accurate_codebook_loads_without_warning(tmp_path):
     assert cb.accurate is True and cb.info()["accurate"] is True
 
 
-DECAY = """
-name: decay
-coordinates:
-  t: {domain: [0, 1], nodes: 8}
-  k: {domain: [0.5, 2], nodes: 5}
-unknowns:
-  u: {initial: 1}
-equations:
-  - "der(u) = -k*u"
-solver:
-  tolerance: 1e-9
-"""
+DECAY = spec_text(
+    name=' decay',
+    coordinates={'t': '{domain: [0, 1], nodes: 8}', 'k': '{domain: [0.5, 2], nodes: 5}'},
+    unknowns={'u': '{initial: 1}'},
+    equations=['"der(u) = -k*u"'],
+    solver={'tolerance': '1e-9'},
+)
 
 
 def test_relative_tolerance_relaxes_the_bound_where_the_solution_is_large():
@@ -196,24 +166,19 @@ def test_relative_tolerance_relaxes_the_bound_where_the_solution_is_large():
 
 
 def test_max_nodes_reached_is_an_honest_refusal():
-    text = OSCILLATOR + "  max_nodes: 9\n"
+    text = spec_text(OSCILLATOR, solver={"tolerance": "1e-6", "max_nodes": "9"})
     result = pgdcli.solve(parse_spec(text, source="capped.yaml"))
     assert result.status == INACCURATE and result.accurate is False
     assert "solver.max_nodes = 9" in result.message and "lacks resolution" in result.message
 
 
-RUNGE = """
-name: runge
-coordinates:
-  t: {domain: [0, 1]}
-  p: {domain: [0, 1]}
-unknowns:
-  u: {initial: "1/(1 + 400*(p - 0.3)**2)"}
-equations:
-  - "der(u) = -u"
-solver:
-  tolerance: 1e-6
-"""
+RUNGE = spec_text(
+    name=' runge',
+    coordinates={'t': '{domain: [0, 1]}', 'p': '{domain: [0, 1]}'},
+    unknowns={'u': '{initial: "1/(1 + 400*(p - 0.3)**2)"}'},
+    equations=['"der(u) = -u"'],
+    solver={'tolerance': '1e-6'},
+)
 
 
 def test_a_sharp_feature_in_a_parameter_gets_elements_where_it_is():

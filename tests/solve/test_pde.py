@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-from conftest import codebook_points, assert_solved
+from conftest import codebook_points, assert_solved, spec_text
 from pgdcli.cli.main import cli
 from pgdcli.errors import SolverError, SpecError
 
@@ -57,20 +57,12 @@ def test_dirichlet_values_hold_exactly_on_the_boundary(heat2d):
 
 
 def test_neumann_only_problem():
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 18}
-  t: {domain: [0, 0.3], nodes: 20}
-  kappa: {domain: [0.2, 1], nodes: 14}
-unknowns:
-  u:
-    initial: "1 + cos(pi*x)"
-    boundary:
-      x: {low: {gradient: 0}, high: {gradient: 0}}
-equations:
-  - "der(u) = kappa*der(u, x, 2)"
-solver: {tolerance: 1e-11}
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 18}', 't': '{domain: [0, 0.3], nodes: 20}', 'kappa': '{domain: [0.2, 1], nodes: 14}'},
+        unknowns={'u': '\n    initial: "1 + cos(pi*x)"\n    boundary:\n      x: {low: {gradient: 0}, high: {gradient: 0}}'},
+        equations=['"der(u) = kappa*der(u, x, 2)"'],
+        solver=' {tolerance: 1e-11}',
+    )
     result = pgdcli.solve(pgdcli.parse_spec(text, source="neumann.yaml"))
     assert_solved(result)
     p = codebook_points(result.codebook, 500, 4)
@@ -80,20 +72,12 @@ solver: {tolerance: 1e-11}
 
 def test_nonzero_neumann_flux_enters_through_the_weak_form():
     # u_t = u_xx, u_x(0) = a, u_x(1) = a, u(x, 0) = a x + cos(pi x): u = a x + exp(-pi^2 t) cos(pi x)
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 18}
-  t: {domain: [0, 0.2], nodes: 20}
-  a: {domain: [-1, 1], nodes: 2, discretization: linear}
-unknowns:
-  u:
-    initial: "a*x + cos(pi*x)"
-    boundary:
-      x: {low: {gradient: a}, high: {gradient: a}}
-equations:
-  - "der(u) = der(u, x, 2)"
-solver: {tolerance: 1e-11}
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 18}', 't': '{domain: [0, 0.2], nodes: 20}', 'a': '{domain: [-1, 1], nodes: 2, discretization: linear}'},
+        unknowns={'u': '\n    initial: "a*x + cos(pi*x)"\n    boundary:\n      x: {low: {gradient: a}, high: {gradient: a}}'},
+        equations=['"der(u) = der(u, x, 2)"'],
+        solver=' {tolerance: 1e-11}',
+    )
     result = pgdcli.solve(pgdcli.parse_spec(text, source="flux.yaml"))
     assert_solved(result)
     p = codebook_points(result.codebook, 500, 5)

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 import pgdcli
-from conftest import codebook_points, assert_solved
+from conftest import codebook_points, assert_solved, spec_text
 from pgdcli.cli.main import cli
 from pgdcli.errors import SolverError, SpecError
 from pgdcli.checks.reference import solve_reference, solve_reference_pde
@@ -61,21 +61,12 @@ def test_poisson_dirichlet_values_hold_on_the_boundary(poisson):
 def test_dirichlet_on_every_side_with_values_of_the_other_space_coordinate():
     # u = a (x^2 - y^2) + b x y is harmonic; its boundary values depend on the other space
     # coordinate and on both parameters, and agree at the corners
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 6}
-  y: {domain: [-1, 2], nodes: 7}
-  a: {domain: [-1, 1], nodes: 3}
-  b: {domain: [0, 2], nodes: 3}
-unknowns:
-  u:
-    boundary:
-      x: {low: "-a*y**2", high: "a*(1 - y**2) + b*y"}
-      y: {low: "a*(x**2 - 1) - b*x", high: "a*(x**2 - 4) + 2*b*x"}
-equations:
-  - "der(u, x, 2) + der(u, y, 2) = 0"
-solver: {tolerance: 1e-14}
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 6}', 'y': '{domain: [-1, 2], nodes: 7}', 'a': '{domain: [-1, 1], nodes: 3}', 'b': '{domain: [0, 2], nodes: 3}'},
+        unknowns={'u': '\n    boundary:\n      x: {low: "-a*y**2", high: "a*(1 - y**2) + b*y"}\n      y: {low: "a*(x**2 - 1) - b*x", high: "a*(x**2 - 4) + 2*b*x"}'},
+        equations=['"der(u, x, 2) + der(u, y, 2) = 0"'],
+        solver=' {tolerance: 1e-14}',
+    )
     cb = _solve(text).codebook
     p = codebook_points(cb, 500, 3)
     exact = p["a"] * (p["x"] ** 2 - p["y"] ** 2) + p["b"] * p["x"] * p["y"]
@@ -85,19 +76,12 @@ solver: {tolerance: 1e-14}
 
 def test_reaction_with_a_neumann_flux_as_a_coordinate():
     # u'' = c u, u(0) = 1, u'(1) = h: u = cosh(r x) + B sinh(r x), r = sqrt(c)
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 24}
-  c: {domain: [1, 4], nodes: 16}
-  h: {domain: [-1, 1], nodes: 2, discretization: linear}
-unknowns:
-  u:
-    boundary:
-      x: {low: 1, high: {gradient: h}}
-equations:
-  - "der(u, x, 2) - c*u = 0"
-solver: {tolerance: 1e-12}
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 24}', 'c': '{domain: [1, 4], nodes: 16}', 'h': '{domain: [-1, 1], nodes: 2, discretization: linear}'},
+        unknowns={'u': '\n    boundary:\n      x: {low: 1, high: {gradient: h}}'},
+        equations=['"der(u, x, 2) - c*u = 0"'],
+        solver=' {tolerance: 1e-12}',
+    )
     cb = _solve(text).codebook
     p = codebook_points(cb, 600, 4)
     r = np.sqrt(p["c"])
@@ -109,18 +93,12 @@ solver: {tolerance: 1e-12}
 def test_coupled_steady_system():
     # a simply supported beam as two second-order equations: u'' = v, v'' = -q pi^4 sin(pi x)
     # exact u = -q sin(pi x), v = q pi^2 sin(pi x)
-    text = """
-coordinates:
-  x: {domain: [0, 1], nodes: 22}
-  q: {domain: [0.5, 2], nodes: 2, discretization: linear}
-unknowns:
-  u: {boundary: {x: {low: 0, high: 0}}}
-  v: {boundary: {x: {low: 0, high: 0}}}
-equations:
-  - "der(u, x, 2) - v = 0"
-  - "der(v, x, 2) + q*pi**4*sin(pi*x) = 0"
-solver: {tolerance: 1e-12}
-"""
+    text = spec_text(
+        coordinates={'x': '{domain: [0, 1], nodes: 22}', 'q': '{domain: [0.5, 2], nodes: 2, discretization: linear}'},
+        unknowns={'u': '{boundary: {x: {low: 0, high: 0}}}', 'v': '{boundary: {x: {low: 0, high: 0}}}'},
+        equations=['"der(u, x, 2) - v = 0"', '"der(v, x, 2) + q*pi**4*sin(pi*x) = 0"'],
+        solver=' {tolerance: 1e-12}',
+    )
     cb = _solve(text).codebook
     p = codebook_points(cb, 300, 5)
     out = cb(**p)

@@ -1,0 +1,322 @@
+"""One point through a codebook: per-coordinate interpolation weights and the tensor-train stack.
+
+A query of one point (``pgd query`` of a few points, a fit's residual) is dominated by call
+overhead, not flops: the classes here precompute, per coordinate, its nodes, barycentric weights
+and windows (:class:`PointData`) and, for the tensor-train unknowns, their cores as contiguous
+tables (:class:`TTStack`), so a point costs one small BLAS call and one batched product per core.
+numpy only (the query path). Measurements: benchmarks/query_speed_tt.py, benchmarks/README.md.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from operator import itemgetter
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..discretization.coordinates import CoordinateInfo
+from ..errors import QueryError
+from .fields import FieldTT
+
+__all__ = ["PointData", "TTStack", "outside_error"]
+
+# One-point tensor trains: cores with up to this many values per node (all unknowns) go through
+# their node table (see TTStack); the gemv's output then fits the first-level cache (32 KiB).
+ROW_FIRST_MAX = 4096
+PAIR_MAX = 1 << 20  # values in the merged table of the first two cores (8 MiB)
+_add_reduce, _dot, _matmul = np.add.reduce, np.dot, np.matmul
+
+
+class PointData:
+    """Constants of one coordinate for the one-point path of :meth:`Codebook.evaluate`."""
+
+    __slots__ = ("name", "domain", "low", "high", "lower", "upper", "chebyshev", "nodes", "node_list",
+                 "node_index", "bary", "unit", "modes", "basis", "piecewise", "breaks", "slab", "slab_nodes",
+                 "bounds")
+
+    def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
+        low, high = c.domain
+        slack = 1e-12 * max(1.0, abs(low), abs(high))  # as Codebook._checked
+        self.name, self.domain = c.name, c.domain
+        self.low, self.high = float(low), float(high)
+        self.lower, self.upper = low - slack, high + slack
+        self.chebyshev = basis.kind == "chebyshev"
+        self.nodes = basis.nodes
+        self.node_list = basis.nodes.tolist()
+        self.node_index = {v: k for k, v in enumerate(self.node_list)}
+        self.bary = getattr(basis, "bary", None)
+        self.unit = np.eye(basis.size)
+        self.modes = modes
+        self.basis = basis
+        self.piecewise = bool(getattr(basis, "slab_size", 0))
+        self.breaks = list(getattr(basis, "breakpoints", ()))[1:-1]  # interior breakpoints
+        self.slab = int(getattr(basis, "slab_size", 0))
+        # each slab's nodes as its own array: a point's slab costs a list lookup, not a slice
+        self.slab_nodes = [basis.nodes[s * (self.slab - 1): s * (self.slab - 1) + self.slab]
+                           for s in range(len(self.breaks) + 1)] if self.piecewise else []
+        self.bounds = self.window_bounds()
+
+    def clipped(self, x: float) -> float:
+        """``x`` checked against the domain (with its slack) and clipped into it, as the batch path."""
+        if not (x >= self.lower and x <= self.upper):
+            raise outside_error(self, x)
+        x = x if x > self.low else self.low
+        return x if x < self.high else self.high
+
+    def row(self, x: float) -> np.ndarray:
+        """The cardinal row (a unit row at a node) of the clipped value ``x``, shape (nodes,)."""
+        k, c = self.weights(x)
+        if c is None:
+            return self.unit[k]
+        if self.chebyshev and not self.piecewise:
+            return c / _add_reduce(c)
+        lo, hi = self.bounds[k]
+        row = np.zeros(self.nodes.size)
+        row[lo:hi] = c / _add_reduce(c) if self.piecewise else c  # linear: (1 - theta, theta) as they are
+        return row
+
+    def windows(self, table: np.ndarray) -> list[np.ndarray]:
+        """The row blocks of ``table`` (one row per node) that :meth:`weights` selects.
+
+        One block for a Chebyshev coordinate, one per slab for a piecewise one,
+        one per element (two nodes) for a linear one. Row slices of a C-ordered
+        table: contiguous views, so BLAS takes them as they are.
+        """
+        return [table[lo:hi] for lo, hi in self.window_bounds()]
+
+    def window_bounds(self) -> list[tuple[int, int]]:
+        """Node ranges ``(lo, hi)`` of the windows (see :meth:`windows`)."""
+        if self.piecewise:
+            step = self.slab - 1
+            return [(s * step, s * step + self.slab) for s in range(len(self.slab_nodes))]
+        if self.chebyshev:
+            return [(0, len(self.node_list))]
+        return [(k, k + 2) for k in range(len(self.node_list) - 1)]
+
+    def weights(self, x: float) -> tuple[int, np.ndarray | None]:
+        """Interpolation weights of the clipped value ``x``, not divided by their sum.
+
+        Returns
+        -------
+        (k, None)
+            ``x`` is node ``k`` (its row is the unit row ``k``).
+        (k, c)
+            The row is ``c / c.sum()`` on the nodes of window ``k`` of :meth:`windows`
+            (barycentric weights ``bary / (x - nodes)``, or ``(1 - theta, theta)``).
+            The caller divides once by the product of the sums over all coordinates,
+            which saves a reduction and a division per coordinate.
+        """
+        k = self.node_index.get(x)
+        if k is not None:
+            return k, None
+        if self.piecewise:  # the slab of x (a breakpoint is a node: handled above)
+            s = bisect_right(self.breaks, x)
+            return s, self.bary / (x - self.slab_nodes[s])
+        if self.chebyshev:
+            return 0, self.bary / (x - self.nodes)
+        nodes = self.node_list
+        left = min(max(bisect_right(nodes, x) - 1, 0), len(nodes) - 2)
+        theta = (x - nodes[left]) / (nodes[left + 1] - nodes[left])
+        return left, np.array((1.0 - theta, theta))
+
+
+class TTStack:
+    """The tensor-train unknowns that share a core order, zero-padded to common ranks.
+
+    One point costs one BLAS call and one batched product per core for all
+    those unknowns at once (padding with zeros leaves every product unchanged).
+    Most cores are kept as a table with one row per node: the stacked slices
+    ``G[:, :, x_k, :]`` of every unknown, flattened to ``q r0 r1`` values, and a
+    last column of ones. The point's weights times (a window of) the table give
+    every unknown's interpolated core slice and, in the last column, the sum of
+    the weights; the slices are chained by one batched product. Cores of more
+    than ``ROW_FIRST_MAX`` slice values are contracted with the running vector
+    first instead (``(q, 1, r0) @ (q, r0, n r1)``): that product's output stays
+    in the first-level cache, where the table's would not (measured: a (74, 8, 63)
+    core of 6 unknowns took 33 us that way, 44 us through the table).
+
+    The first two cores are merged into one table (see :meth:`_pair`) when the
+    first coordinate's window (a time slab: 6-8 nodes) is narrower than the
+    bond between them: fewer flops and one product less (coupled: 4.5 -> 2.5 us).
+
+    The train is contracted from both ends: the head (the merged pair, or the
+    first core) from the left into ``(q, 1, r)``, the tail (every later core)
+    from the right into ``(q, r, 1)``. The tail's vector of the last point is
+    kept with the tail coordinates' values: a time series at fixed parameters
+    (the first core is the time coordinate's in the march's codebooks) then
+    costs the head only. The tail reads the same bytes from either end.
+    """
+
+    def __init__(self, names: list[str], cores: list[np.ndarray], order: tuple[int, ...], points: Sequence):
+        self.names = names
+        self.index = {u: i for i, u in enumerate(names)}
+        self.order = order
+        self.points = list(points)
+        self.pair = None
+        if len(cores) > 1 and self._merges(cores[0], cores[1], points[order[0]]):
+            self.pair = self._pair(order[0], order[1], cores[0], cores[1], points)
+            self.head = None
+            order, cores = order[2:], cores[2:]
+        else:
+            self.head = self._table(order[0], cores[0], points[order[0]])
+            order, cores = order[1:], cores[1:]
+        # the tail's cores, last first: (coordinate index, through the table?, rows by node, windows, shape)
+        self.tail = [self._table(j, core, points[j], True) if core.size <= ROW_FIRST_MAX * core.shape[2]
+                     else self._vector_first(j, core, points[j]) for j, core in zip(order[::-1], cores[::-1])]
+        self.tail_coordinates = tuple(j for j, *_ in self.tail)
+        # the cache key: the tail coordinates' values (a tuple, or the one value; () without a tail)
+        self._tail_key = itemgetter(*self.tail_coordinates) if self.tail_coordinates else (lambda xs: ())
+        self.head_coordinates = tuple(j for j in range(len(points)) if j not in self.tail_coordinates)
+        self._cache = None  # (tail coordinates' values, tail vector (q, 1, r), its scale)
+
+    @staticmethod
+    def _table(j: int, core: np.ndarray, point: PointData, transposed: bool = False) -> tuple:
+        """A core as a table of one row per node: the stacked slices (q r0 r1 values, or with
+        ``transposed`` the slices' transposes, q r1 r0) and a one (the weights' sum)."""
+        q, r0, n, r1 = core.shape
+        table = np.empty((n, q * r0 * r1 + 1))
+        table[:, :-1] = core.transpose(2, 0, 3, 1).reshape(n, -1) if transposed else \
+            core.transpose(2, 0, 1, 3).reshape(n, -1)
+        table[:, -1] = 1.0  # the weights' sum
+        return j, True, table, point.windows(table), (q, r1, r0) if transposed else (q, r0, r1)
+
+    @staticmethod
+    def _vector_first(j: int, core: np.ndarray, point: PointData) -> tuple:
+        """A tail core contracted with the running row vector (q, 1, r1) before the weights: per
+        window, the core as (q, r1, r0 w), contiguous (the product reads it row by row), and the
+        shape (q, r0, w) of the product's result."""
+        q, r0, n, r1 = core.shape
+        swapped = np.ascontiguousarray(core.transpose(0, 3, 1, 2))  # (q, r1, r0, n)
+        by_node = [swapped[:, :, :, k] for k in range(n)]  # strided (q, r1, r0) views: BLAS takes them
+        windows = []
+        for lo, hi in point.window_bounds():
+            window = np.ascontiguousarray(swapped[:, :, :, lo:hi]).reshape(q, r1, r0 * (hi - lo))
+            windows.append((window, (q, r0, hi - lo)))
+        return j, False, by_node, windows, (q, r1)
+
+    @staticmethod
+    def _merges(first: np.ndarray, second: np.ndarray, point: PointData) -> bool:
+        """Whether the first two cores are cheaper merged: per point ``w n2 q r2`` multiply-adds
+        instead of ``w q r1 + n2 q r1 r2`` (w: the first coordinate's window) and one product less."""
+        q, _, n1, r1 = first.shape
+        _, _, n2, r2 = second.shape
+        width = max(hi - lo for lo, hi in point.window_bounds())
+        return width < r1 and n2 * (q * r2 + 1) <= ROW_FIRST_MAX and n1 * n2 * (q * r2 + 1) <= PAIR_MAX
+
+    @staticmethod
+    def _pair(j1: int, j2: int, first: np.ndarray, second: np.ndarray, points: Sequence) -> tuple:
+        """The first two cores as one table: row ``k1`` holds, for every node ``k2`` of the second
+        coordinate, the stacked ``G1[:, 0, k1, :] G2[:, :, k2, :]`` (``q r2`` values) and a one."""
+        q, _, n1, _ = first.shape
+        _, _, n2, r2 = second.shape
+        table = np.empty((n1, n2, q * r2 + 1))
+        table[:, :, :-1] = np.einsum("iar,irbs->abis", first[:, 0], second).reshape(n1, n2, q * r2)
+        table[:, :, -1] = 1.0  # the first weights' sum, then (second gemv) the product of both sums
+        table = table.reshape(n1, -1)
+        return (j1, j2, table, points[j1].windows(table), points[j2].window_bounds(), (n2, q * r2 + 1),
+                (q, r2, 1))
+
+    def _at_pair(self, weights: list) -> tuple[np.ndarray, float]:
+        """The head's vector after the merged first two cores, as a column (q, r2, 1), and its scale."""
+        j1, j2, table, windows, bounds, middle, shape = self.pair
+        k, c = weights[j1]
+        row = (table[k] if c is None else _dot(c, windows[k])).reshape(middle)  # (n2, q r2 + 1)
+        k, c = weights[j2]
+        if c is None:
+            row = row[k]
+        else:
+            lo, hi = bounds[k]
+            row = _dot(c, row[lo:hi])
+        return row[:-1].reshape(shape), row[-1]
+
+    def at_point(self, xs: list[float]) -> list[float]:
+        """Values of the stacked unknowns at one point (``xs``: a value per coordinate, codebook order).
+
+        Raises QueryError for the first coordinate (codebook order) outside its domain.
+        """
+        points = self.points
+        key = self._tail_key(xs)
+        cache = self._cache
+        if cache is not None and cache[0] == key:  # the tail's values were checked when cached
+            weights = [None] * len(points)
+            for j in self.head_coordinates:
+                p = points[j]
+                weights[j] = p.weights(p.clipped(xs[j]))
+            tail, tail_scale = cache[1], cache[2]
+        else:
+            weights = [p.weights(p.clipped(x)) for x, p in zip(xs, points)]
+            tail, tail_scale = self._at_tail(weights)
+            self._cache = (key, tail, tail_scale)  # one assignment: other threads see old or new
+        if self.pair is not None:
+            v, scale = self._at_pair(weights)
+        else:
+            j, _, rows, windows, shape = self.head
+            k, c = weights[j]
+            row = rows[k] if c is None else _dot(c, windows[k])  # the core slice at x, and sum(c)
+            v, scale = row[:-1].reshape(shape[0], shape[2], 1), row[-1]  # (q, 1, r1) as a column
+        if tail is not None:
+            v = _matmul(tail, v)  # (q, 1, r) @ (q, r, 1)
+        scale = float(scale * tail_scale)
+        return [value / scale for value in v.reshape(-1).tolist()]
+
+    def _at_tail(self, weights: list) -> tuple[np.ndarray | None, float]:
+        """The tail contracted from the right at the point's ``weights``: a row (q, 1, r) and its scale (None: no tail).
+
+        The running vector is a row (q, 1, r1) times the transposed slices (q, r1, r0): every
+        product then reads its matrix row by row, as the head's do (measured: the (74, 8, 63)
+        core of 6 unknowns 7% faster than as (q, r0 w, r1) times a column).
+        """
+        v, scale = None, 1.0
+        for j, through_table, rows, windows, shape in self.tail:
+            k, c = weights[j]
+            if through_table:
+                row = rows[k] if c is None else _dot(c, windows[k])  # the core slice at x, and sum(c)
+                scale *= row[-1]
+                g = row[:-1].reshape(shape)  # (q, r1, r0); the last core's (r1 = 1) is the row itself
+                v = g if v is None else _matmul(v, g)  # (q, 1, r0)
+                continue
+            if v is None:
+                v = np.ones((shape[0], 1, 1))  # (q, 1, r_d = 1)
+            if c is None:
+                v = _matmul(v, rows[k])
+            else:
+                window, shape = windows[k]
+                scale *= _add_reduce(c)
+                v = _matmul(_matmul(v, window).reshape(shape), c).reshape(shape[0], 1, -1)  # (q, r0, w) @ (w,)
+        return v, scale
+
+    @classmethod
+    def build(cls, fields: Mapping, points: Sequence) -> "TTStack | None":
+        """The stack of the tensor-train unknowns that share the first one's core order (None: no train).
+
+        Parameters
+        ----------
+        fields : mapping
+            Unknown name -> field (only the ``FieldTT`` ones are stacked).
+        points : sequence of PointData
+            Per coordinate (codebook order).
+        """
+        tts = {u: f for u, f in fields.items() if isinstance(f, FieldTT)}
+        if not tts:
+            return None
+        order = next(iter(tts.values())).mode_order
+        names = [u for u, f in tts.items() if f.mode_order == order]
+        d = len(order)
+        ranks = [1] + [max(tts[u].cores[k].shape[2] for u in names) for k in range(d - 1)] + [1]
+        cores = []
+        for k in range(d):
+            n = tts[names[0]].cores[k].shape[1]
+            stack = np.zeros((len(names), ranks[k], n, ranks[k + 1]))
+            for i, u in enumerate(names):
+                c = tts[u].cores[k]
+                stack[i, : c.shape[0], :, : c.shape[2]] = c
+            cores.append(stack)
+        return cls(names, cores, order, points)
+
+
+def outside_error(p: PointData, x: float) -> QueryError:
+    """The out-of-domain error of one point (the batch path's message)."""
+    low, high = p.domain
+    return QueryError(f"coordinate {p.name!r}: value {x!r} is outside the domain [{low:g}, {high:g}]")
+

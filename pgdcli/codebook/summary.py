@@ -1,0 +1,107 @@
+"""A codebook's summary as plain Python data (what ``pgd info`` prints), read from its report.
+
+numpy only (``pgd info`` reads codebooks on machines without the solver).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .fields import FieldTT
+from .io import FORMAT_NAME, FORMAT_VERSION
+
+__all__ = ["accurate", "nodes_chosen", "summary"]
+
+
+def accurate(report) -> bool | None:
+    """True: the measured error met the tolerance; False: written anyway (``--keep-inaccurate``);
+    None: not measured (an older codebook, or a reference that could not run)."""
+    value = report.get("accurate")
+    if value is None or int(value) < 0:
+        return None
+    return bool(int(value))
+
+
+def nodes_chosen(report, coordinate_names) -> dict | None:
+    """The automatic resolution's solves (see :meth:`Codebook.nodes_chosen`); None without them."""
+    if "resolution_rounds" not in report:
+        return None
+    rounds = np.asarray(report["resolution_rounds"], dtype=float)
+    auto = [n for n in str(report.get("resolution_auto", "")).split(",") if n]
+    return {"automatic": auto, "reason": str(report.get("resolution_reason", "")),
+            "rounds": [{"nodes": {c: int(n) for c, n in zip(coordinate_names, row[:-1])},
+                        "ratio": float(row[-1]) if np.isfinite(row[-1]) else None} for row in rounds]}
+
+
+def field_summary(fm) -> dict:
+    """Representation, modes (or ranks) and stored floats of one field."""
+    if isinstance(fm, FieldTT):
+        return {"representation": "tensor-train", "modes": fm.rank, "ranks": list(fm.ranks), "floats": fm.size}
+    return {"representation": "cp", "modes": fm.rank, "floats": int(fm.alphas.size + sum(m.size for m in fm.modes))}
+
+
+def summary(cb, path: str | os.PathLike | None = None) -> dict:
+    """:meth:`Codebook.info`: the codebook's description, coordinates, fields and solver report."""
+    rep = cb.report
+    out = {
+        "name": cb.name,
+        "description": cb.description,
+        "format": f"{FORMAT_NAME} {FORMAT_VERSION}",
+        "created": cb.created,
+        "coordinates": [
+            {"name": c.name, "role": c.role, "domain": [c.domain[0], c.domain[1]], "nodes": c.nodes,
+             "discretization": c.discretization,
+             **({"elements": len(c.breakpoints) - 1} if c.breakpoints and c.role != "time" else {})}
+            for c in cb.coordinates
+        ],
+        "unknowns": {u: field_summary(fm) for u, fm in cb.fields.items()},
+        "method": str(rep.get("method", "pgd")),
+        "converged": bool(rep.get("converged", False)),
+        "accurate": accurate(rep),
+        "relative_tolerance": float(rep.get("relative_tolerance", 0.0)),
+        "residual": float(rep.get("residual", np.nan)),
+        "tolerance": float(rep.get("tolerance", np.nan)),
+        "solve_time": float(rep.get("wall_time", np.nan)),
+        "pgdcli_version": str(rep.get("pgdcli_version", "")),
+    }
+    if "roundings_exact" in rep:
+        out["roundings"] = {k: int(rep[f"roundings_{k}"]) for k in ("exact", "sketched", "redone")}
+    if "crosses" in rep:  # functions of the unknowns, by cross approximation (pgdcli.algorithms.general_rhs)
+        out["crosses"] = {"count": int(rep["crosses"]), "not_converged": int(rep["crosses_not_converged"]),
+                          "evaluations": int(rep["cross_evaluations"]), "max_rank": int(rep["cross_max_rank"]),
+                          "failure": str(rep["cross_failure"])}
+    if "check_error" in rep:
+        out["check"] = _check_summary(rep)
+    if "resolution_rounds" in rep:
+        out["nodes_chosen"] = nodes_chosen(rep, [c.name for c in cb.coordinates])
+    if "rates" in rep:  # {rate unknown: the unknown it is the time derivative of}
+        out["rates"] = dict(pair.split("=", 1) for pair in str(rep["rates"]).split(",") if "=" in pair)
+    if "separated_coefficients" in rep:  # how many terms each non-separable coefficient needed
+        out["separated_coefficients"] = [line for line in str(rep["separated_coefficients"]).split("; ") if line]
+    if "resolution" in rep and "resolution_coordinates" in rep:
+        names = str(rep["resolution_coordinates"]).split(",")
+        table = np.asarray(rep["resolution"], dtype=float)
+        out["resolution"] = {u: {c: (float(v) if np.isfinite(v) else None) for c, v in zip(names, row)}
+                             for u, row in zip(cb.fields, table)}
+    if path is not None:
+        out["size_bytes"] = os.path.getsize(path)
+    return out
+
+
+def _check_summary(rep) -> dict:
+    """The solve-time check's entries (JSON has no NaN: an unchecked march gives None)."""
+    def finite(key):
+        v = float(rep[key])
+        return v if np.isfinite(v) else None
+
+    out = {"error": finite("check_error"), "node_error": finite("check_node_error"),
+           "between_error": finite("check_between_error"), "points": int(rep["check_points"]),
+           "failed": int(rep["check_failed"]), "where": str(rep["check_where"])}
+    for key, name in (("check_ratio", "ratio"), ("march_tolerance", "march_tolerance")):
+        if key in rep:
+            out[name] = finite(key)
+    if "check_method" in rep:
+        out["method"] = str(rep["check_method"])
+    return out
