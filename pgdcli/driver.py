@@ -67,6 +67,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         :data:`pgdcli.adapt.INACCURATE` and a message saying where and why.
     """
     from .adapt import solve_to_tolerance
+    from .problem.compatibility import check_initial_meets_boundary
     from .problem.spec import Problem, load_spec
 
     if not isinstance(problem, Problem):
@@ -81,6 +82,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         raise SolverError(f"relative_tolerance must be in [0, 1), got {rtol}")
     if nmax < 1:
         raise SolverError(f"max_modes must be at least 1, got {nmax}")
+    check_initial_meets_boundary(problem, tol, rtol)
     march = _use_march(problem)
     # the solver's own target (RMS of the march, residual of the enrichment) that met the tolerance at
     # the nodes is carried from one round of the automatic resolution to the next: the error at the

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import SolverError
+from ..problem.compatibility import check_initial_meets_boundary
 from ..tensors.cp import CPTensor, SeparatedOperator
 from .basis import Basis1D
 from .coefficients import SEPARATION_FRACTION, nodal_terms
@@ -147,24 +148,8 @@ def _merge_terms(terms: list[tuple[np.ndarray, ...]]) -> list[tuple[np.ndarray, 
 
 def _check_compatible_initial_values(problem, bases) -> None:
     """A Dirichlet value must equal the initial value there: the lift u0 carries it for all times."""
-    rng = np.random.default_rng(0)
-    for u in problem.unknowns:
-        for coord, ends in u.boundary.items():
-            for side, bc in enumerate(ends):
-                if bc.kind != "value":
-                    continue
-                others = {c.name: rng.uniform(*c.domain, 16) for c in problem.coordinates
-                          if c.name not in (coord, problem.time)}
-                at = {**others, coord: np.full(16, problem.coordinate(coord).domain[side])}
-                initial = np.broadcast_to(u.initial.evaluate(**at), (16,)) if u.initial.terms else np.zeros(16)
-                value = np.broadcast_to(bc.value.evaluate(**others), (16,)) if bc.value.terms else np.zeros(16)
-                scale = max(1.0, float(np.max(np.abs(value))))
-                if np.max(np.abs(initial - value)) > 1e-9 * scale:
-                    end = ("low", "high")[side]
-                    raise SolverError(
-                        f"{problem.source}: unknowns.{u.name}: the initial value '{u.initial_text}' does not satisfy "
-                        f"the boundary condition {coord} {end} = '{bc.text}' (they must agree at t = "
-                        f"{problem.time_coordinate.domain[0]:g})")
+    check_initial_meets_boundary(problem, 1e-9, 1e-9, error=SolverError,
+                                 why="and the linear solver's lift carries the initial value for all times")
 
 
 def _initial_lift(unknown, bases: dict[str, Basis1D], tolerance: float, reports: list,

@@ -108,7 +108,15 @@ def test_error_falls_with_space_nodes(kind, nodes, expected):
 
 def test_initial_value_must_satisfy_dirichlet_conditions():
     text = HEAT1D.replace('initial: "sin(pi*x)"', 'initial: "sin(pi*x) + 0.5"')
-    with pytest.raises(SolverError, match="does not satisfy the boundary condition x low"):
+    message = ("bad.yaml: unknowns.u.initial is 0.5 at x=0 but unknowns.u.boundary.x.low is 0: they "
+               "differ by 0.5, more than 1e-11, which puts a layer at t = 0 that no codebook resolves; make the "
+               "initial value meet the boundary value there")
+    with pytest.raises(SpecError) as caught:
+        pgdcli.solve(pgdcli.parse_spec(text, source="bad.yaml"))
+    assert str(caught.value) == message
+    # below the tolerance but above what the linear solver's lift allows: its own refusal, same keys
+    text = HEAT1D.replace('initial: "sin(pi*x)"', 'initial: "sin(pi*x) + 1e-8*(1 - x)"').replace("1e-11", "1e-6")
+    with pytest.raises(SolverError, match="unknowns.u.initial is 1e-08 at x=0.*boundary.x.low is 0.*lift"):
         pgdcli.solve(pgdcli.parse_spec(text, source="bad.yaml"))
 
 
