@@ -555,16 +555,19 @@ def with_nodes(path: Path, old: int, new: int, tolerance: float | None = None):
 def build_split(problem):
     """``solve(problem)`` (1 BLAS thread, one run) and the seconds spent inside the march's parts."""
     import pgdcli
+    import pgdcli.algorithms.dop853_stepper as stepper
     import pgdcli.algorithms.march as march
+    import pgdcli.algorithms.polynomial_rhs as rhs
 
     spent = {"rhs": 0.0, "combine": 0.0, "sketched": 0.0, "exact": 0.0}
-    originals = {name: getattr(march, name) for name in
-                 ("evaluate_rhs", "round_terms", "tt_round_sum_of_products", "tt_round_many")}
+    # (module where the name is looked up, name, account)
+    sites = [(stepper, "evaluate_rhs", "rhs"), (stepper, "round_terms", "combine"), (rhs, "round_terms", "combine"),
+             (rhs, "tt_round_sum_of_products", "sketched"), (rhs, "tt_round_many", "exact"),
+             (march, "tt_round_many", "exact")]
+    originals = [(module, name, getattr(module, name)) for module, name, _ in sites]
     depth = {"rhs": 0}
 
-    def timer(name, key):
-        func = originals[name]
-
+    def timer(name, key, func):
         def wrapped(*args, **kwargs):
             if name == "evaluate_rhs":
                 depth["rhs"] += 1
@@ -581,15 +584,14 @@ def build_split(problem):
                     spent[key] += elapsed
         return wrapped
 
-    for name, key in (("evaluate_rhs", "rhs"), ("round_terms", "combine"), ("tt_round_sum_of_products", "sketched"),
-                      ("tt_round_many", "exact")):
-        setattr(march, name, timer(name, key))
+    for (module, name, key), (_, _, func) in zip(sites, originals):
+        setattr(module, name, timer(name, key, func))
     try:
         with blas1():
             elapsed, result = timed(lambda: pgdcli.solve(problem))
     finally:
-        for name, func in originals.items():
-            setattr(march, name, func)
+        for module, name, func in originals:
+            setattr(module, name, func)
     return elapsed, result, spent
 
 
