@@ -23,6 +23,7 @@ from ..discretization.separate import MAX_SEPARATION_RANK
 from ..errors import SolverError
 from ..problem.expressions import Separable, SepTerm, merge_to_function
 from ..tensors.tt import TT, is_ones, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many, tt_sum
+from ..tensors.cross_products import ProductCross, round_products_by_cross
 from ..tensors.tt_sketch import tt_round_sum_of_products
 from .general_rhs import CROSS_SHARE, GeneralPart, general_monomials
 
@@ -32,6 +33,10 @@ __all__ = ["NonlinearSystem", "SINGLE_POINT", "EXACT_RANK_LIMIT", "compile_syste
 # Above this implicit rank (sum over terms of the product ranks) a rounding goes
 # through the randomized sketch instead of forming the sum explicitly.
 EXACT_RANK_LIMIT = 160
+# How the right-hand side's products are rounded above that rank: "sketch" (randomized rounding,
+# tensors.tt_sketch, ~n r^4 per core) or "cross" (one-site cross on the state, tensors.cross_products,
+# ~n r^3 per core and sweep); benchmarks/build_speed.py --issue15 measures both.
+PRODUCTS = "sketch"
 
 
 SINGLE_POINT = "<single point>"
@@ -108,6 +113,8 @@ class NonlinearSystem:
     rhs: list[list[tuple[_Coefficient, tuple[int, ...]]]]
     initial: list[TT]
     general: list = field(default_factory=list)  # per unknown: GeneralPart of its general terms, or None
+    # per unknown: the warm-started cross of its products (PRODUCTS == "cross")
+    product_crosses: dict = field(default_factory=dict)
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -258,7 +265,37 @@ def evaluate_rhs(system: NonlinearSystem, t: float, state: list[TT], delta: floa
             terms.append((1.0, state[0].scaled(0.0), ones))
         per_unknown.append(terms)
     hints = [max(u.ranks, default=1) for u in state]
+    if PRODUCTS == "cross" and not all(implicit_rank(terms) <= EXACT_RANK_LIMIT for terms in per_unknown):
+        return [products_by_cross(system, s, terms, delta, hint, max_rank, rng, stats)
+                for s, (terms, hint) in enumerate(zip(per_unknown, hints))]
     return round_terms(per_unknown, delta, hints, max_rank, rng, stats)
+
+
+def products_by_cross(system: NonlinearSystem, slot: int, terms: list, delta: float, hint: int, max_rank: int,
+                      rng: np.random.Generator | None, stats: dict | None) -> TT:
+    """``sum w A * B`` of one unknown by the warm-started one-site cross of the products
+    (:mod:`pgdcli.tensors.cross_products`), O(n r^3) per core; the randomized rounding when the
+    cross does not meet its sampled tolerance (counted: ``product_cross_fallbacks``)."""
+    stats = {} if stats is None else stats
+    cross = system.product_crosses.get(slot)
+    if cross is None:
+        cross = system.product_crosses[slot] = ProductCross(system.shape, np.random.default_rng(1000 + slot))
+    train, info = round_products_by_cross(cross, terms, absolute=delta, max_rank=max_rank, rank_hint=hint + 4)
+    stats["product_crosses"] = stats.get("product_crosses", 0) + 1
+    stats["product_cross_sweeps"] = stats.get("product_cross_sweeps", 0) + info.sweeps
+    if train is not None:
+        return train
+    stats["product_cross_fallbacks"] = stats.get("product_cross_fallbacks", 0) + 1
+    return tt_round_sum_of_products(terms, absolute=delta, rank_hint=hint + 4, rng=rng, max_rank=max_rank,
+                                    stats=stats)
+
+
+def implicit_rank(terms: list) -> int:
+    """The largest bond of ``sum w A * B`` formed explicitly: the sum over terms of the rank products."""
+    d = terms[0][1].order
+    if d == 1:
+        return 1
+    return sum(max(a.cores[k].shape[2] * b.cores[k].shape[2] for k in range(d - 1)) for _, a, b in terms)
 
 
 def round_terms(per_unknown: list[list[tuple[float, TT, TT]]], delta: float, hints: list[int], max_rank: int,
@@ -270,14 +307,7 @@ def round_terms(per_unknown: list[list[tuple[float, TT, TT]]], delta: float, hin
     the randomized sum-of-products rounding, sized from the unknown's current
     rank, which never forms a product of rank r^2.
     """
-    d = per_unknown[0][0][1].order
-
-    def implicit(terms):
-        if d == 1:
-            return 1
-        return sum(max(a.cores[k].shape[2] * b.cores[k].shape[2] for k in range(d - 1)) for _, a, b in terms)
-
-    if all(implicit(terms) <= EXACT_RANK_LIMIT for terms in per_unknown):
+    if all(implicit_rank(terms) <= EXACT_RANK_LIMIT for terms in per_unknown):
         sums = []
         for terms in per_unknown:
             parts = [a if is_ones(b) else tt_hadamard(a, b) for _, a, b in terms]
