@@ -8,7 +8,11 @@ of :class:`scipy.integrate.DOP853`), whose embedded estimate controls the step
 size. The right-hand side is evaluated in separated form: products of
 unknowns are Hadamard products of tensor trains, and every stage value is
 recompressed once by SVD-based rounding with an absolute Frobenius bound, so
-ranks stay near those of the solution instead of growing as N^2. The state is
+ranks stay near those of the solution instead of growing as N^2. Above a small
+implicit rank the products are never formed: a warm-started one-site cross on the
+state interpolates them (O(n r^3) per core, :mod:`pgdcli.tensors.cross_products`),
+falling back to the randomized sketch (O(n r^4), :mod:`pgdcli.tensors.tt_sketch`)
+when its sampled error misses the bound. The state is
 stored at the nodes of the time coordinate (steps land on them) and the
 codebook interpolates between them with the time basis.
 
@@ -347,6 +351,10 @@ def _march_report(problem, result: MarchResult, fields: dict, estimate: float, t
         "roundings_redone": int(stats.get("redone", 0)),
         # stage roundings made 10x tighter because their noise, not the step, set the error estimate
         "stage_tightenings": int(stats.get("stage_tightenings", 0)),
+        # right-hand sides whose products were interpolated by the one-site cross, and those whose
+        # cross missed its sampled error and fell back to the randomized rounding
+        "product_crosses": int(stats.get("product_crosses", 0)),
+        "product_cross_fallbacks": int(stats.get("product_cross_fallbacks", 0)),
         "max_rank": int(problem.solver.max_rank),
         "wall_time": wall,
         "pgdcli_version": __version__,

@@ -36,7 +36,7 @@ EXACT_RANK_LIMIT = 160
 # How the right-hand side's products are rounded above that rank: "sketch" (randomized rounding,
 # tensors.tt_sketch, ~n r^4 per core) or "cross" (one-site cross on the state, tensors.cross_products,
 # ~n r^3 per core and sweep); benchmarks/build_speed.py --issue15 measures both.
-PRODUCTS = "sketch"
+PRODUCTS = "cross"
 
 
 SINGLE_POINT = "<single point>"
