@@ -59,6 +59,13 @@ coordinates too): build time (target <= 120 s), the error gate's measured error 
 ``pgdcli.verify`` at 200 points (on 2026-11-24 its build had not finished after 25 minutes on
 the shared machine: not shipped in problems/).
 
+Products by sketch vs by cross (every run, and alone with ``--products-only``): the march alone (no
+error gate, 1 BLAS thread) on the rigid body with 10 nodes per IC at tolerances 1e-5 and 1e-6 (1e-5
+only with ``--quick``), the right-hand side's products rounded by the randomized sketch
+(``tensors/tt_sketch.py``) and by the one-site cross (``tensors/cross_products.py``), alternated
+twice in this process (medians), with the largest difference of the two final states at 2000 grid
+nodes.
+
 The printed table (Markdown) is what benchmarks/README.md quotes.
 """
 
