@@ -59,6 +59,13 @@ coordinates too): build time (target <= 120 s), the error gate's measured error 
 ``pgdcli.verify`` at 200 points (on 2026-11-24 its build had not finished after 25 minutes on
 the shared machine: not shipped in problems/).
 
+Products by sketch vs by cross (every run, and alone with ``--products-only``): the march alone (no
+error gate, 1 BLAS thread) on the rigid body with 10 nodes per IC at tolerances 1e-5 and 1e-6 (1e-5
+only with ``--quick``), the right-hand side's products rounded by the randomized sketch
+(``tensors/tt_sketch.py``) and by the one-site cross (``tensors/cross_products.py``), alternated
+twice in this process (medians), with the largest difference of the two final states at 2000 grid
+nodes.
+
 The printed table (Markdown) is what benchmarks/README.md quotes.
 """
 
@@ -555,16 +562,19 @@ def with_nodes(path: Path, old: int, new: int, tolerance: float | None = None):
 def build_split(problem):
     """``solve(problem)`` (1 BLAS thread, one run) and the seconds spent inside the march's parts."""
     import pgdcli
+    import pgdcli.algorithms.dop853_stepper as stepper
     import pgdcli.algorithms.march as march
+    import pgdcli.algorithms.polynomial_rhs as rhs
 
     spent = {"rhs": 0.0, "combine": 0.0, "sketched": 0.0, "exact": 0.0}
-    originals = {name: getattr(march, name) for name in
-                 ("evaluate_rhs", "round_terms", "tt_round_sum_of_products", "tt_round_many")}
+    # (module where the name is looked up, name, account)
+    sites = [(stepper, "evaluate_rhs", "rhs"), (stepper, "round_terms", "combine"), (rhs, "round_terms", "combine"),
+             (rhs, "tt_round_sum_of_products", "sketched"), (rhs, "tt_round_many", "exact"),
+             (march, "tt_round_many", "exact")]
+    originals = [(module, name, getattr(module, name)) for module, name, _ in sites]
     depth = {"rhs": 0}
 
-    def timer(name, key):
-        func = originals[name]
-
+    def timer(name, key, func):
         def wrapped(*args, **kwargs):
             if name == "evaluate_rhs":
                 depth["rhs"] += 1
@@ -581,15 +591,14 @@ def build_split(problem):
                     spent[key] += elapsed
         return wrapped
 
-    for name, key in (("evaluate_rhs", "rhs"), ("round_terms", "combine"), ("tt_round_sum_of_products", "sketched"),
-                      ("tt_round_many", "exact")):
-        setattr(march, name, timer(name, key))
+    for (module, name, key), (_, _, func) in zip(sites, originals):
+        setattr(module, name, timer(name, key, func))
     try:
         with blas1():
             elapsed, result = timed(lambda: pgdcli.solve(problem))
     finally:
-        for name, func in originals.items():
-            setattr(march, name, func)
+        for module, name, func in originals:
+            setattr(module, name, func)
     return elapsed, result, spent
 
 
@@ -598,6 +607,57 @@ def split_text(elapsed: float, result, spent: dict) -> str:
     return (f"{marches(rep)}, {rep['steps']} steps; inside the marches: "
             f"right-hand sides {spent['rhs']:.1f} s, stage/state combinations {spent['combine']:.1f} s; "
             f"randomized roundings {spent['sketched']:.1f} s, exact {spent['exact']:.1f} s (in both)")
+
+
+def march_with_products(problem, tolerance: float, mode: str):
+    """The march alone (no error gate, 1 BLAS thread) with the right-hand side's products rounded by
+    ``mode`` ("sketch": randomized rounding, "cross": one-site cross): (seconds, MarchResult)."""
+    import pgdcli.algorithms.polynomial_rhs as rhs
+    from pgdcli.algorithms.march import compile_system, march
+
+    saved = rhs.PRODUCTS
+    rhs.PRODUCTS = mode
+    try:
+        with blas1():
+            system = compile_system(problem, tolerance)
+            started = time.perf_counter()
+            result = march(system, tolerance, max_rank=problem.solver.max_rank,
+                           slab_nodes=problem.time_coordinate.nodes)
+            return time.perf_counter() - started, result
+    finally:
+        rhs.PRODUCTS = saved
+
+
+def bench_products(rows: list, quick: bool) -> None:
+    """The march alone, products by the randomized sketch vs by the cross, alternated in this process."""
+    from pgdcli.tensors.cross import tt_values_at
+
+    cases = ((10, 1e-5),) if quick else ((10, 1e-5), (10, 1e-6))
+    for nodes, tolerance in cases:
+        label = f"rigid_body, 6 ICs x {nodes} nodes, march only, tol {tolerance:g}"
+        problem = with_nodes(RIGID, 8, nodes, tolerance)
+        times: dict = {"sketch": [], "cross": []}
+        last: dict = {}
+        for _ in range(1 if quick else 2):
+            for mode in ("sketch", "cross"):
+                print(f"issue 15: {label}: products by {mode}", file=sys.stderr)
+                elapsed, last[mode] = march_with_products(problem, tolerance, mode)
+                times[mode].append(elapsed)
+        med = {mode: float(np.median(v)) for mode, v in times.items()}
+        for mode in ("sketch", "cross"):
+            res = last[mode]
+            st = res.roundings
+            extra = (f", {st.get('product_crosses', 0)} crosses ({st.get('product_cross_sweeps', 0)} half-sweeps, "
+                     f"{st.get('product_cross_fallbacks', 0)} fell back to the sketch)") if mode == "cross" else ""
+            rows.append((label, f"march, products by {mode}, median of {len(times[mode])}", fmt_time(med[mode]),
+                         f"{res.steps} steps, largest rank {max(max(r) for n in res.ranks for r in n)}, "
+                         f"{st.get('sketched', 0)} sketched roundings{extra}", "", "", None))
+        rng = np.random.default_rng(3)
+        idx = rng.integers(0, nodes, size=(2000, 6))
+        diff = max(float(np.max(np.abs(tt_values_at(a, idx) - tt_values_at(b, idx))))
+                   for a, b in zip(last["sketch"].states[-1], last["cross"].states[-1]))
+        rows.append((label, "  cross vs sketch (same process): time ratio; max |difference| at t end, 2000 nodes",
+                     f"{diff:.1e}", "", f"sketch/cross {med['sketch'] / med['cross']:.2f}x", "", None))
 
 
 def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> None:
@@ -729,16 +789,20 @@ def main(argv=None) -> None:
                         help="skip the rigid-body brute-force grid and the rigid body at tolerance 1e-6")
     parser.add_argument("--issue15", action="store_true", help="only the rows of issue 15 (see the docstring)")
     parser.add_argument("--ten", action="store_true", help="also build the 10-D benchmarks/rigid_body10.yaml (long)")
+    parser.add_argument("--products-only", action="store_true",
+                        help="only the march with products by sketch vs by cross (issue 15)")
     args = parser.parse_args(argv)
     rows: list = _EchoRows()
     started = time.perf_counter()
     machine_before = describe_machine()
     with tempfile.TemporaryDirectory(prefix="pgdcli-build-") as tmp:
         work = Path(tmp)
-        if not args.issue15:
+        if not args.issue15 and not args.products_only:
             bench_coupled(rows, work)
             bench_rigid_body(rows, work, args.quick)
-        bench_issue15(rows, work, args.quick, args.ten)
+        bench_products(rows, args.quick)
+        if not args.products_only:
+            bench_issue15(rows, work, args.quick, args.ten)
     print(f"Machine: {machine_before}\n")
     print_table(rows)
     missed = [r for r in rows if r[6] is False]

@@ -2,7 +2,7 @@
 
 An equation ``a(t, p) der(u) + sum_m c_m(t, p) m(u) + sum_g c_g(t, p) g(t, p, u) = 0``
 keeps its polynomial monomials ``m`` on the march's exact path (Hadamard
-products and rounding, :func:`pgdcli.algorithms.march.evaluate_rhs`); the monomials that
+products and rounding, :func:`pgdcli.algorithms.polynomial_rhs.evaluate_rhs`); the monomials that
 hold a general atom (:mod:`pgdcli.problem.general`: ``sin(th)``, ``abs(v)*v``,
 ``sqrt(vx**2 + vy**2)*vx``) are gathered per unknown into one function
 

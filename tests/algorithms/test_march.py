@@ -390,11 +390,11 @@ class _Grid:
 
 
 def _watch_run(times, biggest, t_final):
-    """Feed _BlowupWatch accepted steps ending at ``times`` with constant states of max |u| ``biggest``."""
-    from pgdcli.algorithms.march import _BlowupWatch
+    """Feed BlowupWatch accepted steps ending at ``times`` with constant states of max |u| ``biggest``."""
+    from pgdcli.algorithms.blowup import BlowupWatch
     from pgdcli.tensors.tt import tt_constant
 
-    watch = _BlowupWatch(_Grid(), [tt_constant(biggest(0.0), _Grid.shape)], t_final)
+    watch = BlowupWatch(_Grid(), [tt_constant(biggest(0.0), _Grid.shape)], t_final)
     sizes = []
     for t0, t1 in zip(times, times[1:]):
         sizes.append(t1 - t0)
@@ -432,13 +432,13 @@ def test_blowup_watch_predicts_a_pole_and_not_an_exponential():
 
 
 def test_blowup_confirmation_needs_agreement_and_room_before_the_end():
-    from pgdcli.algorithms.march import _confirmed
+    from pgdcli.algorithms.blowup import confirmed
 
-    assert _confirmed(0.9, 0.95, 0.951, 1.0)  # spread 0.001 <= 0.1 x 0.05, and 0.952 < 1
-    assert not _confirmed(0.9, 0.95, 0.96, 1.0)  # spread 0.01 > 0.005: not converged yet
+    assert confirmed(0.9, 0.95, 0.951, 1.0)  # spread 0.001 <= 0.1 x 0.05, and 0.952 < 1
+    assert not confirmed(0.9, 0.95, 0.96, 1.0)  # spread 0.01 > 0.005: not converged yet
     # the estimate lies before the end, but within twice the spread of it: the pole may be past the end
-    assert not _confirmed(0.9, 0.95, 0.952, 0.953)
-    assert _confirmed(0.9, 0.95, 0.952, 0.955)
+    assert not confirmed(0.9, 0.95, 0.952, 0.953)
+    assert confirmed(0.9, 0.95, 0.952, 0.955)
 
 
 def test_exponential_growth_is_no_blowup():

@@ -285,7 +285,8 @@ def _random_train(rng, shape, rank):
 
 @pytest.mark.parametrize("hint", [2, 6, 40])
 def test_round_sum_of_products_matches_the_explicit_sum(hint):
-    from pgdcli.tensors.tt import tt_ones, tt_round_sum_of_products
+    from pgdcli.tensors.tt import tt_ones
+    from pgdcli.tensors.tt_sketch import tt_round_sum_of_products
 
     rng = np.random.default_rng(11)
     shape = (6, 7, 5, 4)
@@ -304,7 +305,8 @@ def test_round_sum_of_products_matches_the_explicit_sum(hint):
 def test_round_sum_of_products_counts_its_roundings():
     """A sketch far below the true rank is a failed compression: counted, redone larger, and the
     result is as accurate as the explicit sum's rounding."""
-    from pgdcli.tensors.tt import tt_ones, tt_round_sum_of_products
+    from pgdcli.tensors.tt import tt_ones
+    from pgdcli.tensors.tt_sketch import tt_round_sum_of_products
 
     rng = np.random.default_rng(12)
     shape = (8, 9, 7, 6)
