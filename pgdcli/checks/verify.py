@@ -334,7 +334,7 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
                            grid=True, method=method, rtol=rtol, atol=atol, jobs=opts["jobs"],
                            progress=report_progress, space_nodes=nodes)
         if nonlinear:
-            settings.update(method=f"{result.method} (nonlinear method of lines)", rtol=result.rtol, atol=result.atol)
+            settings.update(method=f"{result.method}, nonlinear method of lines", rtol=result.rtol, atol=result.atol)
         if time is None:  # the placeholder time axis, as the codebook values have it
             result.values = {u: v[:, None] for u, v in result.values.items()}
         approx = codebook_on_space_grid(cb, sample_points, S, time, all_times, space_grid, unknowns)

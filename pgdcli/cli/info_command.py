@@ -56,7 +56,10 @@ def info(codebook, fmt):
     if summary.get("nodes_chosen") and summary["nodes_chosen"]["automatic"]:
         chosen = summary["nodes_chosen"]
         console.print(f"nodes chosen: {nodes_chosen_text(chosen)} ({chosen['reason']})")
-    console.print(f"{label}: {summary['residual']:.3e} ({state})")
+    if summary.get("method", "").startswith("pde march"):  # its step control has no residual
+        console.print(f"steps: {summary.get('steps')} ({summary.get('rejected_steps')} rejected), ETDRK4 ({state})")
+    else:
+        console.print(f"{label}: {summary['residual']:.3e} ({state})")
     if summary.get("roundings") is not None:
         r = summary["roundings"]
         console.print(f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized "

@@ -113,15 +113,19 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
     cb = result.codebook
     rep = cb.report
     march = rep.get("method") == "march"
+    pde_march = str(rep.get("method", "")).startswith("pde march")  # its step control has no residual
     # a march that failed holds no solution: its fields are placeholders, not ranks to report
-    placeholder = march and result.status == 3
+    placeholder = (march or pde_march) and result.status == 3
     return {
         "problem": problem.name,
-        "method": "march" if march else "pgd",
+        "method": "march" if march else "pde march" if pde_march else "pgd",
         "converged": bool(result.converged),
         "accurate": result.accurate,
         "message": result.message,
-        "residual": _finite_or_none(result.residual),  # march: the RMS error estimate; null if none
+        # march: the RMS error estimate; null if none
+        "residual": None if pde_march else _finite_or_none(result.residual),
+        **({"steps": int(rep["steps"]), "rejected_steps": int(rep["rejected_steps"])}
+           if pde_march and "steps" in rep else {}),
         **({"check_error": _finite_or_none(rep["check_error"]), "check_points": int(rep["check_points"]),
             "check_ratio": _finite_or_none(rep["check_ratio"]), "check_where": short_where(rep["check_where"]),
             "check_method": str(rep["check_method"])}
@@ -179,6 +183,11 @@ def _summary_table(summary: dict):
         if summary["residual"] is not None:
             table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
         if summary["ranks"] is not None:
+            table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
+    elif summary.get("method") == "pde march":
+        if "steps" in summary:
+            table.add_row("steps", f"{summary['steps']} ({summary['rejected_steps']} rejected), ETDRK4")
+        if summary["ranks"]:
             table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
     else:
         residual = "none" if summary["residual"] is None else f"{summary['residual']:.3e}"

@@ -62,6 +62,7 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
         "accurate": accurate(rep),
         "relative_tolerance": float(rep.get("relative_tolerance", 0.0)),
         "residual": float(rep.get("residual", np.nan)),
+        **({"steps": int(rep["steps"]), "rejected_steps": int(rep.get("rejected_steps", 0))} if "steps" in rep else {}),
         "tolerance": float(rep.get("tolerance", np.nan)),
         "solve_time": float(rep.get("wall_time", np.nan)),
         "pgdcli_version": str(rep.get("pgdcli_version", "")),
