@@ -172,15 +172,7 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     reference, ok = _reference(problem, points, S, times, rtol, atol)
     unknowns = [u.name for u in problem.unknowns]
     approx = codebook_at_samples(codebook, points, time, times, unknowns)
-    err = np.zeros((S, times.size))
-    ratio = np.zeros((S, times.size))
-    per_unknown = {}
-    for u in unknowns:
-        e = np.abs(approx[u] - reference[u])
-        e[~ok] = 0.0
-        per_unknown[u] = float(e.max()) if ok.any() else float("nan")
-        err = np.maximum(err, e)
-        ratio = np.maximum(ratio, e / (tol + relative_tolerance * np.abs(np.where(ok[:, None], reference[u], 0.0))))
+    err, ratio, per_unknown = error_and_ratio(reference, approx, ok, tol, relative_tolerance)
     method = (f"DOP853 (rtol = atol = {rtol:.0e}) at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
               f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes; every time node "
               f"and the midpoints between them")
@@ -205,6 +197,38 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
                        coordinate_ratio=coordinate_ratio, line_points=line_points,
                        tail_ratio=tail_ratios(codebook, tol), tolerance=tol,
                        relative_tolerance=relative_tolerance, method=method)
+
+
+def error_and_ratio(reference: dict, approx: dict, ok: np.ndarray, tolerance: float,
+                    relative_tolerance: float) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """The codebook's error and its ratio to the promise, maxima over the unknowns.
+
+    Parameters
+    ----------
+    reference, approx : dict of str to ndarray (S, ...)
+        Per unknown, the reference's and the codebook's values at S samples (same shapes).
+    ok : ndarray of bool (S,)
+        Samples whose reference succeeded; the others count as error 0.
+    tolerance, relative_tolerance : float
+
+    Returns
+    -------
+    err, ratio : ndarray (S, ...)
+        ``|approx - reference|`` and its ratio to ``tolerance + relative_tolerance |reference|``.
+    per_unknown : dict of str to float
+        Each unknown's max error (nan when no sample succeeded).
+    """
+    err = ratio = None
+    per_unknown = {}
+    for u, ref in reference.items():
+        good = ok.reshape((-1,) + (1,) * (ref.ndim - 1))
+        ref = np.where(good, ref, 0.0)
+        e = np.where(good, np.abs(approx[u] - ref), 0.0)  # a failed sample's values are not an error
+        per_unknown[u] = float(e.max()) if ok.any() else float("nan")
+        r = e / (tolerance + relative_tolerance * np.abs(ref))
+        err = e if err is None else np.maximum(err, e)
+        ratio = r if ratio is None else np.maximum(ratio, r)
+    return err, ratio, per_unknown
 
 
 def tail_ratios(codebook, tolerance: float) -> dict[str, float]:
@@ -241,15 +265,7 @@ def check_codebook_pde(problem, codebook, *, tolerance: float | None = None, rel
     report, values = _pde_reference(problem, codebook, seed)
     ok = np.array([np.isfinite(report.reference[u]).all(axis=tuple(range(1, report.reference[u].ndim)))
                    for u in report.reference]).all(axis=0)
-    err = ratio = None
-    per_unknown = {}
-    for u in report.reference:
-        ref = np.where(ok.reshape((-1,) + (1,) * (report.reference[u].ndim - 1)), report.reference[u], 0.0)
-        e = np.abs(values[u] - ref)
-        per_unknown[u] = float(e.max()) if ok.any() else float("nan")
-        r = e / (tol + relative_tolerance * np.abs(ref))
-        err = e if err is None else np.maximum(err, e)
-        ratio = r if ratio is None else np.maximum(ratio, r)
+    err, ratio, per_unknown = error_and_ratio(report.reference, values, ok, tol, relative_tolerance)
     method = (f"method of lines ({report.settings.get('method', 'BDF')}) at {points_text(int(ok.sum()))} "
               f"(corners and Sobol points), every space node plus random points, time nodes and random times")
     if not ok.any():

@@ -202,3 +202,21 @@ def test_a_march_the_reference_cannot_check_says_so(monkeypatch, tmp_path):
     info = json.loads(CliRunner().invoke(cli, ["info", str(out), "--format", "json"]).stdout)
     assert info["check"]["error"] is None and info["check"]["points"] == 0
     assert "max error" not in CliRunner().invoke(cli, ["info", str(out)]).stdout
+
+
+def test_error_and_ratio_leaves_out_failed_samples_in_every_shape():
+    """One comparison for the ODE check (S, T) and the PDE check (S, T, X): a sample whose reference failed
+    (its values NaN or arbitrary) counts as error 0, not as the codebook's value (the PDE check did that)."""
+    from pgdcli.checks.check import error_and_ratio
+
+    ref = {"u": np.array([[[1.0, 2.0]], [[np.nan, np.nan]], [[3.0, -4.0]]])}  # (S=3, T=1, X=2)
+    approx = {"u": np.array([[[1.1, 2.0]], [[50.0, 50.0]], [[3.0, -4.4]]])}
+    ok = np.array([True, False, True])
+    err, ratio, per_unknown = error_and_ratio(ref, approx, ok, 0.1, 0.1)
+    np.testing.assert_allclose(err[:, 0], [[0.1, 0.0], [0.0, 0.0], [0.0, 0.4]], atol=1e-12)
+    np.testing.assert_allclose(ratio[2, 0, 1], 0.4 / (0.1 + 0.1 * 4.0))
+    assert per_unknown == {"u": pytest.approx(0.4)}
+    err2, _, per2 = error_and_ratio({"u": ref["u"][:, 0, :]}, {"u": approx["u"][:, 0, :]}, ok, 0.1, 0.0)
+    np.testing.assert_allclose(err2, err[:, 0])
+    _, _, none = error_and_ratio(ref, approx, np.zeros(3, bool), 0.1, 0.0)
+    assert np.isnan(none["u"])
