@@ -27,16 +27,23 @@ MAX_CONDITION = 1e6
 def phi_scalars(z: np.ndarray, k_max: int) -> np.ndarray:
     """``phi_0 .. phi_{k_max}`` at the points ``z`` (complex or real), shape (k_max + 1,) + z.shape."""
     z = np.asarray(z, dtype=complex)
-    theta = np.exp(2j * np.pi * (np.arange(CONTOUR_POINTS) + 0.5) / CONTOUR_POINTS)
+    out = np.empty((k_max + 1,) + z.shape, dtype=complex)
     large = np.abs(z) > 1.0  # far from 0 the explicit recursion is exact enough; the contour covers the rest
-    w = z[..., None] + np.where(large, 0.0, 1.0)[..., None] * theta  # (..., M): a circle around z, or z itself
-    phis = [np.exp(w)]
-    factorial = 1.0
-    for k in range(1, k_max + 1):
-        phis.append((phis[-1] - 1.0 / factorial) / w)
-        factorial *= k
-    out = np.stack([np.where(large, p[..., 0], p.mean(axis=-1)) for p in phis])
+    # the stiff modes of h c A are nearly all large: they take one exponential each, not a contour's
+    for points, mean in ((z[large][:, None], False), (z[~large][:, None] + _contour(), True)):
+        p = np.exp(points)
+        factorial = 1.0
+        for k in range(k_max + 1):
+            if k:
+                p = (p - 1.0 / factorial) / points
+                factorial *= k
+            out[k][large if not mean else ~large] = p.mean(axis=-1) if mean else p[:, 0]
     return out
+
+
+def _contour() -> np.ndarray:
+    """The unit circle's CONTOUR_POINTS points (midpoint rule), around which small ``z`` are averaged."""
+    return np.exp(2j * np.pi * (np.arange(CONTOUR_POINTS) + 0.5) / CONTOUR_POINTS)
 
 
 class Eigen:

@@ -95,30 +95,33 @@ def error_statistics(coordinates, time, samples, times, ok, reference, approx, s
 
 
 def codebook_on_space_grid(cb, samples: Mapping[str, np.ndarray], S: int, time: str, times: np.ndarray,
-                             space_points: Mapping[str, np.ndarray], unknowns) -> dict:
+                           space_points: Mapping[str, np.ndarray], unknowns) -> dict:
     """Codebook values (S, T, X_1, ..., X_d) on the tensor grid of the space points (a steady problem:
-    ``time`` None and one placeholder time), in blocks of samples that bound the memory."""
+    ``time`` None and one placeholder time).
+
+    Each sample's times x space points is one grid, evaluated coordinate by coordinate
+    (:meth:`~pgdcli.codebook.Codebook.evaluate_grid`): on fisher's check (8 samples x 14 times x 85
+    points) 0.73 s per check as points, a few ms as grids.
+    """
     space = list(space_points)
-    d = len(space)
     shape = tuple(space_points[c].size for c in space)
-    per_sample = times.size * int(np.prod(shape))
     out = {u: np.empty((S, times.size) + shape) for u in unknowns}
-    block = max(1, _EVAL_BLOCK // max(per_sample, 1))
-    for start in range(0, S, block):
-        rows = slice(start, min(S, start + block))
-        n = rows.stop - rows.start
-        coords = {}
-        for c in cb.coordinates:
-            if c.name == time:
-                coords[c.name] = times.reshape((1, -1) + (1,) * d)
-            elif c.name in space_points:
-                k = space.index(c.name)
-                coords[c.name] = space_points[c.name].reshape((1, 1) + tuple(-1 if m == k else 1 for m in range(d)))
+    names = list(cb.coordinate_names)
+    # from the codebook's coordinate order to (time, space...), the sample's axes (length 1) dropped
+    order = ([names.index(time)] if time is not None else []) + [names.index(c) for c in space]
+    for s in range(S):
+        axes = {}
+        for c in names:
+            if c == time:
+                axes[c] = times
+            elif c in space_points:
+                axes[c] = space_points[c]
             else:
-                coords[c.name] = samples[c.name][rows].reshape((-1, 1) + (1,) * d)
-        values = cb.evaluate(coords, fields=list(unknowns))
+                axes[c] = np.asarray(samples[c], dtype=float).reshape(-1)[s:s + 1]
+        values = cb.evaluate_grid(axes, fields=list(unknowns))
         for u in unknowns:
-            out[u][rows] = np.broadcast_to(values[u], (n, times.size) + shape)
+            kept = np.transpose(values[u], order + [k for k in range(len(names)) if k not in order])
+            out[u][s] = kept.reshape((times.size,) + shape)
     return out
 
 
