@@ -88,15 +88,34 @@ def _relative_change(Y1, Y2) -> float:
     return tt_sum([a, b], [1.0, -1.0]).norm() / norm if norm > 0 else 0.0
 
 
-def teneva_cross(problem, cb, tolerance: float, reference: dict) -> str:
-    """Time of the loosest teneva cross whose max nodal error meets the tolerance, as table text."""
+def load_teneva():
+    """teneva with its per-sweep change measured in O(n r^3) memory, or None when it is not installed."""
     try:
         import teneva
     except ImportError:
-        return "teneva not installed"
+        return None
     # teneva.cross measures its change per sweep with teneva.accuracy, whose scalar product forms
     # (r, r, n, r, r) arrays: 4 GiB at rank 58 on the pendulum. The same quantity in O(n r^3):
     teneva.accuracy = _relative_change
+    return teneva
+
+
+def cross_full(teneva, f, shape: list[int], e: float, budget: int):
+    """teneva's rank-adaptive cross of ``f`` (multi-indices (M, d) -> (M,)) at threshold ``e``.
+
+    Returns the cross's full tensor (``shape``) after rounding at ``e`` and its largest TT rank.
+    """
+    Y = teneva.cross(f, teneva.rand(shape, 2, seed=1), e=e, m=budget, nswp=30, dr_max=2)
+    Y = teneva.truncate(Y, e)
+    rank = max(teneva.props.ranks(Y)) if hasattr(teneva, "props") else max(teneva.ranks(Y))
+    return teneva.full(Y), rank
+
+
+def teneva_cross(problem, cb, tolerance: float, reference: dict) -> str:
+    """Time of the loosest teneva cross whose max nodal error meets the tolerance, as table text."""
+    teneva = load_teneva()
+    if teneva is None:
+        return "teneva not installed"
     points, times = grid_points(cb, problem)
     names = [c.name for c in problem.parameter_coordinates if c.role != "space"]
     axes = [cb.coordinate(n).basis().nodes for n in names]
@@ -109,10 +128,8 @@ def teneva_cross(problem, cb, tolerance: float, reference: dict) -> str:
         started = time.perf_counter()
         worst, ranks = 0.0, []
         for i, u in enumerate(problem.unknown_names):
-            Y = teneva.cross(lambda I: box(i, I), teneva.rand(shape, 2, seed=1), e=e, m=budget, nswp=30, dr_max=2)
-            Y = teneva.truncate(Y, e)
-            ranks.append(max(teneva.props.ranks(Y)) if hasattr(teneva, "props") else max(teneva.ranks(Y)))
-            full = teneva.full(Y)  # (T, p1, p2, ...)
+            full, rank = cross_full(teneva, lambda I: box(i, I), shape, e, budget)  # (T, p1, p2, ...)
+            ranks.append(rank)
             exact = np.moveaxis(reference[u].reshape([a.size for a in axes] + [times.size]), -1, 0)
             worst = max(worst, float(np.max(np.abs(full - exact))))
         wall = time.perf_counter() - started
