@@ -103,8 +103,12 @@ def _structure(problem):
     space = [c for c in problem.coordinates if c.role == "space"]
     if len(space) != 1:
         _refuse(problem, f"{len(space)} space coordinates ({', '.join(c.name for c in space)})")
+    rates = [u for u in problem.unknowns if u.rate_of]
+    if rates:  # the user wrote one unknown: say why there are two
+        _refuse(problem, f"der({rates[0].rate_of}, t, 2) makes a system of {rates[0].rate_of} and its rate "
+                         f"{rates[0].name} (second-order time derivatives are not supported in nonlinear PDEs)")
     if len(problem.unknowns) != 1 or len(problem.equations) != 1:
-        _refuse(problem, f"{len(problem.unknowns)} unknowns")
+        _refuse(problem, f"{len(problem.unknowns)} unknowns ({', '.join(u.name for u in problem.unknowns)})")
     x = space[0]
     if x.discretization != "chebyshev" or len(x.breakpoints) > 2:
         _refuse(problem, f"space coordinate {x.name!r} must be one Chebyshev element")

@@ -112,9 +112,25 @@ equations:
   - "der(v) = 0.1*der(v, x, 2) - u*v"
 """
     problem = parse_spec(text, source="two.yaml")
-    assert "2 unknowns" in pde_refusal(problem)
+    assert "2 unknowns (u, v)" in pde_refusal(problem)
     with pytest.raises(SolverError, match="PDE march takes one unknown"):
         compile_pde_system(problem, {"x": make_basis("chebyshev", (0, 1), 17)})
+
+
+def test_a_second_order_nonlinear_pde_is_refused_naming_its_rate():
+    """Sine-Gordon written with der(u, t, 2): one unknown for the user, so the refusal says where the second
+    comes from instead of '2 unknowns'."""
+    text = """
+coordinates:
+  t: {domain: [0, 1]}
+  x: {domain: [0, 1]}
+unknowns:
+  u: {initial: {value: "sin(pi*x)", rate: 0}, boundary: {x: {low: 0, high: 0}}}
+equations:
+  - "der(u, t, 2) = der(u, x, 2) - u**3"
+"""
+    reason = pde_refusal(parse_spec(text, source="sg.yaml"))
+    assert "der(u, t, 2) makes a system of u and its rate u_rate" in reason and "2 unknowns" not in reason
 
 
 def test_an_under_resolved_front_stops_the_march():
