@@ -67,7 +67,6 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         :data:`pgdcli.adapt.INACCURATE` and a message saying where and why.
     """
     from .adapt import solve_to_tolerance
-    from .problem.compatibility import check_initial_meets_boundary
     from .problem.spec import Problem, load_spec
 
     if not isinstance(problem, Problem):
@@ -76,14 +75,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     tol = opts.tolerance if tolerance is None else float(tolerance)
     rtol = opts.relative_tolerance if relative_tolerance is None else float(relative_tolerance)
     nmax = opts.max_modes if max_modes is None else int(max_modes)
-    if not (0.0 < tol < 1.0):
-        raise SolverError(f"tolerance must be in (0, 1), got {tol}")
-    if not (0.0 <= rtol < 1.0):
-        raise SolverError(f"relative_tolerance must be in [0, 1), got {rtol}")
-    if nmax < 1:
-        raise SolverError(f"max_modes must be at least 1, got {nmax}")
-    check_initial_meets_boundary(problem, tol, rtol)
-    march = _use_march(problem)
+    march = check_solvable(problem, tol, rtol, nmax)
     # the solver's own target (RMS of the march, residual of the enrichment) that met the tolerance at
     # the nodes is carried from one round of the automatic resolution to the next: the error at the
     # nodes hardly depends on how many nodes there are, so each round need not find it again
@@ -99,6 +91,25 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info
         result.codebook.report["rates"] = ",".join(f"{rate}={x}" for rate, x in rates)
     return result
+
+
+def check_solvable(problem, tolerance: float, relative_tolerance: float, max_modes: int) -> bool:
+    """The checks :func:`solve` makes before any work; raises :class:`PgdError` with one line.
+
+    Settings in range, initial values that meet the Dirichlet values, a problem one of
+    the methods takes. Returns whether the time march (not the enrichment) solves it.
+    The CLI calls it before showing progress, so a refusal is the only line on stderr.
+    """
+    from .problem.compatibility import check_initial_meets_boundary
+
+    if not (0.0 < tolerance < 1.0):
+        raise SolverError(f"tolerance must be in (0, 1), got {tolerance}")
+    if not (0.0 <= relative_tolerance < 1.0):
+        raise SolverError(f"relative_tolerance must be in [0, 1), got {relative_tolerance}")
+    if max_modes < 1:
+        raise SolverError(f"max_modes must be at least 1, got {max_modes}")
+    check_initial_meets_boundary(problem, tolerance, relative_tolerance)
+    return _use_march(problem)
 
 
 def _enrich(problem, residual_tolerance: float, nmax: int, callback, tolerance: float | None = None) -> SolveResult:

@@ -41,6 +41,7 @@ def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurat
 
 def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
     from .outputs import prepare_output
+    from ..driver import check_solvable
     from ..driver import solve as solve_problem
     from ..problem.spec import load_spec
 
@@ -57,6 +58,8 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
         raise click.BadParameter(f"expected a number in [0, 1), got {relative_tolerance}",
                                  param_hint="'--relative-tolerance'")
     overrides = {"tolerance": tolerance, "relative_tolerance": relative_tolerance, "max_modes": max_modes}
+    rtol = problem.solver.relative_tolerance if relative_tolerance is None else relative_tolerance
+    check_solvable(problem, tol, rtol, nmax)  # a refusal before the progress bar: one line on stderr
     prepare_output(target, "--output" if output is not None else f"{spec}: output")  # before the solve
     if console is None:
         result = solve_problem(problem, **overrides)
