@@ -22,11 +22,12 @@ SAMPLES = 64
 
 
 def _sample_points(problem, names: list[str], seed: int = 0) -> dict[str, np.ndarray]:
-    """Corners (up to 2^6) and SAMPLES random points of the named coordinates."""
+    """Corners (up to 2^6), the center and SAMPLES random points of the named coordinates."""
     if not names:
         return {}
     domains = [problem.coordinate(n).domain for n in names]
-    corners = list(itertools.islice(itertools.product(*domains), 64))
+    # the corners and the center (a node of every odd Chebyshev count: 1/a on [-1, 1] is infinite there)
+    corners = list(itertools.islice(itertools.product(*domains), 64)) + [tuple((lo + hi) / 2 for lo, hi in domains)]
     rng = np.random.default_rng(seed)
     random = [tuple(rng.uniform(lo, hi) for lo, hi in domains) for _ in range(SAMPLES)]
     points = np.array(corners + random, dtype=float).reshape(-1, len(names))
@@ -34,6 +35,28 @@ def _sample_points(problem, names: list[str], seed: int = 0) -> dict[str, np.nda
 
 
 LAYER = "which puts a layer at t = {t0:g} that no codebook resolves"
+
+
+def check_initial_finite(problem) -> None:
+    """Raise :class:`SpecError` where an initial value is not finite (``exp(1000*x)``, ``log(x - 2)``).
+
+    Checked at the corners and random points of its coordinates, before any solve: the
+    solvers would otherwise stop inside a factorization with no word of the cause.
+    """
+    if problem.time is None:
+        return
+    for unknown in problem.unknowns:
+        names = sorted(unknown.initial.coordinates - {problem.time})
+        values = _sample_points(problem, names)
+        size = len(next(iter(values.values()))) if values else 1
+        with np.errstate(all="ignore"):
+            initial = np.broadcast_to(np.asarray(unknown.initial.evaluate(**values), dtype=float), (size,))
+        bad = np.flatnonzero(~np.isfinite(initial))
+        if bad.size:
+            i = int(bad[0])
+            where = ", ".join(f"{n}={values[n][i]:.6g}" for n in names)
+            raise SpecError(f"{problem.source}: unknowns.{unknown.name}.initial is {initial[i]} at {where or 'every point'}: "
+                            f"an initial value must be finite over the coordinates' domains")
 
 
 def check_initial_meets_boundary(problem, tolerance: float, relative_tolerance: float = 0.0, *,
@@ -78,7 +101,8 @@ def _gap(problem, unknown, coord_name, end, condition, tolerance, relative_toler
     at_end = {**values, coord_name: np.full(size, end)}
     initial = np.broadcast_to(np.asarray(unknown.initial.evaluate(**at_end), dtype=float), (size,))
     boundary = np.broadcast_to(np.asarray(condition.value.evaluate(**at_end), dtype=float), (size,))
-    gap = np.abs(initial - boundary)
+    with np.errstate(all="ignore"):
+        gap = np.abs(initial - boundary)
     allowed = tolerance + relative_tolerance * np.abs(boundary)
     worst = int(np.argmax(gap - allowed))
     if not np.isfinite(gap[worst]) or gap[worst] <= allowed[worst]:

@@ -56,3 +56,16 @@ def test_gradient_conditions_and_problems_without_space_pass():
     neumann = FRONT.replace("x: {low: 1, high: 0}", "x: {low: {gradient: 0}, high: {gradient: 0}}")
     check_initial_meets_boundary(parse_spec(neumann, source="n.yaml"), 1e-6)
     check_initial_meets_boundary(parse_spec(spec_text(), source="ode.yaml"), 1e-6)
+
+
+@pytest.mark.parametrize("initial, message", [
+    ("exp(1000*x)", "unknowns.u.initial is inf at x=1: an initial value must be finite"),
+    ("(1 - x)*sqrt(D - 0.02)", "unknowns.u.initial is nan at D=0.01, x=0: an initial value must be finite"),
+    ("(1 - x)/(k - 4)", "unknowns.u.initial is nan at k=4, x=0.5: an initial value must be finite"),  # inf - inf
+])
+def test_an_initial_value_that_is_not_finite_is_refused_before_solving(initial, message):
+    from pgdcli.driver import check_solvable
+
+    text = FRONT.replace('"0.5*(1 - tanh(10*(x - 0.3)))"', f'"{initial}"')
+    with pytest.raises(SpecError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        check_solvable(parse_spec(text, source="front.yaml"), 1e-6, 0.0, 100)
