@@ -100,7 +100,7 @@ def check_solvable(problem, tolerance: float, relative_tolerance: float, max_mod
     the methods takes. Returns whether the time march (not the enrichment) solves it.
     The CLI calls it before showing progress, so a refusal is the only line on stderr.
     """
-    from .problem.compatibility import check_initial_finite, check_initial_meets_boundary
+    from .problem.compatibility import check_coefficients_finite, check_initial_finite, check_initial_meets_boundary
 
     if not (0.0 < tolerance < 1.0):
         raise SolverError(f"tolerance must be in (0, 1), got {tolerance}")
@@ -109,6 +109,7 @@ def check_solvable(problem, tolerance: float, relative_tolerance: float, max_mod
     if max_modes < 1:
         raise SolverError(f"max_modes must be at least 1, got {max_modes}")
     check_initial_finite(problem)
+    check_coefficients_finite(problem)
     check_initial_meets_boundary(problem, tolerance, relative_tolerance)
     return _use_march(problem)
 

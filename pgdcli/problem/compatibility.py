@@ -59,6 +59,29 @@ def check_initial_finite(problem) -> None:
                             f"an initial value must be finite over the coordinates' domains")
 
 
+def check_coefficients_finite(problem) -> None:
+    """Raise :class:`SpecError` where an equation's coefficient is not finite (``-u/a`` with a = 0 in the box).
+
+    Checked like the initial values (corners, center, random points of the coefficient's
+    coordinates, time included); the discretization would refuse it later, naming neither
+    file nor equation.
+    """
+    for eq in problem.equations:
+        for sep in eq.polynomial.terms.values():
+            names = sorted(sep.coordinates)
+            if not names:
+                continue
+            values = _sample_points(problem, names)
+            with np.errstate(all="ignore"):
+                v = np.broadcast_to(np.asarray(sep.evaluate(**values), dtype=float), (len(values[names[0]]),))
+            bad = np.flatnonzero(~np.isfinite(v))
+            if bad.size:
+                i = int(bad[0])
+                where = ", ".join(f"{n}={values[n][i]:.6g}" for n in names)
+                raise SpecError(f"{problem.source}: equations[{eq.index}]: the coefficient {sep} is {v[i]} at {where}: "
+                                f"coefficients must be finite over the coordinates' domains")
+
+
 def check_initial_meets_boundary(problem, tolerance: float, relative_tolerance: float = 0.0, *,
                                  why: str = LAYER, error=SpecError) -> None:
     """Raise ``error`` where an initial value misses a Dirichlet value by more than the tolerance.

@@ -69,3 +69,15 @@ def test_an_initial_value_that_is_not_finite_is_refused_before_solving(initial, 
     text = FRONT.replace('"0.5*(1 - tanh(10*(x - 0.3)))"', f'"{initial}"')
     with pytest.raises(SpecError, match=message.replace("(", r"\(").replace(")", r"\)")):
         check_solvable(parse_spec(text, source="front.yaml"), 1e-6, 0.0, 100)
+
+
+def test_a_coefficient_that_is_not_finite_is_refused_naming_its_equation():
+    from pgdcli.driver import check_solvable
+
+    text = spec_text(None, name=" pole", coordinates={"t": "{domain: [0, 1]}", "a": "{domain: [-1, 1]}"},
+                     unknowns={"u": "{initial: 1}"}, equations=['"der(u) = -u**2/a + log(2 + t)"'])
+    with pytest.raises(SpecError, match=r"pole.yaml: equations\[0\]: the coefficient 1/a is inf at a=0: "
+                                        r"coefficients must be finite"):
+        check_solvable(parse_spec(text, source="pole.yaml"), 1e-6, 0.0, 100)
+    fine = text.replace("[-1, 1]", "[0.5, 1]")
+    check_solvable(parse_spec(fine, source="pole.yaml"), 1e-6, 0.0, 100)
