@@ -40,46 +40,44 @@ LAYER = "which puts a layer at t = {t0:g} that no codebook resolves"
 def check_initial_finite(problem) -> None:
     """Raise :class:`SpecError` where an initial value is not finite (``exp(1000*x)``, ``log(x - 2)``).
 
-    Checked at the corners and random points of its coordinates, before any solve: the
-    solvers would otherwise stop inside a factorization with no word of the cause.
+    Checked at the corners, the center and random points of its coordinates, before any
+    solve: the solvers would otherwise stop inside a factorization with no word of the cause.
     """
     if problem.time is None:
         return
     for unknown in problem.unknowns:
-        names = sorted(unknown.initial.coordinates - {problem.time})
-        values = _sample_points(problem, names)
-        size = len(next(iter(values.values()))) if values else 1
-        with np.errstate(all="ignore"):
-            initial = np.broadcast_to(np.asarray(unknown.initial.evaluate(**values), dtype=float), (size,))
-        bad = np.flatnonzero(~np.isfinite(initial))
-        if bad.size:
-            i = int(bad[0])
-            where = ", ".join(f"{n}={values[n][i]:.6g}" for n in names)
-            raise SpecError(f"{problem.source}: unknowns.{unknown.name}.initial is {initial[i]} at {where or 'every point'}: "
+        bad = _first_non_finite(problem, unknown.initial, unknown.initial.coordinates - {problem.time})
+        if bad is not None:
+            raise SpecError(f"{problem.source}: unknowns.{unknown.name}.initial is {bad[0]} at {bad[1]}: "
                             f"an initial value must be finite over the coordinates' domains")
 
 
 def check_coefficients_finite(problem) -> None:
     """Raise :class:`SpecError` where an equation's coefficient is not finite (``-u/a`` with a = 0 in the box).
 
-    Checked like the initial values (corners, center, random points of the coefficient's
-    coordinates, time included); the discretization would refuse it later, naming neither
-    file nor equation.
+    Checked like the initial values (time included); the discretization would refuse it
+    later, naming neither file nor equation.
     """
     for eq in problem.equations:
         for sep in eq.polynomial.terms.values():
-            names = sorted(sep.coordinates)
-            if not names:
-                continue
-            values = _sample_points(problem, names)
-            with np.errstate(all="ignore"):
-                v = np.broadcast_to(np.asarray(sep.evaluate(**values), dtype=float), (len(values[names[0]]),))
-            bad = np.flatnonzero(~np.isfinite(v))
-            if bad.size:
-                i = int(bad[0])
-                where = ", ".join(f"{n}={values[n][i]:.6g}" for n in names)
-                raise SpecError(f"{problem.source}: equations[{eq.index}]: the coefficient {sep} is {v[i]} at {where}: "
-                                f"coefficients must be finite over the coordinates' domains")
+            bad = _first_non_finite(problem, sep, sep.coordinates)
+            if bad is not None:
+                raise SpecError(f"{problem.source}: equations[{eq.index}]: the coefficient {sep} is {bad[0]} at "
+                                f"{bad[1]}: coefficients must be finite over the coordinates' domains")
+
+
+def _first_non_finite(problem, sep, coordinates) -> tuple[float, str] | None:
+    """``(value, 'a=0, ...')`` at the first sample point where ``sep`` is not finite, else None."""
+    names = sorted(coordinates)
+    values = _sample_points(problem, names)
+    size = len(values[names[0]]) if names else 1
+    with np.errstate(all="ignore"):
+        v = np.broadcast_to(np.asarray(sep.evaluate(**values), dtype=float), (size,))
+    bad = np.flatnonzero(~np.isfinite(v))
+    if not bad.size:
+        return None
+    i = int(bad[0])
+    return float(v[i]), ", ".join(f"{n}={values[n][i]:.6g}" for n in names) or "every point"
 
 
 def check_initial_meets_boundary(problem, tolerance: float, relative_tolerance: float = 0.0, *,
