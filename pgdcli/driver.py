@@ -182,7 +182,7 @@ def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float,
             stopped = result.message  # the smaller residual the nodes ask for was not reached
             if result.status == 1:  # max_modes, but the residual fell: the error decides
                 kept, stopped = _at_max_modes(problem, kept, result, tolerance, relative_tolerance)
-                attempts.append((target, kept.check.node_ratio))
+                attempts.append((target, result.check.node_ratio))  # the retry's own ratio, kept or not
             break
         result.check = _measure(problem, result, tolerance, relative_tolerance)
         previous = kept
