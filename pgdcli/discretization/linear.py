@@ -146,12 +146,6 @@ def _merge_terms(terms: list[tuple[np.ndarray, ...]]) -> list[tuple[np.ndarray, 
     return [tuple(t) for t in merged]
 
 
-def _check_compatible_initial_values(problem, bases) -> None:
-    """A Dirichlet value must equal the initial value there: the lift u0 carries it for all times."""
-    check_initial_meets_boundary(problem, 1e-9, 1e-9, error=SolverError,
-                                 why="and the linear solver's lift carries the initial value for all times")
-
-
 def _initial_lift(unknown, bases: dict[str, Basis1D], tolerance: float, reports: list,
                   source: str) -> list[tuple[float, dict[str, np.ndarray]]]:
     """The initial value's separated terms as ``(coef, {coordinate: nodal values})``."""
@@ -251,7 +245,9 @@ def _time_and_lifts(problem, bases: dict[str, Basis1D], delta: float, separation
         return SteadyOps(), tau, {u.name: _dirichlet_lift(u, bases) for u in problem.unknowns}
     span = float(bases[tname].nodes[-1] - bases[tname].nodes[0])
     tau = {c.name: span * TAU_FRACTION for c in coords}
-    _check_compatible_initial_values(problem, bases)
+    # a Dirichlet value must equal the initial value there: the lift u0 carries it for all times
+    check_initial_meets_boundary(problem, 1e-9, 1e-9, error=SolverError,
+                                 why="and the linear solver's lift carries the initial value for all times")
     lifts = {u.name: _initial_lift(u, bases, delta, separations, problem.source) for u in problem.unknowns}
     return TimeOps(bases[tname]), tau, lifts
 

@@ -1,12 +1,13 @@
-"""Agreement of the initial value with the Dirichlet boundary values at the start time.
+"""Checks of a problem's data before any solve: finite initial values and coefficients, and
+initial values that meet the Dirichlet boundary values at the start time.
 
-Where ``u(x, t0)`` and a condition ``u = g`` at an end of ``x`` disagree by ``d``,
-the solution jumps by ``d`` at that corner and has a layer of width ~ sqrt(t)
-there as time starts. No polynomial basis in t and x resolves it to a tolerance
-much below ``d`` (measured on a user's combustion front, 0.5 (1 - tanh(10 (x - 0.3)))
-against u = 1 at x = 0, d = 2.5e-3: the method-of-lines reference's grids still
-disagreed by 1e-5 at 513 nodes), so such a problem is refused before solving, naming
-both keys, instead of after minutes of refinement.
+Each is evaluated at the corners, the center and random points of its coordinates' box, and a
+failure is one line naming the key. Where ``u(x, t0)`` and a condition ``u = g`` at an end of
+``x`` disagree by ``d``, the solution jumps by ``d`` at that corner and has a layer of width
+~ sqrt(t) there as time starts. No polynomial basis in t and x resolves it to a tolerance much
+below ``d`` (measured on a user's combustion front, 0.5 (1 - tanh(10 (x - 0.3))) against u = 1
+at x = 0, d = 2.5e-3: the method-of-lines reference's grids still disagreed by 1e-5 at 513
+nodes), so such a problem is refused before solving instead of after minutes of refinement.
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def _first_non_finite(problem, sep, coordinates) -> tuple[float, str] | None:
     """``(value, 'a=0, ...')`` at the first sample point where ``sep`` is not finite, else None."""
     names = sorted(coordinates)
     values = _sample_points(problem, names)
-    size = len(values[names[0]]) if names else 1
+    size = len(next(iter(values.values()))) if values else 1
     with np.errstate(all="ignore"):
         v = np.broadcast_to(np.asarray(sep.evaluate(**values), dtype=float), (size,))
     bad = np.flatnonzero(~np.isfinite(v))
