@@ -11,6 +11,7 @@ variant of another.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import textwrap
 from pathlib import Path
@@ -176,6 +177,20 @@ def codebook_path(solved, tmp_path_factory):
         return cache[name]
 
     return get
+
+
+@contextlib.contextmanager
+def train_march():
+    """Send every nonlinear ODE problem to the tensor-train march, however small its grid (the grid march,
+    ``pgdcli.algorithms.grid_march``, would take the small grids of the tests)."""
+    from pgdcli.algorithms import grid_march
+
+    saved = grid_march.GRID_LIMIT
+    grid_march.GRID_LIMIT = 0
+    try:
+        yield
+    finally:
+        grid_march.GRID_LIMIT = saved
 
 
 def assert_solved(result) -> None:

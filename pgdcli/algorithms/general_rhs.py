@@ -95,16 +95,22 @@ class GeneralPart:
 
     def values(self, t: float, state: Sequence[TT], indices: np.ndarray | None) -> np.ndarray:
         """``G_s(t, p)`` at grid multi-indices, shape (P, d) -> (P,); None: the whole grid, shape ``state[0].shape``."""
-        if indices is None:  # broadcast the nodes over the grid, the unknowns from the whole trains
-            d = len(self.params)
-            values = {p: self.nodes[p].reshape([-1 if j == k else 1 for j in range(d)])
-                      for k, p in enumerate(self.params)}
-            values.update({name: state[i].full() for name, i in self.needed})
-        else:
-            values = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
-            values.update({name: tt_values_at(state[i], indices) for name, i in self.needed})
+        if indices is None:  # the unknowns from the whole trains
+            return self.grid_values(t, {name: state[i].full() for name, i in self.needed})
+        values = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
+        values.update({name: tt_values_at(state[i], indices) for name, i in self.needed})
+        return self._evaluate(t, values, indices.shape[0])
+
+    def grid_values(self, t: float, arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+        """``G_s(t, p)`` on the whole grid from the needed unknowns' arrays (name -> grid shape)."""
+        d = len(self.params)
+        values = {p: self.nodes[p].reshape([-1 if j == k else 1 for j in range(d)]) for k, p in enumerate(self.params)}
+        values.update(arrays)
+        return self._evaluate(t, values, tuple(self.nodes[p].size for p in self.params))
+
+    def _evaluate(self, t: float, values: dict, shape) -> np.ndarray:
         values[self.time] = t
-        total = np.zeros(state[0].shape if indices is None else indices.shape[0])
+        total = np.zeros(shape)
         with np.errstate(all="ignore"):
             for sep, trees in self.monomials:
                 term = sep.evaluate(**values)

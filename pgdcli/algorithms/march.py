@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..discretization.basis import chebyshev_unit_nodes
 from ..discretization.coefficients import separation_report_text
 from ..discretization.coordinates import coordinate_infos
 from ..tensors.tt import TT, tt_round_many
@@ -52,8 +51,9 @@ from .dop853_stepper import Dop853OnTrains, TrialStep
 from .general_rhs import report_entries, underflow_hint
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem, compile_system, evaluate_rhs, round_terms
 from .space_time import join_and_round
+from .grid_march import GridMarchFailure, fits_grid, grid_region, grid_trains, march_on_grid
 from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, MIN_STEP, STAGE_FRACTION, STATE_FRACTION,
-                           StepControl)
+                           StepControl, output_times)
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "evaluate_rhs", "round_terms",
            "march", "join_and_round", "solve_march", "WATCH_AGREE"]
@@ -168,7 +168,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
             continue
         _check_caps(trial, max_rank, MAX_GROWTH_OF_NORM * scale0, t, y)
         t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
-        outs = _output_times(t, h, t_new, nodes, times[-1], slab_nodes)
+        outs = output_times(t, h, t_new, nodes, times[-1], slab_nodes)
         if slab_nodes:
             breakpoints.append(t_new)
         states.extend(stepper.dense_output(t, h, y, trial, outs, t_new, state_delta))
@@ -201,17 +201,6 @@ def _check_caps(trial: TrialStep, max_rank: int, max_norm: float, t: float, y: l
         raise MarchFailure("the solution blows up", t, y)
 
 
-def _output_times(t: float, h: float, t_new: float, nodes: np.ndarray, last_stored: float,
-                  slab_nodes: int | None) -> list[float]:
-    """The times inside ``(t, t_new]`` where the state is stored: a slab's Chebyshev-Lobatto
-    nodes (the step is the slab, the last node ``t_new``), else the time basis's nodes."""
-    if slab_nodes:
-        outs = list(t + h * (chebyshev_unit_nodes(slab_nodes)[1:] + 1.0) / 2.0)
-        outs[-1] = t_new
-        return outs
-    return [float(x) for x in nodes if last_stored < x <= t_new]
-
-
 def solve_march(problem, tolerance: float, callback=None):
     """Solve a (nonlinear) problem by the separated time march; see :func:`pgdcli.driver.solve`.
 
@@ -233,19 +222,54 @@ def solve_march(problem, tolerance: float, callback=None):
         if callback is not None:
             callback(info)
 
+    auto = getattr(opts, "time_slabs", "auto") == "auto"
+    if auto and problem.time_coordinate.discretization != "chebyshev":
+        auto = False  # linear time elements: the nodes are the slabs already
+    slab_nodes = problem.time_coordinate.nodes if auto else None
+    if fits_grid(system):
+        return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started)
     failure = None
     try:
-        auto = getattr(opts, "time_slabs", "auto") == "auto"
-        if auto and problem.time_coordinate.discretization != "chebyshev":
-            auto = False  # linear time elements: the nodes are the slabs already
         result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress,
-                       slab_nodes=problem.time_coordinate.nodes if auto else None)
+                       slab_nodes=slab_nodes)
     except MarchFailure as exc:
         failure = exc
     wall = _time.perf_counter() - started
     if failure is not None:
-        return _failed_result(problem, system, failure, tolerance, int(last.get("state", {}).get("steps", 0)), wall)
-    return _converged_result(problem, system, result, tolerance, separations, wall)
+        state = failure.state
+        region = blowup_region(system, state) if state is not None else ""
+        return _failed_result(problem, system, failure, region, tolerance,
+                              int(last.get("state", {}).get("steps", 0)), wall)
+    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    # one unknown at a time: batching would give every unknown the largest ranks of all
+    trains = join_and_round([[st[i] for st in result.states] for i in range(len(system.unknowns))], st_delta,
+                            np.random.default_rng(7), batched=False, stats=result.roundings)
+    ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)
+    report = _march_report(result.roundings, ranks)
+    return _converged_result(problem, system, result, trains, report, tolerance, separations, wall)
+
+
+def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
+                   started: float):
+    """:func:`solve_march` on a small grid: :func:`pgdcli.algorithms.grid_march.march_on_grid`."""
+    try:
+        result = march_on_grid(system, tolerance, max_steps=problem.solver.max_steps, callback=progress,
+                               slab_nodes=slab_nodes)
+    except GridMarchFailure as failure:
+        return _failed_result(problem, system, failure, grid_region(system, failure.values), tolerance,
+                              0, _time.perf_counter() - started)
+    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    trains = grid_trains(result, system.shape, st_delta)
+    cap = problem.solver.max_rank
+    if max(max(train.ranks[1:], default=0) for train in trains) >= cap:  # the train march's cap, on the codebook
+        failure = GridMarchFailure(f"a tensor-train rank reached solver.max_rank={cap} (raise it, or loosen the "
+                                   f"tolerance)", float(result.times[-1]), result.values[-1])
+        return _failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+    # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
+    bonds = [list(train.ranks[1:]) for train in trains]
+    report = {**_march_report({}, np.array([bonds] * len(result.times), dtype=int)), "march": "grid"}
+    return _converged_result(problem, system, result, trains, report, tolerance, separations,
+                             _time.perf_counter() - started)
 
 
 def _field_order(problem, system: NonlinearSystem) -> tuple[int, ...]:
@@ -255,7 +279,7 @@ def _field_order(problem, system: NonlinearSystem) -> tuple[int, ...]:
     return tuple(names.index(n) for n in [problem.time] + ([] if single else system.params))
 
 
-def _failed_result(problem, system: NonlinearSystem, failure: MarchFailure, tolerance: float, steps: int,
+def _failed_result(problem, system: NonlinearSystem, failure, region: str, tolerance: float, steps: int,
                    wall: float):
     """A not-converged result whose message names where (time, region) the march stopped."""
     from ..codebook.codebook import Codebook, FieldTT
@@ -264,8 +288,6 @@ def _failed_result(problem, system: NonlinearSystem, failure: MarchFailure, tole
 
     coords = coordinate_infos(problem, march=True)
     order = _field_order(problem, system)
-    state = getattr(failure, "state", None)
-    region = blowup_region(system, state) if state is not None else ""
     where = f" near {region}" if region else ""
     if failure.blowup_time is not None:
         message = (f"not converged: {failure} at t ~ {failure.blowup_time:.4g}{where} (predicted: the march "
@@ -284,11 +306,17 @@ def _failed_result(problem, system: NonlinearSystem, failure: MarchFailure, tole
     return SolveResult(cb, False, 3, message, np.array([np.inf]), np.zeros(0, dtype=int), wall)
 
 
-def _converged_result(problem, system: NonlinearSystem, result: MarchResult, tolerance: float, separations: list,
-                      wall: float):
-    """The codebook of a march that reached the end: the states joined into space-time trains."""
+def _converged_result(problem, system: NonlinearSystem, result, trains: list[TT], report: dict, tolerance: float,
+                      separations: list, wall: float):
+    """The codebook of a march that reached the end from the space-time train of every unknown.
+
+    ``result`` is a :class:`MarchResult` or a grid march's result (``steps``, ``rejected``,
+    ``step_sizes``, ``times``, ``breakpoints``, ``error_estimate``); ``report`` holds the entries
+    of that march (:func:`_march_report`).
+    """
     from ..codebook.codebook import Codebook, CoordinateInfo, FieldTT
     from .result import SolveResult
+    from .. import __version__
 
     coords = coordinate_infos(problem, march=True)
     names = [c.name for c in problem.coordinates]
@@ -298,14 +326,10 @@ def _converged_result(problem, system: NonlinearSystem, result: MarchResult, tol
         bp = result.breakpoints.copy()
         bp[0], bp[-1] = t.domain
         k = names.index(t.name)
-        coords[k] = CoordinateInfo(t.name, tuple(t.domain), len(result.states), t.discretization, t.role,
+        coords[k] = CoordinateInfo(t.name, tuple(t.domain), len(result.times), t.discretization, t.role,
                                    tuple(float(v) for v in bp))
         # the codebook's basis puts the nodes where the march stored the states
         assert np.allclose(coords[k].basis().nodes, result.times, rtol=0, atol=1e-12 * max(1.0, abs(bp[-1])))
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
-    # one unknown at a time: batching would give every unknown the largest ranks of all
-    trains = join_and_round([[st[i] for st in result.states] for i in range(len(system.unknowns))], st_delta,
-                            np.random.default_rng(7), batched=False, stats=result.roundings)
     fields = {}
     for u, train in zip(system.unknowns, trains):
         cores = train.cores
@@ -315,8 +339,11 @@ def _converged_result(problem, system: NonlinearSystem, result: MarchResult, tol
     estimate = result.error_estimate + SPACE_TIME_FRACTION * tolerance  # + the space-time rounding
     message = (f"converged: reached t = {system.time_basis.nodes[-1]:.6g} in {result.steps} steps "
                f"({result.rejected} rejected), error estimate {estimate:.3g} (tolerance {tolerance:.3g})")
-    report = _march_report(problem, result, fields, estimate, tolerance, wall)
-    report["message"] = message
+    report = {"converged": True, "status": 0, "message": message, "method": "march",
+              "modes": int(max(f.rank for f in fields.values())), "residual": float(estimate),
+              "error_estimate": float(estimate), "tolerance": float(tolerance), "steps": int(result.steps),
+              "rejected_steps": int(result.rejected), "step_sizes": np.array(result.step_sizes), **report,
+              "max_rank": int(problem.solver.max_rank), "wall_time": wall, "pgdcli_version": __version__}
     if separations:  # how many terms each non-separable coefficient needed
         report["separated_coefficients"] = separation_report_text(separations)
     cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
@@ -324,26 +351,10 @@ def _converged_result(problem, system: NonlinearSystem, result: MarchResult, tol
     return SolveResult(cb, True, 0, message, np.array([estimate]), np.zeros(0, dtype=int), wall)
 
 
-def _march_report(problem, result: MarchResult, fields: dict, estimate: float, tolerance: float,
-                  wall: float) -> dict:
-    """The codebook report of a converged march (steps, ranks, rounding counts)."""
-    from .. import __version__
-
-    stats = result.roundings
-    ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)
+def _march_report(stats: dict, node_ranks: np.ndarray) -> dict:
+    """The report entries of one march: the ranks at the time nodes and what the roundings did."""
     return {
-        "converged": True,
-        "status": 0,
-        "message": "",
-        "method": "march",
-        "modes": int(max(f.rank for f in fields.values())),
-        "residual": float(estimate),
-        "error_estimate": float(estimate),
-        "tolerance": float(tolerance),
-        "steps": int(result.steps),
-        "rejected_steps": int(result.rejected),
-        "step_sizes": np.array(result.step_sizes),
-        "node_ranks": ranks,  # (time nodes, unknowns, bonds)
+        "node_ranks": node_ranks,  # (time nodes, unknowns, bonds)
         # tensor-train roundings: exact (QR + SVD of the explicit sum), randomized (sketched), and the
         # sketches redone with twice the size because the rounded rank came too close to the sketch's
         "roundings_exact": int(stats.get("exact", 0)),
@@ -355,8 +366,5 @@ def _march_report(problem, result: MarchResult, fields: dict, estimate: float, t
         # cross missed its sampled error and fell back to the randomized rounding
         "product_crosses": int(stats.get("product_crosses", 0)),
         "product_cross_fallbacks": int(stats.get("product_cross_fallbacks", 0)),
-        "max_rank": int(problem.solver.max_rank),
-        "wall_time": wall,
-        "pgdcli_version": __version__,
         **report_entries(stats),
     }

@@ -8,8 +8,12 @@ to at most that share of the tolerance.
 
 from __future__ import annotations
 
+import numpy as np
+
+from ..discretization.basis import chebyshev_unit_nodes
+
 __all__ = ["StepControl", "MAX_GROWTH", "SAFETY", "LOCAL_FRACTION", "STATE_FRACTION", "STAGE_FRACTION",
-           "MIN_STEP", "MAX_GROWTH_OF_NORM", "MAX_STAGE_TIGHTENINGS"]
+           "MIN_STEP", "MAX_GROWTH_OF_NORM", "MAX_STAGE_TIGHTENINGS", "output_times"]
 
 # Step-size control. The error per unit step grows along these solutions, so the
 # usual safety factor 0.9 made every other step a rejection (12 wasted stages);
@@ -78,3 +82,14 @@ class StepControl:
             h *= MAX_GROWTH if ratio == 0.0 else min(MAX_GROWTH, max(0.2, SAFETY * ratio ** (-1.0 / ORDER_PER_UNIT_STEP)))
         self.just_rejected = False
         return h
+
+
+def output_times(t: float, h: float, t_new: float, nodes: np.ndarray, last_stored: float,
+                 slab_nodes: int | None) -> list[float]:
+    """The times inside ``(t, t_new]`` where the state is stored: a slab's Chebyshev-Lobatto
+    nodes (the step is the slab, the last node ``t_new``), else the time basis's nodes."""
+    if slab_nodes:
+        outs = list(t + h * (chebyshev_unit_nodes(slab_nodes)[1:] + 1.0) / 2.0)
+        outs[-1] = t_new
+        return outs
+    return [float(x) for x in nodes if last_stored < x <= t_new]

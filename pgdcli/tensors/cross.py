@@ -36,6 +36,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.linalg import qr
 
+from .tt_svd import tt_from_full, truncation_rank
 from .tt import TT, tt_round, tt_sum
 
 __all__ = ["CrossResult", "tt_cross", "tt_from_full", "maxvol", "tt_values_at"]
@@ -44,8 +45,6 @@ __all__ = ["CrossResult", "tt_cross", "tt_from_full", "maxvol", "tt_values_at"]
 MAXVOL_TOLERANCE = 1.05
 #: Share of the tolerance given to the truncation of each supercore.
 TRUNCATION_SHARE = 0.5
-#: Relative floor of the singular values kept: exactly low-rank functions come out to rounding level.
-RELATIVE_FLOOR = 1e-14
 
 
 @dataclass
@@ -128,42 +127,6 @@ def maxvol(a: np.ndarray, tolerance: float = MAXVOL_TOLERANCE, max_iterations: i
         b -= np.outer(bj, bi / b[i, j])
         rows[j] = i
     return rows
-
-
-def tt_from_full(values: np.ndarray, absolute: float) -> TT:
-    """The TT-SVD of a full tensor, within an absolute Frobenius error.
-
-    Parameters
-    ----------
-    values : ndarray, shape (n_1, ..., n_d)
-    absolute : float
-
-    Returns
-    -------
-    TT
-    """
-    shape = values.shape
-    d = len(shape)
-    cores = []
-    rest = values.reshape(1, -1)
-    delta = absolute / np.sqrt(max(d - 1, 1))
-    for k in range(d - 1):
-        r0 = rest.shape[0]
-        u, s, vt = np.linalg.svd(rest.reshape(r0 * shape[k], -1), full_matrices=False)
-        rank = _truncation_rank(s, delta)
-        cores.append(u[:, :rank].reshape(r0, shape[k], rank))
-        rest = s[:rank, None] * vt[:rank]
-    cores.append(rest.reshape(rest.shape[0], shape[-1], 1))
-    return TT(cores)
-
-
-def _truncation_rank(s: np.ndarray, delta: float) -> int:
-    """Smallest rank whose discarded singular values have norm <= delta (and above the floor)."""
-    if s.size == 0 or s[0] == 0.0:
-        return 1
-    tail = np.sqrt(np.cumsum((s * s)[::-1]))[::-1]
-    keep = (tail > delta) & (s > RELATIVE_FLOOR * s[0])
-    return max(1, int(np.sum(keep)))
 
 
 def _random_right_sets(shape: Sequence[int], rank: int, rng: np.random.Generator) -> list[np.ndarray]:
@@ -268,7 +231,7 @@ class _DmrgCross:
         u, s, vt = np.linalg.svd(block.reshape(r0 * n1, n2 * r1), full_matrices=False)
         # the supercore samples r0 n1 n2 r1 of the grid's entries: an RMS tolerance per entry, half
         # of it, so that two sweeps truncated differently (left, right) differ by less than the tolerance
-        rank = _truncation_rank(s, TRUNCATION_SHARE * self.tolerance * np.sqrt(block.size / (self.d - 1)))
+        rank = truncation_rank(s, TRUNCATION_SHARE * self.tolerance * np.sqrt(block.size / (self.d - 1)))
         if rank > self.max_rank:
             self.capped = True
             rank = self.max_rank

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
-from conftest import PROBLEMS, assert_solved, spec_text
+from conftest import PROBLEMS, assert_solved, spec_text, train_march
 from scipy.integrate import solve_ivp
 
 import pgdcli
@@ -52,6 +52,13 @@ def _one_error_line(result) -> str:
 @pytest.fixture(scope="module")
 def coupled():
     return pgdcli.solve(load_spec(PROBLEMS / "coupled.yaml"))
+
+
+@pytest.fixture(scope="module")
+def coupled_train():
+    """coupled.yaml through the tensor-train march (its grid fits the grid march, which it would get)."""
+    with train_march():
+        return pgdcli.solve(load_spec(PROBLEMS / "coupled.yaml"))
 
 
 @pytest.fixture(scope="module")
@@ -179,8 +186,11 @@ def test_linear_problem_forced_through_the_march(relaxation_march, record_proper
 # ----------------------------------------------------------------------------------------------
 # the solver report
 # ----------------------------------------------------------------------------------------------
-def test_coupled_report(coupled):
+@pytest.mark.parametrize("march", ["grid", "train"])
+def test_coupled_report(march, request):
+    coupled = request.getfixturevalue("coupled" if march == "grid" else "coupled_train")
     rep = coupled.codebook.report
+    assert rep.get("march", "train") == march
     assert rep["converged"] is True and rep["method"] == "march"
     assert isinstance(rep["steps"], int) and rep["steps"] >= 1
     sizes = np.asarray(rep["step_sizes"])
@@ -197,7 +207,11 @@ def test_coupled_report(coupled):
     assert len(t_info.breakpoints) == rep["steps"] + 1
     assert nodes == rep["steps"] * (per_slab - 1) + 1
     np.testing.assert_allclose(np.diff(t_info.breakpoints), sizes, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(ranks[0], np.ones((3, 2)))  # u(0) = (a, b, c): rank one
+    if march == "train":
+        np.testing.assert_array_equal(ranks[0], np.ones((3, 2)))  # u(0) = (a, b, c): rank one
+    else:  # no trains at the nodes: the parameter bonds of the codebook's train bound every node's ranks
+        bonds = [coupled.codebook.fields[u].ranks[1:] for u in ("u1", "u2", "u3")]
+        np.testing.assert_array_equal(ranks, np.broadcast_to(bonds, ranks.shape))
     assert ranks.min() >= 1 and ranks.max() <= rep["max_rank"]
     assert f"{rep['steps']} steps" in coupled.message
 
@@ -474,7 +488,8 @@ def test_stiff_rounding_noise_tightens_the_stage_rounding():
     to the floor (t = 0.78). Exact: u = u0 / sqrt(u0^2 + (1 - u0^2) exp(-2 r t)), checked at the
     parameter nodes (between them 12 nodes do not resolve r; the solve warns)."""
     params = {"r": (10.0, 200.0, 12), "u0": (0.5, 1.5, 8)}
-    result = pgdcli.solve(_scalar_problem("der(u) = -r*u**3 + r*u", 1.0, params, 1e-6, t_nodes=8))
+    with train_march():  # the grid march has no stage roundings
+        result = pgdcli.solve(_scalar_problem("der(u) = -r*u**3 + r*u", 1.0, params, 1e-6, t_nodes=8))
     assert_solved(result)
     cb = result.codebook
     assert cb.report["stage_tightenings"] >= 1
@@ -560,9 +575,14 @@ def test_compile_rejects_a_derivative_coefficient_summed_over_coordinates():
 
 def test_rank_cap_is_a_failure_not_a_silent_truncation():
     text = (PROBLEMS / "coupled.yaml").read_text().replace("tolerance: 1e-9", "tolerance: 1e-9\n  max_rank: 3")
-    result = pgdcli.solve(pgdcli.parse_spec(text, source="capped.yaml"))
+    with train_march():
+        result = pgdcli.solve(pgdcli.parse_spec(text, source="capped.yaml"))
     assert not result.converged
     assert "solver.max_rank=3" in result.message and "t = 0" in result.message
+    # the grid march's codebook is held to the same cap: refused at the end, where its ranks are known
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="capped.yaml"))
+    assert not result.converged
+    assert "solver.max_rank=3" in result.message and "t = 0.5" in result.message
 
 
 def test_nonlinear_problem_with_time_only_is_one_trajectory():

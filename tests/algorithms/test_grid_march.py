@@ -1,0 +1,97 @@
+"""The grid march (pgdcli.algorithms.grid_march): the whole array of a small grid marched by DOP853.
+
+Its right-hand side must equal the tensor-train march's (the same compiled system evaluated two
+ways), and its states the trajectories of scipy's solve_ivp (DOP853, rtol = atol = 1e-12) at the
+grid's initial conditions, written here in numpy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import PROBLEMS
+from scipy.integrate import solve_ivp
+from threadpoolctl import threadpool_limits
+
+import pgdcli
+from pgdcli import load_spec, parse_spec
+from pgdcli.algorithms import grid_march
+from pgdcli.algorithms.march import compile_system, evaluate_rhs
+from pgdcli.tensors.tt import tt_rank_one, tt_sum
+
+TIMED = """
+name: timed
+coordinates:
+  t: {domain: [0, 2]}
+  w: {domain: [1, 3]}
+  u0: {domain: [0.5, 1.5]}
+unknowns:
+  u: {initial: u0}
+  v: {initial: 0}
+equations:
+  - "der(u) = v"
+  - "der(v) = -w*w*u - 0.2*v*sqrt(1 + v*v) + cos(w*t)*exp(-u*u)"
+solver:
+  tolerance: 1e-7
+"""
+
+
+def random_state(system, seed: int):
+    """A rank-2 train per unknown, of moderate values, on the system's grid."""
+    rng = np.random.default_rng(seed)
+    return [tt_sum([tt_rank_one([rng.uniform(0.2, 1.0, n) for n in system.shape]) for _ in range(2)])
+            for _ in system.unknowns]
+
+
+@pytest.mark.parametrize("source", ["coupled", "pendulum", "timed"])
+def test_grid_rhs_equals_the_train_rhs(source):
+    problem = parse_spec(TIMED, source="timed.yaml") if source == "timed" else load_spec(PROBLEMS / f"{source}.yaml")
+    system = compile_system(problem, 1e-8)
+    state = random_state(system, 3)
+    rhs = grid_march.GridRhs(system)
+    y = np.stack([u.full().reshape(-1) for u in state])
+    for t in (0.0, 0.37):
+        trains = evaluate_rhs(system, t, state, 1e-14, 400, np.random.default_rng(0), {})
+        expected = np.stack([f.full().reshape(-1) for f in trains])
+        np.testing.assert_allclose(rhs(t, y), expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+
+
+def test_states_at_the_time_nodes_match_solve_ivp():
+    problem = load_spec(PROBLEMS / "coupled.yaml")
+    system = compile_system(problem, 1e-9)
+    with threadpool_limits(1):
+        result = grid_march.march_on_grid(system, 1e-9, slab_nodes=8)
+    assert result.breakpoints[-1] == 0.5 and len(result.times) == result.steps * 7 + 1
+    nodes = [system.bases[p].nodes for p in system.params]
+    a, b, c = (g.reshape(-1) for g in np.meshgrid(*nodes, indexing="ij"))
+    rng = np.random.default_rng(8)
+    worst = 0.0
+    for i in rng.choice(a.size, 40, replace=False):
+        sol = solve_ivp(lambda t, u: [1 - u[1] * u[2], 2 - u[0] * u[2], 3 - u[0] * u[1]], (0, 0.5),
+                        [a[i], b[i], c[i]], method="DOP853", rtol=1e-12, atol=1e-12, t_eval=result.times)
+        got = np.stack([v[:, i] for v in result.values], axis=1)  # (unknowns, times)
+        worst = max(worst, float(np.abs(got - sol.y).max()))
+    assert worst <= 1e-9, worst
+
+
+def test_timed_general_problem_solves_to_its_tolerance_by_the_grid_march():
+    problem = parse_spec(TIMED, source="timed.yaml")
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    assert result.codebook.report["march"] == "grid"
+    rng = np.random.default_rng(9)
+    worst = 0.0
+    for _ in range(60):
+        w, u0, t = rng.uniform(1, 3), rng.uniform(0.5, 1.5), rng.uniform(0, 2)
+        sol = solve_ivp(lambda s, y: [y[1], -w * w * y[0] - 0.2 * y[1] * np.sqrt(1 + y[1] ** 2) + np.cos(w * s) * np.exp(-y[0] ** 2)],
+                        (0, 2), [u0, 0.0], method="DOP853", rtol=1e-12, atol=1e-12, t_eval=[t])
+        got = result.codebook(t=t, w=w, u0=u0)
+        worst = max(worst, abs(float(got["u"]) - sol.y[0, 0]), abs(float(got["v"]) - sol.y[1, 0]))
+    assert worst <= 1e-7, worst
+
+
+def test_only_small_grids_fit():
+    system = compile_system(load_spec(PROBLEMS / "coupled.yaml"), 1e-9)  # 20^3 nodes x 3 unknowns
+    assert grid_march.fits_grid(system)
+    rigid = compile_system(load_spec(PROBLEMS / "rigid_body.yaml"), 1e-5)  # 8^6 nodes x 6 unknowns
+    assert not grid_march.fits_grid(rigid)
