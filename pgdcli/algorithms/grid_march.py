@@ -64,6 +64,7 @@ class GridRhs:
 
     def __init__(self, system: NonlinearSystem):
         self.system = system
+        self.stats: dict = {}
         self.shape = system.shape
         self.size = int(np.prod(self.shape))
         self.fixed: dict = {}
@@ -87,7 +88,10 @@ class GridRhs:
             part = self.system.general[s] if self.system.general else None
             if part is not None:
                 arrays = {name: Y[i].reshape(self.shape) for name, i in part.needed}
-                out[s] += part.grid_values(t, arrays).reshape(-1)
+                values = part.grid_values(t, arrays).reshape(-1)
+                if not np.all(np.isfinite(values)) and np.all(np.isfinite(Y)):  # sqrt(-1), 1/0: for the message
+                    self.stats["cross_nonfinite"] = self.stats.get("cross_nonfinite", 0) + 1
+                out[s] += values
         return out
 
 
@@ -130,6 +134,7 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, *, max_steps: int =
     y = np.stack([u.full().reshape(-1) for u in system.initial])
     scale0 = max(1.0, float(np.max(np.abs(y))))
     control = StepControl(span, LOCAL_FRACTION * tolerance)
+    stats = rhs.stats  # "cross_nonfinite": right-hand sides not finite at finite stage values (underflow_hint)
     f = rhs(t, y)
     values, times, breakpoints, sizes = [y], [t], [t], []
     h = 0.1 * span
@@ -142,7 +147,7 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, *, max_steps: int =
         h = min(h, t_final - t)
         if h < MIN_STEP * span:
             raise GridMarchFailure("step size underflow (the solution blows up or is stiff"
-                                   + underflow_hint(system.general, {}) + ")", t, y)
+                                   + underflow_hint(system.general, stats) + ")", t, y)
         y_new, K, local = _trial_step(rhs, t, y, f, h)
         error = float(np.max(local)) if local is not None else np.inf
         ratio = control.ratio(error, h)
