@@ -32,14 +32,22 @@ from .blowup import BlowupWatch
 from .dop853_stepper import dense_weights
 from .general_rhs import underflow_hint
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem
+from .space_time import join_and_round
 from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, MIN_STEP, StepControl, output_times
 
-__all__ = ["GRID_LIMIT", "fits_grid", "GridRhs", "GridMarchResult", "march_on_grid", "grid_trains",
+__all__ = ["GRID_LIMIT", "CHUNK_FLOATS", "fits_grid", "GridRhs", "GridMarchResult", "march_on_grid",
            "grid_region", "GridMarchFailure"]
 
-#: Largest number of state values (grid nodes x unknowns) marched as one array. Set from
-#: benchmarks/build_speed.py (the 'grid march' rows); 0 sends every problem to the train march.
-GRID_LIMIT = 2 ** 18
+#: Largest number of state values (grid nodes x unknowns) marched as one array; 0 sends every problem to
+#: the train march. Measured (benchmarks/README.md, 'grid march'): faster than the train march on
+#: coupled.yaml (8000 x 3 values: 4x) and on the rigid body with 8 nodes per IC (1.6e6 values: 2.1x, peak
+#: memory ~1 GB); with 10 nodes (6e6 values) still 1.2x, but at 2.9 GB: the limit stops below that.
+GRID_LIMIT = 2 ** 21
+
+
+#: Floats of stored values (time nodes x unknowns x grid nodes) compressed together: 256 MB. A long march
+#: (thousands of time nodes) is compressed by runs and joined (:func:`pgdcli.algorithms.space_time.join_and_round`).
+CHUNK_FLOATS = 2 ** 25
 
 
 def fits_grid(system: NonlinearSystem) -> bool:
@@ -99,24 +107,72 @@ class GridRhs:
 class GridMarchResult:
     """The values at the stored time nodes and what the march did."""
 
-    values: list[np.ndarray]  # [time node] -> (unknowns, grid nodes)
+    trains: list[TT]  # per unknown: the space-time train (time nodes first, then the grid's modes)
     times: np.ndarray
     steps: int
     rejected: int
     error_estimate: float  # the accepted local error estimates added up (RMS over the grid, largest unknown)
     step_sizes: list[float] = field(default_factory=list)
     breakpoints: np.ndarray | None = None
+    chunks: int = 1  # runs of time nodes compressed on their own (memory) before the join
 
 
-def march_on_grid(system: NonlinearSystem, tolerance: float, *, max_steps: int = 20000, callback=None,
-                  slab_nodes: int | None = None) -> GridMarchResult:
-    """March the whole grid array with DOP853 to the end of the time domain.
+class _Store:
+    """The values at the time nodes, compressed by runs of at most :data:`CHUNK_FLOATS` floats.
+
+    A single run is compressed once with the whole budget ``delta``; with several, run ``c`` gets
+    ``delta / 2 * 2^(-(c + 1) / 2)`` (the runs are orthogonal blocks of the time mode: their errors
+    add in quadrature, to at most ``delta / 2``) and their join the rest.
+    """
+
+    def __init__(self, shape: tuple[int, ...], delta: float):
+        self.shape, self.delta = shape, delta
+        self.buffer: list[np.ndarray] = []
+        self.pieces: list[list[TT]] = []
+        self.spent = 0.0  # squared Frobenius budget given to the runs
+        self.rng = np.random.default_rng(7)  # the sketches' seed: same spec, same codebook
+
+    def extend(self, values: list[np.ndarray]) -> None:
+        self.buffer.extend(values)
+        if sum(v.size for v in self.buffer) > CHUNK_FLOATS:
+            budget = 0.5 * self.delta * np.sqrt(0.5 ** (len(self.pieces) + 1))
+            self.spent += budget * budget
+            self.pieces.append(self._compress(budget))
+
+    def _compress(self, delta: float) -> list[TT]:
+        stacked = np.stack(self.buffer)  # (time nodes, unknowns, grid nodes)
+        self.buffer = []
+        trains: list[TT] = []
+        guesses = self.pieces[-1] if self.pieces else []
+        for i in range(stacked.shape[1]):  # sketches sized from the ranks of the unknown (run) before
+            values = np.ascontiguousarray(stacked[:, i]).reshape((stacked.shape[0],) + self.shape)
+            guess = trains[-1].ranks if trains else (guesses[i].ranks if guesses else ())
+            trains.append(tt_from_full_sketched(values, delta, self.rng, guess))
+        return trains
+
+    def trains(self) -> list[TT]:
+        """The space-time train of every unknown, within ``delta`` of the stored values."""
+        if not self.pieces:
+            return self._compress(self.delta)
+        if self.buffer:
+            budget = 0.5 * self.delta * np.sqrt(0.5 ** (len(self.pieces) + 1))
+            self.spent += budget * budget
+            self.pieces.append(self._compress(budget))
+        groups = [[piece[i] for piece in self.pieces] for i in range(len(self.pieces[0]))]
+        return join_and_round(groups, np.sqrt(self.delta ** 2 - self.spent), self.rng, batched=False, lifted=True)
+
+
+def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, max_steps: int = 20000,
+                  callback=None, slab_nodes: int | None = None) -> GridMarchResult:
+    """March the whole grid array with DOP853 to the end of the time domain; compress it to trains.
 
     Parameters
     ----------
     system : NonlinearSystem
     tolerance : float
         Root-mean-square over the grid nodes, per unknown, of the local errors added up over the march.
+    delta : float
+        Frobenius bound of the compression of each unknown's space-time array.
     max_steps : int
     callback : callable, optional
         After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
@@ -136,7 +192,9 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, *, max_steps: int =
     control = StepControl(span, LOCAL_FRACTION * tolerance)
     stats = rhs.stats  # "cross_nonfinite": right-hand sides not finite at finite stage values (underflow_hint)
     f = rhs(t, y)
-    values, times, breakpoints, sizes = [y], [t], [t], []
+    store = _Store(system.shape, delta)
+    store.extend([y])
+    times, breakpoints, sizes = [t], [t], []
     h = 0.1 * span
     steps = rejected = 0
     local_sum = np.zeros(len(y))
@@ -162,7 +220,7 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, *, max_steps: int =
         outs = output_times(t, h, t_new, nodes, times[-1], slab_nodes)
         if slab_nodes:
             breakpoints.append(t_new)
-        values.extend(_dense_output(rhs, t, h, y, y_new, K, outs, t_new))
+        store.extend(_dense_output(rhs, t, h, y, y_new, K, outs, t_new))
         times.extend(outs)
         t, y, f = t_new, y_new, K[DOP853.n_stages]
         steps += 1
@@ -175,8 +233,9 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, *, max_steps: int =
             blowup = watch(t, sizes, y)
             if blowup is not None:
                 raise GridMarchFailure("the solution blows up", t, y, blowup)
-    return GridMarchResult(values, np.array(times), steps, rejected, float(np.max(local_sum)), sizes,
-                           np.array(breakpoints) if slab_nodes else None)
+    trains = store.trains()
+    return GridMarchResult(trains, np.array(times), steps, rejected, float(np.max(local_sum)), sizes,
+                           np.array(breakpoints) if slab_nodes else None, max(1, len(store.pieces)))
 
 
 def grid_region(system: NonlinearSystem, values: np.ndarray) -> str:
@@ -231,15 +290,3 @@ def _dense_output(rhs: GridRhs, t: float, h: float, y: np.ndarray, y_new: np.nda
         values = w[:, 2:] @ K.reshape(K.shape[0], -1) + np.outer(w[:, 0], y) + np.outer(w[:, 1], y_new)
         found = list(values.reshape((len(inside),) + y.shape))
     return found + [y_new] * (len(outs) - len(inside))
-
-
-def grid_trains(result: GridMarchResult, shape: tuple[int, ...], delta: float) -> list[TT]:
-    """Per unknown, the TT-SVD of its space-time array (time nodes first, then the grid's modes) to an
-    absolute Frobenius error ``delta`` (:func:`pgdcli.tensors.tt_svd.tt_from_full_sketched`)."""
-    stacked = np.stack(result.values)  # (time nodes, unknowns, grid nodes)
-    rng = np.random.default_rng(7)  # the sketches' seed: same spec, same codebook
-    trains: list[TT] = []
-    for i in range(stacked.shape[1]):  # each unknown's sketches sized from the ranks of the one before
-        values = np.ascontiguousarray(stacked[:, i]).reshape((stacked.shape[0],) + tuple(shape))
-        trains.append(tt_from_full_sketched(values, delta, rng, trains[-1].ranks if trains else ()))
-    return trains

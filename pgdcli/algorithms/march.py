@@ -51,7 +51,7 @@ from .dop853_stepper import Dop853OnTrains, TrialStep
 from .general_rhs import report_entries, underflow_hint
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem, compile_system, evaluate_rhs, round_terms
 from .space_time import join_and_round
-from .grid_march import GridMarchFailure, fits_grid, grid_region, grid_trains, march_on_grid
+from .grid_march import GridMarchFailure, fits_grid, grid_region, march_on_grid
 from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, MIN_STEP, STAGE_FRACTION, STATE_FRACTION,
                            StepControl, output_times)
 
@@ -252,22 +252,23 @@ def solve_march(problem, tolerance: float, callback=None):
 def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
                    started: float):
     """:func:`solve_march` on a small grid: :func:`pgdcli.algorithms.grid_march.march_on_grid`."""
+    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     try:
-        result = march_on_grid(system, tolerance, max_steps=problem.solver.max_steps, callback=progress,
+        result = march_on_grid(system, tolerance, st_delta, max_steps=problem.solver.max_steps, callback=progress,
                                slab_nodes=slab_nodes)
     except GridMarchFailure as failure:
         return _failed_result(problem, system, failure, grid_region(system, failure.values), tolerance,
                               0, _time.perf_counter() - started)
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
-    trains = grid_trains(result, system.shape, st_delta)
+    trains = result.trains
     cap = problem.solver.max_rank
     if max(max(train.ranks[1:], default=0) for train in trains) >= cap:  # the train march's cap, on the codebook
         failure = GridMarchFailure(f"a tensor-train rank reached solver.max_rank={cap} (raise it, or loosen the "
-                                   f"tolerance)", float(result.times[-1]), result.values[-1])
+                                   f"tolerance)", float(result.times[-1]), np.zeros((len(trains), 0)))
         return _failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
     # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
     bonds = [list(train.ranks[1:]) for train in trains]
-    report = {**_march_report({}, np.array([bonds] * len(result.times), dtype=int)), "march": "grid"}
+    report = {**_march_report({}, np.array([bonds] * len(result.times), dtype=int)), "march": "grid",
+              "grid_chunks": int(result.chunks)}
     return _converged_result(problem, system, result, trains, report, tolerance, separations,
                              _time.perf_counter() - started)
 

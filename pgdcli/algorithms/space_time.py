@@ -23,7 +23,7 @@ def lift(train: TT) -> TT:
 
 def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generator | None = None,
                    fan_in: int = 8, batched: bool = True,
-                   stats: dict | None = None) -> list[TT]:
+                   stats: dict | None = None, lifted: bool = False) -> list[TT]:
     """Each group's trains joined along a new leading mode (``X[n, ...] = group[n][...]``), rounded
     to Frobenius error ``delta``: the codebook's space-time train from the states at the time nodes.
 
@@ -34,13 +34,14 @@ def join_and_round(groups: list[list[TT]], delta: float, rng: np.random.Generato
     them), then the rounded pieces are joined the same way. The last level, which
     sets the final ranks, gets 0.7 of ``delta`` and the earlier ones share the
     rest; within a level the pieces are orthogonal blocks of the leading mode, so
-    their errors add in quadrature.
+    their errors add in quadrature. ``lifted``: the members have their leading (time) mode already, a run
+    of nodes each (the grid march's compressed runs).
     """
     levels = max(1, int(np.ceil(np.log(max(len(g) for g in groups)) / np.log(fan_in))))
     # the last level sets the final ranks: it gets most of the budget, the others share the rest
     budgets = [0.7 * delta] if levels == 1 else [0.3 * delta / (levels - 1)] * (levels - 1) + [0.7 * delta]
     budgets[-1] = delta - sum(budgets[:-1])
-    pieces = [[lift(t) for t in g] for g in groups]
+    pieces = [list(g) if lifted else [lift(t) for t in g] for g in groups]
     for level in range(levels + 1):
         chunks = [[g[i:i + fan_in] for i in range(0, len(g), fan_in)] for g in pieces]
         flat = [chunk for g in chunks for chunk in g]

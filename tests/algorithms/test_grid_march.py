@@ -56,12 +56,17 @@ def test_grid_rhs_equals_the_train_rhs(source):
         np.testing.assert_allclose(rhs(t, y), expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
 
 
-def test_states_at_the_time_nodes_match_solve_ivp():
+@pytest.mark.parametrize("chunk_floats", [grid_march.CHUNK_FLOATS, 24000 * 16])
+def test_states_at_the_time_nodes_match_solve_ivp(chunk_floats, monkeypatch):
+    """Compressed at once or by runs of about 20 time nodes (joined afterwards), within the tolerance."""
+    monkeypatch.setattr(grid_march, "CHUNK_FLOATS", chunk_floats)
     problem = load_spec(PROBLEMS / "coupled.yaml")
     system = compile_system(problem, 1e-9)
     with threadpool_limits(1):
-        result = grid_march.march_on_grid(system, 1e-9, slab_nodes=8)
+        result = grid_march.march_on_grid(system, 1e-9, 1e-10 * np.sqrt(8000), slab_nodes=8)
     assert result.breakpoints[-1] == 0.5 and len(result.times) == result.steps * 7 + 1
+    assert (result.chunks == 1) == (chunk_floats > 1e6)
+    full = [train.full().reshape(len(result.times), -1) for train in result.trains]
     nodes = [system.bases[p].nodes for p in system.params]
     a, b, c = (g.reshape(-1) for g in np.meshgrid(*nodes, indexing="ij"))
     rng = np.random.default_rng(8)
@@ -69,7 +74,7 @@ def test_states_at_the_time_nodes_match_solve_ivp():
     for i in rng.choice(a.size, 40, replace=False):
         sol = solve_ivp(lambda t, u: [1 - u[1] * u[2], 2 - u[0] * u[2], 3 - u[0] * u[1]], (0, 0.5),
                         [a[i], b[i], c[i]], method="DOP853", rtol=1e-12, atol=1e-12, t_eval=result.times)
-        got = np.stack([v[:, i] for v in result.values], axis=1)  # (unknowns, times)
+        got = np.stack([f[:, i] for f in full])  # (unknowns, times)
         worst = max(worst, float(np.abs(got - sol.y).max()))
     assert worst <= 1e-9, worst
 
@@ -93,5 +98,7 @@ def test_timed_general_problem_solves_to_its_tolerance_by_the_grid_march():
 def test_only_small_grids_fit():
     system = compile_system(load_spec(PROBLEMS / "coupled.yaml"), 1e-9)  # 20^3 nodes x 3 unknowns
     assert grid_march.fits_grid(system)
-    rigid = compile_system(load_spec(PROBLEMS / "rigid_body.yaml"), 1e-5)  # 8^6 nodes x 6 unknowns
-    assert not grid_march.fits_grid(rigid)
+    rigid = (PROBLEMS / "rigid_body.yaml").read_text()
+    assert grid_march.fits_grid(compile_system(parse_spec(rigid, source="r.yaml"), 1e-5))  # 8^6 nodes x 6 unknowns
+    rigid = rigid.replace("nodes: 8}", "nodes: 10}")  # 10^6 nodes x 6 unknowns
+    assert not grid_march.fits_grid(compile_system(parse_spec(rigid, source="r.yaml"), 1e-5))
