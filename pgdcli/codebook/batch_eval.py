@@ -37,11 +37,13 @@ from ..discretization.basis import barycentric_rows
 
 __all__ = ["TTBatch"]
 
-# Points per block: the block's widest intermediate (points x values per point) takes half of
+# Points per block: the block's widest intermediate (points x values per point) takes 3/4 MiB of
 # the second-level cache (1 MiB per core here), the other intermediates the rest. Measured, one
-# thread, 1e5 points (benchmarks/README.md): coupled (widest 160 values) 163-176 ms with 256-512
-# points, 287 ms with 819; the rigid body (widest 520) 1.69-1.85 s with 64-256, 2.0 s with 512.
-BLOCK_BYTES = 1 << 19
+# thread, 1e5 points, block sizes interleaved in one process (medians of 7, load ~3): coupled
+# (widest 160 values) 162 / 158 / 172-286 ms at 409 / 614 / 819 points; logistic (widest 192)
+# 62 / 60 / 57 ms at 341 / 512 / 682; the rigid body (widest 520) 1.68 / 1.62 / 1.58 s at 126 /
+# 189 / 252 and 2.1 s at 512.
+BLOCK_BYTES = 3 << 18
 MIN_BLOCK, MAX_BLOCK = 32, 1024
 # Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
 MAX_PAIR_VALUES = 1 << 22

@@ -231,7 +231,7 @@ class Codebook:
             Not exactly one series coordinate, missing, unknown or out-of-domain coordinates,
             unknown fields.
         """
-        from .series import series_cp, series_tt
+        from .series import evaluate_series
 
         if len(series) != 1:
             raise QueryError(f"a series runs along one coordinate, got {len(series)}: {', '.join(series) or 'none'}")
@@ -253,12 +253,7 @@ class Codebook:
             k = self._names.index(c.name)
             mats[k] = self._bases[k].interpolation_matrix(self._checked(c, a.reshape(-1)))
         rows = self._bases[j].interpolation_matrix(self._checked(self.coordinates[j], values.reshape(-1)))
-        out = {}
-        for u in selected:
-            fm = self.fields[u]
-            out[u] = (series_tt(fm, mats, j, rows) if isinstance(fm, FieldTT) else
-                      series_cp(fm.alphas, fm.modes, mats, j, rows))
-        return out
+        return evaluate_series(self.fields, mats, j, rows, selected)
 
     def gradient(self, coordinates: Mapping[str, object], wrt: Sequence[str] | None = None,
                  fields: Sequence[str] | None = None, grid: bool = False) -> dict[str, dict[str, np.ndarray]]:
