@@ -12,6 +12,9 @@ temporary directory, then measures in one process, per codebook:
   beside it, in the same run, the batch algorithm before issue 15 (per block of 2048 points the
   row-wise Khatri-Rao product of the running contraction and the cardinal rows times each
   unfolded core, unknown by unknown, all cores dense: ``rowwise_before`` below);
+- the error gate's shape: 200 random parameter points x the time nodes and midpoints,
+  ``Codebook.evaluate_series`` beside ``Codebook.evaluate`` on the broadcast points; for the rigid
+  body also the single point's memory floor (its cores read once by one gemv per core);
 - ``pgd query --points`` with the same 1e5 points in a CSV file (wall time, one run: CSV parsing
   and printing included);
 - grid: ``codebook.evaluate_grid`` on a cartesian product of random values per coordinate
@@ -121,6 +124,43 @@ def rowwise_before(cb, points: dict) -> dict:
     return values
 
 
+def _series_rows(cb, rng, label: str) -> list:
+    """The error gate's shape: S parameter points x T times (nodes and midpoints), ``evaluate_series``
+    against ``evaluate`` on the broadcast points; medians of 7, same process."""
+    from pgdcli.checks.check import nodes_and_midpoints
+
+    time_name = cb.coordinates[0].name
+    times, _ = nodes_and_midpoints(cb, time_name)
+    points = {c.name: rng.uniform(*c.domain, 200) for c in cb.coordinates[1:]}
+    broadcast = {time_name: times[None, :]} | {n: v[:, None] for n, v in points.items()}
+    flat = _batch(cb.evaluate, broadcast, repeats=7)
+    series = _batch(lambda p: cb.evaluate_series(p, {time_name: times}), points, repeats=7)
+    diff = max(float(np.max(np.abs(cb.evaluate_series(points, {time_name: times})[u] - cb.evaluate(broadcast)[u])))
+               for u in cb.unknown_names)
+    return [(label, f"check shape: 200 samples x {times.size} times, evaluate_series", f"{series * 1e3:.2f} ms",
+             f"evaluate, broadcast points: {flat * 1e3:.2f} ms", f"{flat / series:.0f}x", "", None),
+            (label, "  max |series - evaluate|", f"{diff:.1e}", "", "", "", None)]
+
+
+def _stream_floor(cb, rng) -> float:
+    """Seconds to read every core once as one point does (the unknowns' cores zero-padded to common
+    ranks, one batched gemv per core, as ``codebook.point.TTStack``): the single point's memory floor."""
+    fields = list(cb.fields.values())
+    stacks = []
+    for k in range(len(fields[0].cores)):
+        r0 = max(f.cores[k].shape[0] for f in fields)
+        n = fields[0].cores[k].shape[1]
+        r1 = max(f.cores[k].shape[2] for f in fields)
+        stacks.append((rng.standard_normal((len(fields), 1, r1)), rng.standard_normal((len(fields), r1, r0 * n))))
+
+    def read():
+        for _ in range(100):
+            for v, table in stacks:
+                np.matmul(v, table)
+
+    return _batch(lambda _: read(), None, repeats=15) / 100
+
+
 def cli_points(path: Path, pts: dict, coords, tmp: str) -> float:
     """Wall time of ``pgd query PATH --points CSV`` on the points (one run, output discarded)."""
     csv = Path(tmp) / f"{path.stem}-points.csv"
@@ -140,9 +180,9 @@ def axes_of(cb, rng, name: str) -> dict:
             for c in cb.coordinates}
 
 
-def _before_rows(folder: Path, path: Path, label: str, spread: list, series: list, axes: dict) -> list:
-    """Single points (random, time series) and evaluate_grid of this version and the one in ``folder``,
-    interleaved run by run (benchmarks/layout_speed.py), medians of 9; per call in us, grid in ms."""
+def _before_rows(folder: Path, path: Path, label: str, spread: list, series: list, axes: dict, batch: dict) -> list:
+    """Single points (random, time series), the batch (medians of 5) and evaluate_grid of this version and the
+    one in ``folder``, interleaved run by run (benchmarks/layout_speed.py), medians of 9; per call in us, grid in ms."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from layout_speed import alternate, load_before
 
@@ -155,6 +195,11 @@ def _before_rows(folder: Path, path: Path, label: str, spread: list, series: lis
         t = alternate({k: (lambda b=b: [b(**p) for p in calls]) for k, b in books.items()}, 9)
         rows.append((label, f"  {what}: this vs before (interleaved)", f"{t['this'] / len(calls) * 1e6:.1f} us",
                      f"before: {t['before'] / len(calls) * 1e6:.1f} us", f"{t['before'] / t['this']:.2f}x", "", None))
+    t = alternate({k: (lambda b=b: b.evaluate(batch)) for k, b in books.items()}, 5)
+    size = next(iter(batch.values())).size
+    rows.append((label, f"  batch of {size:.0e} random points: this vs before (interleaved)",
+                 f"{size / t['this']:.3g} pts/s", f"before: {size / t['before']:.3g} pts/s",
+                 f"{t['before'] / t['this']:.2f}x", "", None))
     t = alternate({k: (lambda b=b: b.evaluate_grid(axes)) for k, b in books.items()}, 9)
     rows.append((label, "  evaluate_grid: this vs before (interleaved)", f"{t['this'] * 1e3:.1f} ms",
                  f"before: {t['before'] * 1e3:.1f} ms", f"{t['before'] / t['this']:.2f}x", "", None))
@@ -204,7 +249,7 @@ def main() -> int:
             ref_random = _each(lambda **p: grid(np.array([[p[c.name] for c in coords]])), spread)
             series_one = _each(cb, series)
             if options.before is not None:
-                rows.extend(_before_rows(options.before, path, label, spread, series, axes_of(cb, rng, name)))
+                rows.extend(_before_rows(options.before, path, label, spread, series, axes_of(cb, rng, name), pts))
             stack = np.column_stack([pts[c.name] for c in coords])
             batch = _batch(cb.evaluate, pts)
             ref_batch = _batch(grid, stack)
@@ -236,6 +281,12 @@ def main() -> int:
             ours = cb.evaluate(pts)
             diff = max(float(np.max(np.abs(ours[u] - check[u]))) for u in cb.unknown_names)
             rows.append((label, "  max |new - before| over the batch", f"{diff:.1e}", "", "", "", None))
+            rows.extend(_series_rows(cb, rng, label))
+            if name == "rigid_body":
+                floor = _stream_floor(cb, rng)
+                rows.append((label, "  single point: its cores read once by one batched gemv per core (no weights, "
+                             "no Python between)", f"{floor * 1e6:.1f} us", f"random points: {random_one * 1e6:.1f} us",
+                             f"{floor / random_one:.2f}", "", None))
             wall = cli_points(path, pts, coords, tmp)
             rows.append((label, "pgd query --points, 1e5 CSV rows, wall (one run)", f"{n / wall:.3g} pts/s",
                          "", "", "", None))

@@ -45,17 +45,29 @@ class UnknownErrors:
         }
 
 
-def codebook_at_samples(cb, samples: Mapping[str, np.ndarray], time: str, times: np.ndarray, unknowns) -> dict:
+def codebook_at_samples(cb, samples: Mapping[str, np.ndarray], time: str | None, times: np.ndarray,
+                        unknowns) -> dict:
+    """Codebook values (S, T) at every sample (the parameters, ``samples[c]`` of length S) and every
+    one of the ``times`` (T,); without a time coordinate (``time`` None) one value per sample,
+    repeated T times.
+
+    With a time coordinate: :meth:`~pgdcli.codebook.Codebook.evaluate_series`, the parameter cores
+    contracted once per sample and the time core for all times by one matrix product (coupled's
+    check, 92 samples x 99 times: see benchmarks/README.md), in blocks of samples.
+    """
     S = len(next(iter(samples.values()))) if samples else 1
     T = times.size
     out = {u: np.empty((S, T)) for u in unknowns}
+    series = time is not None and time in cb.coordinate_names
     block = max(1, _EVAL_BLOCK // max(T, 1))
     for start in range(0, S, block):
         rows = slice(start, min(S, start + block))
-        coords = {}
-        for c in cb.coordinates:
-            coords[c.name] = times[None, :] if c.name == time else samples[c.name][rows, None]
-        values = cb.evaluate(coords, fields=list(unknowns))
+        if series:
+            points = {c.name: samples[c.name][rows] for c in cb.coordinates if c.name != time}
+            values = cb.evaluate_series(points, {time: times}, fields=list(unknowns))
+        else:
+            values = cb.evaluate({c.name: samples[c.name][rows, None] for c in cb.coordinates},
+                                 fields=list(unknowns))
         for u in unknowns:
             out[u][rows] = np.broadcast_to(values[u], (rows.stop - rows.start, T))
     return out

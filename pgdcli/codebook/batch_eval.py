@@ -1,13 +1,18 @@
 """Batches of points through tensor-train codebooks: one matrix product per core for all points.
 
 A tensor train ``u(x) = G_1[x_1] G_2[x_2] ... G_d[x_d]`` at ``P`` points is contracted
-core by core. For core ``k`` (shape ``(r0, n, r1)``) the cardinal rows ``W`` of the
-points (shape ``(P, n)``) multiply the core unfolded as ``(n, r0 r1)`` -- one BLAS
-product for the block of points and for every unknown at once (their unfolded cores
-side by side) -- and each point's running row vector ``v`` (shape ``(r0,)``) then
-multiplies its own ``(r0, r1)`` slice (a batched product). Per point that is
-``sum_k n r0 r1`` multiply-adds, all in BLAS-sized products, in blocks of points sized
-so that the ``(P, r0 r1)`` slices stay in the second-level cache.
+core by core, each core (shape ``(r0, n, r1)``) one of two ways, both ``n r0 r1``
+multiply-adds per point in BLAS-sized products, whichever keeps the smaller intermediate:
+
+- rows first (``r0 < n``): the cardinal rows ``W`` of the points (shape ``(P, n)``) times
+  the core unfolded as ``(n, r0 r1)`` -- one product for the block of points and every
+  unknown at once (their unfolded cores side by side) -- then each point's running row
+  vector ``v`` (shape ``(r0,)``) times its own ``(r0, r1)`` slice (a batched product);
+- running vector first (``r0 >= n``, the wide middle cores of a 7-D train): the running
+  vectors ``V`` (shape ``(P, r0)``) times the core unfolded as ``(r0, n r1)``, then each
+  point's cardinal row (shape ``(n,)``) times its ``(n, r1)`` block.
+
+Blocks of points are sized so that the intermediates stay in the second-level cache.
 
 The first core of the train (the time coordinate of the march's codebooks) is split
 into windows: the slabs of a piecewise Chebyshev coordinate, the elements of a linear
@@ -32,10 +37,13 @@ from ..discretization.basis import barycentric_rows
 
 __all__ = ["TTBatch"]
 
-# Points per block: the block's (points, r0 r1) slice products stay near the second-level cache
-# (1 MiB per core here); measured on the rigid body's (74, 8, 63) core: 64-256 points per block
-# ran at 17-20 GFLOP/s of multiply-adds, 2048 at 7-15.
-BLOCK_BYTES = 1 << 20
+# Points per block: the block's widest intermediate (points x values per point) takes 3/4 MiB of
+# the second-level cache (1 MiB per core here), the other intermediates the rest. Measured, one
+# thread, 1e5 points, block sizes interleaved in one process (medians of 7, load ~3): coupled
+# (widest 160 values) 162 / 158 / 172-286 ms at 409 / 614 / 819 points; logistic (widest 192)
+# 62 / 60 / 57 ms at 341 / 512 / 682; the rigid body (widest 520) 1.68 / 1.62 / 1.58 s at 126 /
+# 189 / 252 and 2.1 s at 512.
+BLOCK_BYTES = 3 << 18
 MIN_BLOCK, MAX_BLOCK = 32, 1024
 # Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
 MAX_PAIR_VALUES = 1 << 22
@@ -100,19 +108,22 @@ class _Train:
                 self.pair = [self._pair_table(cores[0], cores[1], lo) for lo in self.starts]
                 self.pair_ranks = [c.shape[2] for c in cores[1]]
         rest = cores[2:] if self.pair is not None else cores[1:]
-        # later cores, each contracted one of two ways (see contract): 'rows first' for all the
-        # unknowns at once, as (n, sum_u r0_u r1_u) with each unknown's block its core transposed
-        # to (n, r0, r1); or, where the core is wider than its nodes (n < r1: the (P, r0 n)
-        # Khatri-Rao block is smaller than the (P, r0 r1) slices), 'running vector first' per
-        # unknown, as (r0 n, r1)
+        # later cores, each contracted one of two ways (see contract), both n r0 r1 multiply-adds per
+        # point, whichever has the smaller intermediate per point: 'rows first' (r0 < n) for all the
+        # unknowns at once, as (n, sum_u r0_u r1_u) with each unknown's block its core transposed to
+        # (n, r0, r1); or 'running vector first' (r0 >= n) per unknown, as (r0, n r1), then each
+        # point's cardinal row (n,) times its (n, r1) block. Measured on the rigid body's (72, 8, 65)
+        # core, 512 points, one thread: rows first 6.8 us per point and unknown, vector first 1.4 us,
+        # the row-wise Khatri-Rao product of v and the rows times the core as (r0 n, r1) (the path
+        # before) 2.0 us, a third of it forming the Khatri-Rao block
         self.rest = []
         widest = [self.first.shape[1]] + ([self.pair[0].shape[0]] if self.pair is not None else [])
         for k, group in enumerate(rest, start=len(cores) - len(rest)):
             n = group[0].shape[1]
-            if n < max(c.shape[2] for c in group):
-                unfolded = [np.ascontiguousarray(c.reshape(-1, c.shape[2])) for c in group]
-                self.rest.append((self.order[k], False, unfolded, [c.shape[0] for c in group], None))
-                widest.append(max(c.shape[0] * n for c in group))
+            if max(c.shape[0] for c in group) >= n:
+                unfolded = [np.ascontiguousarray(c.reshape(c.shape[0], -1)) for c in group]
+                self.rest.append((self.order[k], False, unfolded, [(n, c.shape[2]) for c in group], None))
+                widest.append(max(g.shape[1] for g in unfolded))
                 continue
             table = np.hstack([c.transpose(1, 0, 2).reshape(n, -1) for c in group])
             shapes = [(c.shape[0], c.shape[2]) for c in group]
@@ -161,8 +172,9 @@ class _Train:
                 sliced = w @ table
                 vs = [np.matmul(v[:, None, :], sliced[:, a:a + r0 * r1].reshape(p, r0, r1))[:, 0, :]
                       for v, (r0, r1), a in zip(vs, shapes, offsets)]
-            else:  # the row-wise Khatri-Rao product (P, r0 n) of v and w, times the core as (r0 n, r1)
-                vs = [(v[:, :, None] * w[:, None, :]).reshape(p, -1) @ g for v, g in zip(vs, table)]
+            else:  # (P, r0) @ (r0, n r1) per unknown, then each point's (n,) @ (n, r1)
+                w = w[:, None, :]
+                vs = [np.matmul(w, (v @ g).reshape(p, n, r1))[:, 0, :] for v, g, (n, r1) in zip(vs, table, shapes)]
         return [v[:, 0] for v in vs]
 
 

@@ -200,6 +200,61 @@ class Codebook:
             return {u: np.empty(shape) for u in selected}
         return self._evaluator.grid(values, selected)
 
+    def evaluate_series(self, points: Mapping[str, object], series: Mapping[str, object],
+                        fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Unknowns at every one of ``S`` points in all coordinates but one, for each of ``T`` values
+        of that one (a time series per parameter point).
+
+        The values of :meth:`evaluate` at ``{c: points[c][:, None]} | {t: series[t][None, :]}``
+        (equal to rounding), with the cores (modes) of the other coordinates contracted once per
+        point and the series coordinate's for all its values by one matrix product
+        (:mod:`pgdcli.codebook.series`).
+
+        Parameters
+        ----------
+        points : mapping
+            Every coordinate but the series one -> scalar or 1-D array_like (broadcast together,
+            length ``S``; no coordinates besides the series one: ``S = 1``).
+        series : mapping
+            The series coordinate -> 1-D array_like of its ``T`` values (one entry).
+        fields : sequence of str, optional
+            Unknowns (default: all, in declared order).
+
+        Returns
+        -------
+        dict
+            Unknown name -> ndarray of shape (S, T).
+
+        Raises
+        ------
+        QueryError
+            Not exactly one series coordinate, missing, unknown or out-of-domain coordinates,
+            unknown fields.
+        """
+        from .series import evaluate_series
+
+        if len(series) != 1:
+            raise QueryError(f"a series runs along one coordinate, got {len(series)}: {', '.join(series) or 'none'}")
+        along = next(iter(series))
+        self._check_names({**points, along: None})
+        if along in points:
+            raise QueryError(f"coordinate {along!r} is given both as the series and among the points")
+        selected = self._select(fields)
+        j = self._names.index(along)
+        values = np.asarray(series[along], dtype=float)
+        if values.ndim > 1:
+            raise QueryError(f"coordinate {along!r}: a series must be 1-D, got shape {values.shape}")
+        others = [c for c in self.coordinates if c.name != along]
+        arrays = np.broadcast_arrays(*[np.asarray(points[c.name], dtype=float) for c in others]) if others else []
+        if any(a.ndim > 1 for a in arrays):
+            raise QueryError(f"the points of a series must be 1-D, got shape {arrays[0].shape}")
+        mats = [None] * len(self.coordinates)
+        for c, a in zip(others, arrays):
+            k = self._names.index(c.name)
+            mats[k] = self._bases[k].interpolation_matrix(self._checked(c, a.reshape(-1)))
+        rows = self._bases[j].interpolation_matrix(self._checked(self.coordinates[j], values.reshape(-1)))
+        return evaluate_series(self.fields, mats, j, rows, selected)
+
     def gradient(self, coordinates: Mapping[str, object], wrt: Sequence[str] | None = None,
                  fields: Sequence[str] | None = None, grid: bool = False) -> dict[str, dict[str, np.ndarray]]:
         """Derivatives of unknowns with respect to coordinates (exact derivatives of the interpolants).
