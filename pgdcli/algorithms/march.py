@@ -267,8 +267,8 @@ def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separatio
         return _failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
     # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
     bonds = [list(train.ranks[1:]) for train in trains]
-    report = {**_march_report({}, np.array([bonds] * len(result.times), dtype=int)), "march": "grid",
-              "grid_chunks": int(result.chunks)}
+    report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "grid",
+              "grid_chunks": int(result.chunks)}  # no roundings, crosses or products to count
     return _converged_result(problem, system, result, trains, report, tolerance, separations,
                              _time.perf_counter() - started)
 
@@ -355,6 +355,7 @@ def _converged_result(problem, system: NonlinearSystem, result, trains: list[TT]
 def _march_report(stats: dict, node_ranks: np.ndarray) -> dict:
     """The report entries of one march: the ranks at the time nodes and what the roundings did."""
     return {
+        "march": "train",
         "node_ranks": node_ranks,  # (time nodes, unknowns, bonds)
         # tensor-train roundings: exact (QR + SVD of the explicit sum), randomized (sketched), and the
         # sketches redone with twice the size because the rounded rank came too close to the sketch's

@@ -60,6 +60,8 @@ def info(codebook, fmt):
         console.print(f"steps: {summary.get('steps')} ({summary.get('rejected_steps')} rejected), ETDRK4 ({state})")
     else:
         console.print(f"{label}: {summary['residual']:.3e} ({state})")
+    if summary.get("march") == "grid":
+        console.print("march: the whole grid array (grid march), compressed once by TT-SVD")
     if summary.get("roundings") is not None:
         r = summary["roundings"]
         console.print(f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized "

@@ -67,6 +67,8 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
         "solve_time": float(rep.get("wall_time", np.nan)),
         "pgdcli_version": str(rep.get("pgdcli_version", "")),
     }
+    if "march" in rep:  # which march: 'grid' (the whole array, compressed once) or 'train'
+        out["march"] = str(rep["march"])
     if "roundings_exact" in rep:
         out["roundings"] = {k: int(rep[f"roundings_{k}"]) for k in ("exact", "sketched", "redone")}
     if "crosses" in rep:  # functions of the unknowns, by cross approximation (pgdcli.algorithms.general_rhs)
