@@ -128,20 +128,22 @@ class _Store:
     def __init__(self, shape: tuple[int, ...], delta: float):
         self.shape, self.delta = shape, delta
         self.buffer: list[np.ndarray] = []
+        self.floats = 0  # in the buffer
         self.pieces: list[list[TT]] = []
         self.spent = 0.0  # squared Frobenius budget given to the runs
         self.rng = np.random.default_rng(7)  # the sketches' seed: same spec, same codebook
 
     def extend(self, values: list[np.ndarray]) -> None:
         self.buffer.extend(values)
-        if sum(v.size for v in self.buffer) > CHUNK_FLOATS:
+        self.floats += sum(v.size for v in values)
+        if self.floats > CHUNK_FLOATS:
             budget = 0.5 * self.delta * np.sqrt(0.5 ** (len(self.pieces) + 1))
             self.spent += budget * budget
             self.pieces.append(self._compress(budget))
 
     def _compress(self, delta: float) -> list[TT]:
         stacked = np.stack(self.buffer)  # (time nodes, unknowns, grid nodes)
-        self.buffer = []
+        self.buffer, self.floats = [], 0
         trains: list[TT] = []
         guesses = self.pieces[-1] if self.pieces else []
         for i in range(stacked.shape[1]):  # sketches sized from the ranks of the unknown (run) before
