@@ -1,15 +1,17 @@
 """Small parameter grids: the time march on the whole array of grid values, compressed once.
 
 On a grid of a few thousand to a few hundred thousand nodes (three initial conditions
-with 20-40 nodes each) every separated operation of the tensor-train march
+with 20-40 nodes each, six with 8) every separated operation of the tensor-train march
 (:mod:`pgdcli.algorithms.march`: roundings, QR, crosses) costs more than the
 whole array does: one right-hand side on the array is a few elementwise products.
 There the state is kept as the array of its values at all grid nodes, advanced by
 the same DOP853 pair and step control, stored at the same time nodes, and the
-space-time array of each unknown is compressed once by TT-SVD to the same share of
-the tolerance as the train march's space-time rounding. The codebook is the same
-kind (one tensor train per unknown, time first); the cost is that of one vectorized
-``solve_ivp`` over the grid plus one TT-SVD (benchmarks/build_speed.py).
+space-time array of each unknown is compressed once by TT-SVD (measured randomized ranges,
+:mod:`pgdcli.tensors.tt_svd`) to the same share of the tolerance as the train march's
+space-time rounding; a long march by runs of at most :data:`CHUNK_FLOATS` floats, joined at
+the end. The codebook is the same kind (one tensor train per unknown, time first); the cost
+is about that of one vectorized ``solve_ivp`` over the grid plus the TT-SVD
+(benchmarks/build_speed.py).
 
 The error control is the train march's: the embedded estimate of each unknown in the
 root-mean-square norm over the grid nodes may be ``LOCAL_FRACTION * tolerance * h / span``
@@ -74,7 +76,6 @@ class GridRhs:
         self.system = system
         self.stats: dict = {}
         self.shape = system.shape
-        self.size = int(np.prod(self.shape))
         self.fixed: dict = {}
         for s, monomials in enumerate(system.rhs):
             for m, (coef, _) in enumerate(monomials):
@@ -105,7 +106,7 @@ class GridRhs:
 
 @dataclass
 class GridMarchResult:
-    """The values at the stored time nodes and what the march did."""
+    """The codebook's space-time trains and what the march did."""
 
     trains: list[TT]  # per unknown: the space-time train (time nodes first, then the grid's modes)
     times: np.ndarray
