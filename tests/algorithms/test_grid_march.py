@@ -102,3 +102,37 @@ def test_only_small_grids_fit():
     assert grid_march.fits_grid(compile_system(parse_spec(rigid, source="r.yaml"), 1e-5))  # 8^6 nodes x 6 unknowns
     rigid = rigid.replace("nodes: 8}", "nodes: 10}")  # 10^6 nodes x 6 unknowns
     assert not grid_march.fits_grid(compile_system(parse_spec(rigid, source="r.yaml"), 1e-5))
+
+
+def test_a_very_stiff_problem_marches_at_its_stability_limit():
+    """u' = r (u - u^3), r up to 2000: the train march's stage roundings, amplified by the Jacobian -2r,
+    ended it in a step-size underflow; the grid march has no roundings and takes ~700 steps at the
+    stability limit. Exact: u = u0 / sqrt(u0^2 + (1 - u0^2) exp(-2 r t)), at the parameter nodes
+    (between them 12 nodes do not resolve r)."""
+    spec = """
+name: stiff
+coordinates:
+  t: {domain: [0, 1], nodes: 8}
+  r: {domain: [10, 2000], nodes: 12}
+  u0: {domain: [0.5, 1.5], nodes: 8}
+unknowns:
+  u: {initial: u0}
+equations:
+  - "der(u) = r*(u - u**3)"
+solver:
+  tolerance: 1e-6
+"""
+    # the march controls an RMS over the grid; the error gate tightens it until the nodes meet the max error
+    from pgdcli.driver import _checked_march
+
+    with threadpool_limits(1):
+        result = _checked_march(parse_spec(spec, source="stiff.yaml"), tolerance=1e-6)
+    assert result.converged and result.check.node_ratio <= 1.0, result.message
+    rep = result.codebook.report
+    assert rep["march"] == "grid" and rep["steps"] > 300  # the stability limit, not the accuracy, sets the steps
+    cb = result.codebook
+    t = cb.coordinate("t").basis().nodes[:, None, None]
+    r = cb.coordinate("r").basis().nodes[None, :, None]
+    u0 = cb.coordinate("u0").basis().nodes[None, None, :]
+    exact = u0 / np.sqrt(u0 * u0 + (1.0 - u0 * u0) * np.exp(-2.0 * r * t))
+    assert np.max(np.abs(cb.nodal_values("u") - exact)) <= 1e-6
