@@ -35,7 +35,7 @@ from .dop853_stepper import dense_weights
 from .general_rhs import underflow_hint
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem
 from .space_time import join_and_round
-from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, MIN_STEP, StepControl, output_times
+from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
 
 __all__ = ["GRID_LIMIT", "CHUNK_FLOATS", "fits_grid", "GridRhs", "GridMarchResult", "march_on_grid",
            "grid_region", "GridMarchFailure"]
@@ -203,12 +203,10 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, ma
     local_sum = np.zeros(len(y))
     watch = BlowupWatch(system, y, t_final, largest=_largest)
     while t < t_final:
-        if steps + rejected >= max_steps:
-            raise GridMarchFailure(f"max_steps={max_steps} reached", t, y)
         h = min(h, t_final - t)
-        if h < MIN_STEP * span:
-            raise GridMarchFailure("step size underflow (the solution blows up or is stiff"
-                                   + underflow_hint(system.general, stats) + ")", t, y)
+        refusal = step_refusal(steps, rejected, max_steps, h, span, lambda: underflow_hint(system.general, stats))
+        if refusal:
+            raise GridMarchFailure(refusal, t, y)
         y_new, K, local = _trial_step(rhs, t, y, f, h)
         error = float(np.max(local)) if local is not None else np.inf
         ratio = control.ratio(error, h)

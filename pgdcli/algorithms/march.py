@@ -52,8 +52,8 @@ from .general_rhs import report_entries, underflow_hint
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem, compile_system, evaluate_rhs, round_terms
 from .space_time import join_and_round
 from .grid_march import GridMarchFailure, fits_grid, grid_region, march_on_grid
-from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, MIN_STEP, STAGE_FRACTION, STATE_FRACTION,
-                           StepControl, output_times)
+from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, STAGE_FRACTION, STATE_FRACTION, StepControl,
+                           output_times, step_refusal)
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "evaluate_rhs", "round_terms",
            "march", "join_and_round", "solve_march", "WATCH_AGREE"]
@@ -148,12 +148,10 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     error_estimate = 0.0
     watch = BlowupWatch(system, y, t_final)
     while t < t_final:
-        if steps + rejected >= max_steps:
-            raise MarchFailure(f"max_steps={max_steps} reached", t, y)
         h = min(h, t_final - t)
-        if h < MIN_STEP * span:
-            raise MarchFailure("step size underflow (the solution blows up or is stiff"
-                               + underflow_hint(system.general, stats) + ")", t, y)
+        refusal = step_refusal(steps, rejected, max_steps, h, span, lambda: underflow_hint(system.general, stats))
+        if refusal:
+            raise MarchFailure(refusal, t, y)
         # the state's rounding budget is per unit step too: it adds up to STATE_FRACTION * tolerance
         trial = stepper.step(t, y, f, h, state_delta * h / span)
         ratio = control.ratio(trial.error, h)

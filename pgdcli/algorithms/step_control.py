@@ -13,7 +13,7 @@ import numpy as np
 from ..discretization.basis import chebyshev_unit_nodes
 
 __all__ = ["StepControl", "MAX_GROWTH", "SAFETY", "LOCAL_FRACTION", "STATE_FRACTION", "STAGE_FRACTION",
-           "MIN_STEP", "MAX_GROWTH_OF_NORM", "MAX_STAGE_TIGHTENINGS", "output_times"]
+           "MIN_STEP", "MAX_GROWTH_OF_NORM", "MAX_STAGE_TIGHTENINGS", "output_times", "step_refusal"]
 
 # Step-size control. The error per unit step grows along these solutions, so the
 # usual safety factor 0.9 made every other step a rejection (12 wasted stages);
@@ -93,3 +93,12 @@ def output_times(t: float, h: float, t_new: float, nodes: np.ndarray, last_store
         outs[-1] = t_new
         return outs
     return [float(x) for x in nodes if last_stored < x <= t_new]
+
+
+def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: float, hint) -> str | None:
+    """Why a march cannot try another step (the caps), or None; ``hint()`` adds to a step-size underflow."""
+    if steps + rejected >= max_steps:
+        return f"max_steps={max_steps} reached"
+    if h < MIN_STEP * span:
+        return "step size underflow (the solution blows up or is stiff" + hint() + ")"
+    return None
