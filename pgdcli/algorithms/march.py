@@ -224,7 +224,8 @@ def solve_march(problem, tolerance: float, callback=None):
     if auto and problem.time_coordinate.discretization != "chebyshev":
         auto = False  # linear time elements: the nodes are the slabs already
     slab_nodes = problem.time_coordinate.nodes if auto else None
-    if fits_grid(system):
+    state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
+    if state == "grid" or (state == "auto" and fits_grid(system)):
         return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started)
     failure = None
     try:

@@ -97,10 +97,10 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
             if "time" in info:  # separated time march
                 t0 = problem.time_coordinate.domain[0]
                 frac = (info["time"] - t0) / (info["end"] - t0)
-                rank = max((max(r) for r in info["ranks"] if r), default=1)
+                # the grid march has no trains while it marches (ranks: empty)
+                rank = f"  max rank {max(max(r) for r in info['ranks'] if r)}" if any(info["ranks"]) else ""
                 progress.update(task, completed=span * frac,
-                                status=f"t = {info['time']:.4g}/{info['end']:.4g}  {info['steps']} steps  "
-                                       f"max rank {rank}")
+                                status=f"t = {info['time']:.4g}/{info['end']:.4g}  {info['steps']} steps{rank}")
                 return
             r = info["residual"]
             done = min(span, -math.log10(r) if r > 0 else span)

@@ -15,11 +15,12 @@ from .checker import PROBLEM_NAME_PATTERN, Checker, show_value
 from .model import SolverOptions
 from .spec_coordinates import MAX_NODES
 
-__all__ = ["FORMULATIONS", "METHODS", "default_name", "parse_problem_name", "parse_description", "parse_solver",
+__all__ = ["FORMULATIONS", "METHODS", "MARCHES", "default_name", "parse_problem_name", "parse_description", "parse_solver",
            "parse_output"]
 
 FORMULATIONS = ("minres", "galerkin")
 METHODS = ("auto", "pgd", "march")
+MARCHES = ("auto", "grid", "train")
 
 
 def default_name(source: str, name: str | None) -> str:
@@ -79,6 +80,8 @@ def parse_solver(check: Checker, value: Any) -> SolverOptions:
         options["formulation"] = check.choice(section["formulation"], "solver.formulation", FORMULATIONS)
     if "method" in section:
         options["method"] = check.choice(section["method"], "solver.method", METHODS)
+    if "march" in section:
+        options["march"] = check.choice(section["march"], "solver.march", MARCHES)
     if "time_slabs" in section:
         value = section["time_slabs"]
         if value == "auto":

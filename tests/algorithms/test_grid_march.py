@@ -136,3 +136,14 @@ solver:
     u0 = cb.coordinate("u0").basis().nodes[None, None, :]
     exact = u0 / np.sqrt(u0 * u0 + (1.0 - u0 * u0) * np.exp(-2.0 * r * t))
     assert np.max(np.abs(cb.nodal_values("u") - exact)) <= 1e-6
+
+
+@pytest.mark.parametrize("march", ["train", "grid"])
+def test_solver_march_chooses_the_state(march):
+    """``solver.march: train`` keeps a small grid in a tensor train; ``grid`` marches the array (the
+    default ``auto`` would take the grid here); both within the tolerance at the nodes' check."""
+    text = (PROBLEMS / "logistic.yaml").read_text() + f"  march: {march}\n"
+    result = pgdcli.solve(parse_spec(text, source="logistic.yaml"))
+    assert result.accurate, result.message
+    assert result.codebook.report["march"] == march
+
