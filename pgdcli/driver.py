@@ -111,7 +111,12 @@ def check_solvable(problem, tolerance: float, relative_tolerance: float, max_mod
     check_initial_finite(problem)
     check_coefficients_finite(problem)
     check_initial_meets_boundary(problem, tolerance, relative_tolerance)
-    return _use_march(problem)
+    march = _use_march(problem)
+    if march:
+        from .algorithms.grid_march import check_forced_grid
+
+        check_forced_grid(problem)
+    return march
 
 
 def _enrich(problem, residual_tolerance: float, nmax: int, callback, tolerance: float | None = None) -> SolveResult:

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import DOP853
 
+from ..errors import SolverError
 from ..tensors.tt_svd import tt_from_full_sketched
 from ..tensors.tt import TT
 from .blowup import BlowupWatch
@@ -37,7 +38,7 @@ from .polynomial_rhs import SINGLE_POINT, NonlinearSystem
 from .space_time import join_and_round
 from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
 
-__all__ = ["GRID_LIMIT", "CHUNK_FLOATS", "fits_grid", "GridRhs", "GridMarchResult", "march_on_grid",
+__all__ = ["GRID_LIMIT", "GRID_MAX", "CHUNK_FLOATS", "fits_grid", "state_values", "check_forced_grid", "GridRhs", "GridMarchResult", "march_on_grid",
            "grid_region", "GridMarchFailure"]
 
 #: Largest number of state values (grid nodes x unknowns) marched as one array; 0 sends every problem to
@@ -47,14 +48,37 @@ __all__ = ["GRID_LIMIT", "CHUNK_FLOATS", "fits_grid", "GridRhs", "GridMarchResul
 GRID_LIMIT = 2 ** 21
 
 
+#: Most state values ``solver.march: grid`` accepts: the march holds ~20 arrays of the state (its 16
+#: stages among them), ~5 GB at this size; above it the error names ``solver.march``.
+GRID_MAX = 2 ** 25
+
 #: Floats of stored values (time nodes x unknowns x grid nodes) compressed together: 256 MB. A long march
 #: (thousands of time nodes) is compressed by runs and joined (:func:`pgdcli.algorithms.space_time.join_and_round`).
 CHUNK_FLOATS = 2 ** 25
 
 
-def fits_grid(system: NonlinearSystem) -> bool:
-    """Whether the system's state is small enough to march as one array (:data:`GRID_LIMIT`)."""
-    return int(np.prod(system.shape)) * len(system.unknowns) <= GRID_LIMIT
+def fits_grid(system: NonlinearSystem, limit: int | None = None) -> bool:
+    """Whether the system's state (grid nodes x unknowns) has at most ``limit`` values (:data:`GRID_LIMIT`)."""
+    return state_values(system) <= (GRID_LIMIT if limit is None else limit)
+
+
+def state_values(system: NonlinearSystem) -> int:
+    """Grid nodes x unknowns."""
+    return int(np.prod(system.shape)) * len(system.unknowns)
+
+
+def check_forced_grid(problem) -> None:
+    """Refuse ``solver.march: grid`` on a state above :data:`GRID_MAX` values (the spec's node counts)."""
+    if getattr(problem.solver, "march", "auto") != "grid":
+        return
+    values = len(problem.unknowns)
+    for c in problem.coordinates:
+        if c.name != problem.time:
+            values *= c.nodes
+    if values > GRID_MAX:
+        raise SolverError(f"{problem.source}: solver.march: 'grid' holds ~20 arrays of the state, which has "
+                          f"{values:,} values (grid nodes x unknowns; at most {GRID_MAX:,}): use 'auto' or "
+                          f"'train' (a tensor train), or fewer nodes")
 
 
 class GridMarchFailure(Exception):

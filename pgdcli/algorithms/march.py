@@ -51,7 +51,7 @@ from .dop853_stepper import Dop853OnTrains, TrialStep
 from .general_rhs import report_entries, underflow_hint
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem, compile_system, evaluate_rhs, round_terms
 from .space_time import join_and_round
-from .grid_march import GridMarchFailure, fits_grid, grid_region, march_on_grid
+from .grid_march import GridMarchFailure, check_forced_grid, fits_grid, grid_region, march_on_grid
 from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, STAGE_FRACTION, STATE_FRACTION, StepControl,
                            output_times, step_refusal)
 
@@ -225,6 +225,7 @@ def solve_march(problem, tolerance: float, callback=None):
         auto = False  # linear time elements: the nodes are the slabs already
     slab_nodes = problem.time_coordinate.nodes if auto else None
     state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
+    check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
     if state == "grid" or (state == "auto" and fits_grid(system)):
         return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started)
     failure = None

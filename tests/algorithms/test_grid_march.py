@@ -147,3 +147,20 @@ def test_solver_march_chooses_the_state(march):
     assert result.accurate, result.message
     assert result.codebook.report["march"] == march
 
+
+
+def test_forced_grid_above_its_memory_cap_is_one_error_line(tmp_path):
+    from click.testing import CliRunner
+
+    from pgdcli.cli.main import cli
+
+    text = (PROBLEMS / "coupled.yaml").read_text().replace("nodes: 20", "nodes: 240") + "  march: grid\n"
+    path = tmp_path / "big.yaml"
+    path.write_text(text)
+    result = CliRunner().invoke(cli, ["solve", str(path), "-o", str(tmp_path / "big.h5")])
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0] == (
+        f"Error: {path}: solver.march: 'grid' holds ~20 arrays of the state, which has 41,472,000 values (grid "
+        f"nodes x unknowns; at most 33,554,432): use 'auto' or 'train' (a tensor train), or fewer nodes")
+    assert not (tmp_path / "big.h5").exists()
