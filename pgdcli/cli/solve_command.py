@@ -129,6 +129,8 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "residual": None if pde_march else _finite_or_none(result.residual),
         **({"steps": int(rep["steps"]), "rejected_steps": int(rep["rejected_steps"])}
            if pde_march and "steps" in rep else {}),
+        # the ODE march's state: 'grid' (the whole array, compressed once) or 'train'
+        **({"march": str(rep["march"])} if march and "march" in rep else {}),
         **({"check_error": _finite_or_none(rep["check_error"]), "check_points": int(rep["check_points"]),
             "check_ratio": _finite_or_none(rep["check_ratio"]), "check_where": short_where(rep["check_where"]),
             "check_method": str(rep["check_method"])}
@@ -184,7 +186,8 @@ def _summary_table(summary: dict):
                 reached += f" (blows up at t ~ {summary['blowup_time']:.4g})"
             table.add_row("reached", reached)
         if summary["residual"] is not None:
-            table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march)")
+            how = {"grid": ", the grid's whole array", "train": ", a tensor train"}.get(summary.get("march"), "")
+            table.add_row("error estimate", f"{summary['residual']:.3e} RMS over the grid (march{how})")
         if summary["ranks"] is not None:
             table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
     elif summary.get("method") == "pde march":

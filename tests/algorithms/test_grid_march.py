@@ -164,3 +164,21 @@ def test_forced_grid_above_its_memory_cap_is_one_error_line(tmp_path):
         f"Error: {path}: solver.march: 'grid' holds ~20 arrays of the state, which has 41,472,000 values (grid "
         f"nodes x unknowns; at most 33,554,432): use 'auto' or 'train' (a tensor train), or fewer nodes")
     assert not (tmp_path / "big.h5").exists()
+
+
+@pytest.mark.parametrize("march", ["train", "grid"])
+def test_pgd_solve_json_and_info_say_which_march(march, tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from pgdcli.cli.main import cli
+
+    path = tmp_path / "logistic.yaml"
+    path.write_text((PROBLEMS / "logistic.yaml").read_text() + f"  march: {march}\n")
+    out = tmp_path / "l.h5"
+    solved = CliRunner().invoke(cli, ["solve", str(path), "-o", str(out), "-q", "--format", "json"])
+    assert solved.exit_code == 0, solved.output
+    assert json.loads(solved.stdout)["march"] == march
+    info = json.loads(CliRunner().invoke(cli, ["info", str(out), "--format", "json"]).stdout)
+    assert info["march"] == march and ("roundings" in info) == (march == "train")
