@@ -18,7 +18,7 @@ from scipy.integrate import DOP853
 from ..tensors.tt import TT, tt_ones, tt_sum
 from .polynomial_rhs import NonlinearSystem, evaluate_rhs, round_terms
 
-__all__ = ["Dop853OnTrains", "TrialStep", "dense_weights", "frobenius_of_sum"]
+__all__ = ["Dop853OnTrains", "TrialStep", "dense_weights", "frobenius_of_sums"]
 
 
 @dataclass
@@ -32,12 +32,31 @@ class TrialStep:
     norm: float  # largest Frobenius norm of the new state's unknowns
 
 
-def frobenius_of_sum(terms: list[TT], weights) -> float:
-    """``|| sum_j w_j X_j ||_F`` (zero weights skipped)."""
-    nz = [(w, t) for w, t in zip(weights, terms) if w != 0.0]
-    if not nz:
-        return 0.0
-    return tt_sum([t for _, t in nz], [w for w, _ in nz]).norm()
+def frobenius_of_sums(terms: list[TT], weight_vectors: list) -> list[float]:
+    """``|| sum_j w_j X_j ||_F`` for each weight vector ``w``, from one right-orthogonalization.
+
+    The sums differ only in how their first cores weight the terms' blocks, so the later cores
+    (block-diagonal) are orthogonalized once, as :meth:`TT.norm` would for each sum (accurate to
+    rounding, no Gram cancellation: the embedded error estimates are differences of nearly equal
+    stages). Terms whose weight is zero in every vector are left out.
+    """
+    keep = [j for j in range(len(terms)) if any(w[j] != 0.0 for w in weight_vectors)]
+    if not keep:
+        return [0.0] * len(weight_vectors)
+    terms = [terms[j] for j in keep]
+    weight_vectors = [np.asarray(w, dtype=float)[keep] for w in weight_vectors]
+    if terms[0].order == 1:
+        return [float(np.linalg.norm(sum(c * t.cores[0] for c, t in zip(w, terms)))) for w in weight_vectors]
+    cores = list(tt_sum(terms).cores)
+    for k in range(len(cores) - 1, 0, -1):  # right-orthogonalize cores 1..d-1, carrying R to the left
+        r0, n, r1 = cores[k].shape
+        q, r = np.linalg.qr(cores[k].reshape(r0, n * r1).T)
+        cores[k] = q.T.reshape(q.shape[1], n, r1)
+        cores[k - 1] = np.tensordot(cores[k - 1], r.T, axes=(2, 0)) if k > 1 else cores[k - 1]
+        carried = r.T  # after the last pass: (sum of the first bonds, r)
+    first = cores[0][0]  # (n, sum of the first bonds): the terms' first cores side by side, unweighted
+    blocks = [t.cores[0].shape[2] for t in terms]
+    return [float(np.linalg.norm((first * np.repeat(w, blocks)) @ carried)) for w in weight_vectors]
 
 
 def dense_weights(x: float, h: float, D: np.ndarray) -> np.ndarray:
@@ -110,9 +129,7 @@ class Dop853OnTrains:
                     K.append(f_new)
                     err = 0.0
                     for i in range(len(y)):
-                        col = [K[j][i] for j in range(n_stages + 1)]
-                        e5 = frobenius_of_sum(col, E5)
-                        e3 = frobenius_of_sum(col, E3)
+                        e5, e3 = frobenius_of_sums([K[j][i] for j in range(n_stages + 1)], [E5, E3])
                         if e5 > 0.0 or e3 > 0.0:
                             err = max(err, h * e5 * e5 / np.sqrt(e5 * e5 + 0.01 * e3 * e3))
         except np.linalg.LinAlgError:  # a factorization met the non-finite values of an overflow
