@@ -151,7 +151,8 @@ class ProductCross:
                 return CrossOfProducts(None, sweep, rms, evaluations, "not finite")
             if rms <= rms_tolerance and not saturated:
                 return CrossOfProducts(train, sweep, rms, evaluations, "converged", train.ranks)
-            grow = 0.5 if saturated else 0.0  # the sets bound the ranks: enlarge them geometrically
+            # the sets bound the ranks, or two half-sweeps left the sampled error above the target: enlarge them
+            grow = 0.5 if saturated or sweep >= 2 else 0.0
         return CrossOfProducts(None, self.max_sweeps, rms, evaluations,
                                f"sample RMS {rms:.3g} above {rms_tolerance:.3g} after {self.max_sweeps} half-sweeps")
 
