@@ -224,10 +224,10 @@ def solve_march(problem, tolerance: float, callback=None):
     if auto and problem.time_coordinate.discretization != "chebyshev":
         auto = False  # linear time elements: the nodes are the slabs already
     slab_nodes = problem.time_coordinate.nodes if auto else None
-    state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
+    march_state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
     check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
-    if state == "grid" or (state == "auto" and fits_grid(system)):
-        return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started)
+    if march_state == "grid" or (march_state == "auto" and fits_grid(system)):
+        return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started, last)
     failure = None
     try:
         result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress,
@@ -250,7 +250,7 @@ def solve_march(problem, tolerance: float, callback=None):
 
 
 def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
-                   started: float):
+                   started: float, last: dict):
     """:func:`solve_march` on a small grid: :func:`pgdcli.algorithms.grid_march.march_on_grid`."""
     st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     try:
@@ -258,7 +258,7 @@ def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separatio
                                slab_nodes=slab_nodes)
     except GridMarchFailure as failure:
         return _failed_result(problem, system, failure, grid_region(system, failure.values), tolerance,
-                              0, _time.perf_counter() - started)
+                              int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
     trains = result.trains
     cap = problem.solver.max_rank
     if max(max(train.ranks[1:], default=0) for train in trains) >= cap:  # the train march's cap, on the codebook
