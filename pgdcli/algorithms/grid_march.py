@@ -147,7 +147,8 @@ class _Store:
 
     A single run is compressed once with the whole budget ``delta``; with several, run ``c`` gets
     ``delta / 2 * 2^(-(c + 1) / 2)`` (the runs are orthogonal blocks of the time mode: their errors
-    add in quadrature, to at most ``delta / 2``) and their join the rest.
+    add in quadrature, to at most ``delta / 2``) and the rounding of their join the rest of
+    ``delta`` (the two errors add).
     """
 
     def __init__(self, shape: tuple[int, ...], delta: float):
@@ -162,9 +163,13 @@ class _Store:
         self.buffer.extend(values)
         self.floats += sum(v.size for v in values)
         if self.floats > CHUNK_FLOATS:
-            budget = 0.5 * self.delta * np.sqrt(0.5 ** (len(self.pieces) + 1))
-            self.spent += budget * budget
-            self.pieces.append(self._compress(budget))
+            self._close_run()
+
+    def _close_run(self) -> None:
+        """Compress the buffer as the next run, with its share of the budget."""
+        budget = 0.5 * self.delta * np.sqrt(0.5 ** (len(self.pieces) + 1))
+        self.spent += budget * budget
+        self.pieces.append(self._compress(budget))
 
     def _compress(self, delta: float) -> list[TT]:
         stacked = np.stack(self.buffer)  # (time nodes, unknowns, grid nodes)
@@ -182,11 +187,9 @@ class _Store:
         if not self.pieces:
             return self._compress(self.delta)
         if self.buffer:
-            budget = 0.5 * self.delta * np.sqrt(0.5 ** (len(self.pieces) + 1))
-            self.spent += budget * budget
-            self.pieces.append(self._compress(budget))
+            self._close_run()
         groups = [[piece[i] for piece in self.pieces] for i in range(len(self.pieces[0]))]
-        return join_and_round(groups, np.sqrt(self.delta ** 2 - self.spent), self.rng, batched=False, lifted=True)
+        return join_and_round(groups, self.delta - np.sqrt(self.spent), self.rng, batched=False, lifted=True)
 
 
 def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, max_steps: int = 20000,

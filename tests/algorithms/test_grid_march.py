@@ -182,3 +182,23 @@ def test_pgd_solve_json_and_info_say_which_march(march, tmp_path):
     assert json.loads(solved.stdout)["march"] == march
     info = json.loads(CliRunner().invoke(cli, ["info", str(out), "--format", "json"]).stdout)
     assert info["march"] == march and ("roundings" in info) == (march == "train")
+
+
+@pytest.mark.parametrize("chunk_floats", [10 ** 9, 5000, 1200])
+def test_the_store_meets_its_bound_at_once_or_by_runs(chunk_floats, monkeypatch):
+    """The space-time trains are within ``delta`` (Frobenius) of the stored values, however many runs."""
+    monkeypatch.setattr(grid_march, "CHUNK_FLOATS", chunk_floats)
+    grid = np.linspace(0.0, 1.0, 12)
+    a, b = np.meshgrid(grid, grid, indexing="ij")
+    times = np.linspace(0.0, 2.0, 60)
+    values = [np.stack([np.sin(3 * t * a + b) * np.exp(-t * b), np.cos(t + a * b)]).reshape(2, -1) for t in times]
+    exact = np.stack(values)  # (times, unknowns, grid nodes)
+    delta = 1e-6 * np.linalg.norm(exact[:, 0])
+    store = grid_march._Store((12, 12), delta)
+    for start in range(0, len(values), 7):  # as the march stores a step's nodes
+        store.extend(values[start:start + 7])
+    trains = store.trains()
+    assert (len(store.pieces) > 1) == (chunk_floats < 10 ** 9)
+    for i, train in enumerate(trains):
+        error = np.linalg.norm(train.full().reshape(len(times), -1) - exact[:, i])
+        assert error <= delta, (i, error, delta)
