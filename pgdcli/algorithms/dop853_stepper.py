@@ -48,12 +48,12 @@ def frobenius_of_sums(terms: list[TT], weight_vectors: list) -> list[float]:
     if terms[0].order == 1:
         return [float(np.linalg.norm(sum(c * t.cores[0] for c, t in zip(w, terms)))) for w in weight_vectors]
     cores = list(tt_sum(terms).cores)
-    for k in range(len(cores) - 1, 0, -1):  # right-orthogonalize cores 1..d-1, carrying R to the left
+    # right-orthogonalize cores d-1..1: only the R factor carried to the left matters for the norm
+    for k in range(len(cores) - 1, 0, -1):
         r0, n, r1 = cores[k].shape
-        q, r = np.linalg.qr(cores[k].reshape(r0, n * r1).T)
-        cores[k] = q.T.reshape(q.shape[1], n, r1)
-        cores[k - 1] = np.tensordot(cores[k - 1], r.T, axes=(2, 0)) if k > 1 else cores[k - 1]
-        carried = r.T  # after the last pass: (sum of the first bonds, r)
+        carried = np.linalg.qr(cores[k].reshape(r0, n * r1).T, mode="r").T  # (r0, r0')
+        if k > 1:
+            cores[k - 1] = np.tensordot(cores[k - 1], carried, axes=(2, 0))
     first = cores[0][0]  # (n, sum of the first bonds): the terms' first cores side by side, unweighted
     blocks = [t.cores[0].shape[2] for t in terms]
     return [float(np.linalg.norm((first * np.repeat(w, blocks)) @ carried)) for w in weight_vectors]

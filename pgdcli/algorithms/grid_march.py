@@ -38,7 +38,7 @@ from .polynomial_rhs import SINGLE_POINT, NonlinearSystem
 from .space_time import join_and_round
 from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
 
-__all__ = ["GRID_LIMIT", "GRID_MAX", "CHUNK_FLOATS", "fits_grid", "state_values", "check_forced_grid", "GridRhs", "GridMarchResult", "march_on_grid",
+__all__ = ["GRID_LIMIT", "GRID_MAX", "CHUNK_FLOATS", "fits_grid", "check_forced_grid", "GridRhs", "GridMarchResult", "march_on_grid",
            "grid_region", "GridMarchFailure"]
 
 #: Largest number of state values (grid nodes x unknowns) marched as one array; 0 sends every problem to
@@ -57,14 +57,9 @@ GRID_MAX = 2 ** 25
 CHUNK_FLOATS = 2 ** 25
 
 
-def fits_grid(system: NonlinearSystem, limit: int | None = None) -> bool:
-    """Whether the system's state (grid nodes x unknowns) has at most ``limit`` values (:data:`GRID_LIMIT`)."""
-    return state_values(system) <= (GRID_LIMIT if limit is None else limit)
-
-
-def state_values(system: NonlinearSystem) -> int:
-    """Grid nodes x unknowns."""
-    return int(np.prod(system.shape)) * len(system.unknowns)
+def fits_grid(system: NonlinearSystem) -> bool:
+    """Whether the system's state (grid nodes x unknowns) has at most :data:`GRID_LIMIT` values."""
+    return int(np.prod(system.shape)) * len(system.unknowns) <= GRID_LIMIT
 
 
 def check_forced_grid(problem) -> None:
