@@ -54,7 +54,7 @@ rtol = atol = 1e-10 (target: build >= 5x faster, codebook <= 1% of that grid); w
 build's time goes (seconds inside the march's right-hand sides, its stage/state combinations,
 the randomized and the exact roundings, measured by wrapping those functions); coupled with
 40 nodes per IC beside one vectorized ``solve_ivp`` over its 64,000 ICs (target: no slower);
-and, with ``--ten``, the 10-D ``benchmarks/rigid_body10.yaml`` (three moments of inertia as
+and, with ``--ten``, the 10-D ``problems/rigid_body10.yaml`` (three moments of inertia as
 coordinates too): build time (target <= 120 s), the error gate's measured error and
 ``pgdcli.verify`` at 200 points (on 2026-11-24 its build had not finished after 25 minutes on
 the shared machine: not shipped in problems/).
@@ -88,7 +88,7 @@ from _machine import machine_facts  # benchmarks/ is on sys.path when a script r
 ROOT = Path(__file__).resolve().parents[1]
 COUPLED = ROOT / "problems" / "coupled.yaml"
 RIGID = ROOT / "problems" / "rigid_body.yaml"
-RIGID10 = ROOT / "benchmarks" / "rigid_body10.yaml"  # not shipped: no build in reasonable time yet
+RIGID10 = ROOT / "problems" / "rigid_body10.yaml"
 LOOP_SUBSET = 400
 TOLERANCES = (1e-8, 1e-12)
 REFERENCE_TOL = 1e-12
@@ -239,18 +239,21 @@ def build(problem_or_path, repeats: int = 1):
 
 @contextlib.contextmanager
 def train_march():
-    """Every problem through the tensor-train march, however small its grid (pgdcli.algorithms.grid_march)."""
-    from pgdcli.algorithms import grid_march
+    """Every problem through the tensor-train march, however small or large its grid (pgdcli.algorithms.grid_march,
+    pgdcli.algorithms.cross_march)."""
+    from pgdcli.algorithms import grid_march, march
 
-    saved, grid_march.GRID_LIMIT = grid_march.GRID_LIMIT, 0
+    saved = grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT
+    grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT = 0, False
     try:
         yield
     finally:
-        grid_march.GRID_LIMIT = saved
+        grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT = saved
 
 
 def which_march(report) -> str:
-    return "grid march (whole array + TT-SVD)" if report.get("march") == "grid" else "tensor-train march"
+    return {"grid": "grid march (whole array + TT-SVD)", "cross": "cross march (pilot steps + cross of trajectories)"}.get(
+        report.get("march"), "tensor-train march")
 
 
 def factorization_floor(spec_path: Path, repeats: int = 5) -> tuple[int, float]:
@@ -827,7 +830,7 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="skip the rigid-body brute-force grid and the rigid body at tolerance 1e-6")
     parser.add_argument("--issue15", action="store_true", help="only the rows of issue 15 (see the docstring)")
-    parser.add_argument("--ten", action="store_true", help="also build the 10-D benchmarks/rigid_body10.yaml (long)")
+    parser.add_argument("--ten", action="store_true", help="also build the 10-D problems/rigid_body10.yaml (~40 s)")
     parser.add_argument("--products-only", action="store_true",
                         help="only the march with products by sketch vs by cross (issue 15)")
     args = parser.parse_args(argv)

@@ -181,16 +181,17 @@ def codebook_path(solved, tmp_path_factory):
 
 @contextlib.contextmanager
 def train_march():
-    """Send every nonlinear ODE problem to the tensor-train march, however small its grid (the grid march,
-    ``pgdcli.algorithms.grid_march``, would take the small grids of the tests)."""
-    from pgdcli.algorithms import grid_march
+    """Send every nonlinear ODE problem to the tensor-train march, however small or large its grid (the grid
+    march, ``pgdcli.algorithms.grid_march``, would take the small grids of the tests, the cross march,
+    ``pgdcli.algorithms.cross_march``, the large ones)."""
+    from pgdcli.algorithms import grid_march, march
 
-    saved = grid_march.GRID_LIMIT
-    grid_march.GRID_LIMIT = 0
+    saved = grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT
+    grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT = 0, False
     try:
         yield
     finally:
-        grid_march.GRID_LIMIT = saved
+        grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT = saved
 
 
 def assert_solved(result) -> None:

@@ -97,8 +97,12 @@ class GeneralPart:
         """``G_s(t, p)`` at grid multi-indices, shape (P, d) -> (P,); None: the whole grid, shape ``state[0].shape``."""
         if indices is None:  # the unknowns from the whole trains
             return self.grid_values(t, {name: state[i].full() for name, i in self.needed})
+        return self.point_values(t, indices, {name: tt_values_at(state[i], indices) for name, i in self.needed})
+
+    def point_values(self, t: float, indices: np.ndarray, arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+        """``G_s(t, p)`` at P grid multi-indices (P, d) from the needed unknowns' values there (name -> (P,))."""
         values = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
-        values.update({name: tt_values_at(state[i], indices) for name, i in self.needed})
+        values.update(arrays)
         return self._evaluate(t, values, indices.shape[0])
 
     def grid_values(self, t: float, arrays: Mapping[str, np.ndarray]) -> np.ndarray:

@@ -26,17 +26,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.integrate import DOP853
 
 from ..errors import SolverError
 from ..tensors.tt_svd import tt_from_full_sketched
 from ..tensors.tt import TT
-from .blowup import BlowupWatch
-from .dop853_stepper import dense_weights
-from .general_rhs import underflow_hint
+from .grid_steps import GridMarchFailure, GridRhs, advance, initial_values
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem
 from .space_time import join_and_round
-from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
 
 __all__ = ["GRID_LIMIT", "GRID_MAX", "CHUNK_FLOATS", "fits_grid", "check_forced_grid", "GridRhs", "GridMarchResult", "march_on_grid",
            "grid_region", "GridMarchFailure"]
@@ -74,53 +70,6 @@ def check_forced_grid(problem) -> None:
         raise SolverError(f"{problem.source}: solver.march: 'grid' holds ~20 arrays of the state, which has "
                           f"{values:,} values (grid nodes x unknowns; at most {GRID_MAX:,}): use 'auto' or "
                           f"'train' (a tensor train), or fewer nodes")
-
-
-class GridMarchFailure(Exception):
-    """The grid march stopped (blow-up, step-size underflow, max_steps); ``time``, ``values`` (m, N) and
-    ``blowup_time`` say where."""
-
-    def __init__(self, message: str, time: float, values: np.ndarray, blowup_time: float | None = None):
-        super().__init__(message)
-        self.time, self.values, self.blowup_time = time, values, blowup_time
-
-
-class GridRhs:
-    """``f_s(t, p, u)`` on arrays: ``Y`` of shape (unknowns, grid nodes) -> same shape.
-
-    Coefficients that do not depend on time are expanded to the grid once.
-    """
-
-    def __init__(self, system: NonlinearSystem):
-        self.system = system
-        self.stats: dict = {}
-        self.shape = system.shape
-        self.fixed: dict = {}
-        for s, monomials in enumerate(system.rhs):
-            for m, (coef, _) in enumerate(monomials):
-                timed = any(f is not None for f in coef.time_funcs) or any(
-                    j.time_func is not None or j.train.timed for j in coef.joints)
-                if not timed:
-                    self.fixed[s, m] = coef.at(0.0).full().reshape(-1)
-
-    def __call__(self, t: float, Y: np.ndarray) -> np.ndarray:
-        out = np.zeros_like(Y)
-        for s, monomials in enumerate(self.system.rhs):
-            for m, (coef, factors) in enumerate(monomials):
-                term = self.fixed.get((s, m))
-                if term is None:
-                    term = coef.at(t).full().reshape(-1)
-                for i in factors:
-                    term = term * Y[i]
-                out[s] += term
-            part = self.system.general[s] if self.system.general else None
-            if part is not None:
-                arrays = {name: Y[i].reshape(self.shape) for name, i in part.needed}
-                values = part.grid_values(t, arrays).reshape(-1)
-                if not np.all(np.isfinite(values)) and np.all(np.isfinite(Y)):  # sqrt(-1), 1/0: for the message
-                    self.stats["cross_nonfinite"] = self.stats.get("cross_nonfinite", 0) + 1
-                out[s] += values
-        return out
 
 
 @dataclass
@@ -208,108 +157,25 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, ma
     ------
     GridMarchFailure
     """
-    nodes = system.time_basis.nodes
-    t, t_final = float(nodes[0]), float(nodes[-1])
-    span = t_final - t
     rhs = GridRhs(system)
-    y = np.stack([u.full().reshape(-1) for u in system.initial])
-    scale0 = max(1.0, float(np.max(np.abs(y))))
-    control = StepControl(span, LOCAL_FRACTION * tolerance)
-    stats = rhs.stats  # "cross_nonfinite": right-hand sides not finite at finite stage values (underflow_hint)
-    f = rhs(t, y)
     store = _Store(system.shape, delta)
-    store.extend([y])
-    times, breakpoints, sizes = [t], [t], []
-    h = 0.1 * span
-    steps = rejected = 0
-    local_sum = np.zeros(len(y))
-    watch = BlowupWatch(system, y, t_final, largest=_largest)
-    while t < t_final:
-        h = min(h, t_final - t)
-        refusal = step_refusal(steps, rejected, max_steps, h, span, lambda: underflow_hint(system.general, stats))
-        if refusal:
-            raise GridMarchFailure(refusal, t, y)
-        y_new, K, local = _trial_step(rhs, t, y, f, h)
-        error = float(np.max(local)) if local is not None else np.inf
-        ratio = control.ratio(error, h)
-        if ratio > 1.0:
-            rejected += 1
-            # None means stage-rounding noise in the train march; without roundings, halve the step
-            h = control.rejected(t, h, ratio) or 0.5 * h
-            continue
-        if float(np.max(np.abs(y_new))) > MAX_GROWTH_OF_NORM * scale0:
-            raise GridMarchFailure("the solution blows up", t, y)
-        t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
-        outs = output_times(t, h, t_new, nodes, times[-1], slab_nodes)
-        if slab_nodes:
-            breakpoints.append(t_new)
-        store.extend(_dense_output(rhs, t, h, y, y_new, K, outs, t_new))
-        times.extend(outs)
-        t, y, f = t_new, y_new, K[DOP853.n_stages]
-        steps += 1
-        sizes.append(h)
-        local_sum += local
-        h = control.accepted(h, ratio)
-        if callback is not None:
-            callback({"time": t, "end": t_final, "ranks": [], "steps": steps})
-        if t < t_final:
-            blowup = watch(t, sizes, y)
-            if blowup is not None:
-                raise GridMarchFailure("the solution blows up", t, y, blowup)
+    schedule = advance(system, rhs, initial_values(system), tolerance, store.extend, max_steps=max_steps,
+                       callback=callback, slab_nodes=slab_nodes)
     trains = store.trains()
-    return GridMarchResult(trains, np.array(times), steps, rejected, float(np.max(local_sum)), sizes,
-                           np.array(breakpoints) if slab_nodes else None, max(1, len(store.pieces)))
+    breakpoints = np.array([schedule.times[0]] + [t_new for _, _, t_new, _ in schedule.steps]) if slab_nodes else None
+    return GridMarchResult(trains, np.array(schedule.times), len(schedule.steps), schedule.rejected,
+                           float(np.max(schedule.local_sum)), schedule.step_sizes, breakpoints,
+                           max(1, len(store.pieces)))
 
 
-def grid_region(system: NonlinearSystem, values: np.ndarray) -> str:
-    """Where the values (unknowns, grid nodes) are largest, as 'a=0, b=1' (nodes of the grid; '' for one
-    trajectory)."""
-    if system.params == [SINGLE_POINT] or not np.all(np.isfinite(values)):
+def grid_region(system: NonlinearSystem, values: np.ndarray, indices: np.ndarray | None = None) -> str:
+    """Where the values (unknowns, nodes) are largest, as 'a=0, b=1' ('' for one trajectory or none).
+
+    ``indices`` (nodes, d) are the nodes' multi-indices; None: the nodes are the whole grid (C order).
+    """
+    if system.params == [SINGLE_POINT] or values.size == 0:
         return ""
-    idx = np.unravel_index(int(np.argmax(np.max(np.abs(values), axis=0))), system.shape)
+    size = np.where(np.isfinite(values), np.abs(values), np.inf)
+    node = int(np.argmax(np.max(size, axis=0)))
+    idx = indices[node] if indices is not None else np.unravel_index(node, system.shape)
     return ", ".join(f"{p}={system.bases[p].nodes[i]:.4g}" for p, i in zip(system.params, idx))
-
-
-def _largest(y: np.ndarray) -> float:
-    return float(np.max(np.abs(y)))
-
-
-def _trial_step(rhs: GridRhs, t: float, y: np.ndarray, f: np.ndarray, h: float):
-    """One DOP853 trial step: ``(y_new, K, local)``; K holds the 12 stages and f(t + h, y_new), local
-    the elementwise error estimate (None after a non-finite value)."""
-    A, B, C, E3, E5, n = DOP853.A, DOP853.B, DOP853.C, DOP853.E3, DOP853.E5, DOP853.n_stages
-    K = np.empty((n + 1 + len(DOP853.C_EXTRA),) + y.shape)
-    K[0] = f
-    with np.errstate(all="ignore"):
-        for s in range(1, n):
-            K[s] = rhs(t + C[s] * h, y + h * np.tensordot(A[s, :s], K[:s], axes=1))
-        y_new = y + h * np.tensordot(B, K[:n], axes=1)
-        if not np.all(np.isfinite(y_new)):
-            return y_new, K, None
-        K[n] = rhs(t + h, y_new)
-        # scipy's DOP853 estimate per unknown from the root-mean-square over the grid (the train march's norm)
-        e5 = np.sqrt(np.mean(np.tensordot(E5, K[:n + 1], axes=1) ** 2, axis=1))
-        e3 = np.sqrt(np.mean(np.tensordot(E3, K[:n + 1], axes=1) ** 2, axis=1))
-        if not (np.all(np.isfinite(e5)) and np.all(np.isfinite(e3))):  # stages overflowed: far too long a step
-            return y_new, K, None
-        denom = np.sqrt(e5 * e5 + 0.01 * e3 * e3)
-        local = np.where(denom > 0.0, h * e5 * e5 / np.where(denom > 0.0, denom, 1.0), 0.0)
-    return y_new, K, local if np.all(np.isfinite(local)) else None
-
-
-def _dense_output(rhs: GridRhs, t: float, h: float, y: np.ndarray, y_new: np.ndarray, K: np.ndarray,
-                  outs: list[float], t_new: float) -> list[np.ndarray]:
-    """The arrays at the times ``outs`` inside ``(t, t_new]``: scipy's order-7 dense output of DOP853
-    (three extra stages when a node lies strictly inside the step)."""
-    n = DOP853.n_stages + 1
-    if any(tn < t_new for tn in outs):
-        with np.errstate(all="ignore"):
-            for s, (a, c) in enumerate(zip(DOP853.A_EXTRA, DOP853.C_EXTRA), start=n):
-                K[s] = rhs(t + c * h, y + h * np.tensordot(a[:s], K[:s], axes=1))
-    inside = [tn for tn in outs if tn < t_new]
-    found = []
-    if inside:  # all the step's nodes in one product: weights (nodes, 18) of [y, y_new, K_0 .. K_15]
-        w = np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in inside])
-        values = w[:, 2:] @ K.reshape(K.shape[0], -1) + np.outer(w[:, 0], y) + np.outer(w[:, 1], y_new)
-        found = list(values.reshape((len(inside),) + y.shape))
-    return found + [y_new] * (len(outs) - len(inside))

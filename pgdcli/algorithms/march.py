@@ -51,6 +51,7 @@ from .dop853_stepper import Dop853OnTrains, TrialStep
 from .general_rhs import report_entries, underflow_hint
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem, compile_system, evaluate_rhs, round_terms
 from .space_time import join_and_round
+from .cross_march import march_by_cross
 from .grid_march import GridMarchFailure, check_forced_grid, fits_grid, grid_region, march_on_grid
 from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, STAGE_FRACTION, STATE_FRACTION, StepControl,
                            output_times, step_refusal)
@@ -61,6 +62,9 @@ __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "
 # Share of the tolerance for rounding the joined space-time train of the codebook: it sets
 # the codebook's ranks (size, query cost) and is added to the error estimate once.
 SPACE_TIME_FRACTION = 0.1
+#: ``solver.march: auto`` sends grids too large for the grid march to the cross of trajectories
+#: (:mod:`pgdcli.algorithms.cross_march`) rather than the tensor-train march.
+CROSS_BY_DEFAULT = True
 
 
 class MarchFailure(Exception):
@@ -228,6 +232,8 @@ def solve_march(problem, tolerance: float, callback=None):
     check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
     if march_state == "grid" or (march_state == "auto" and fits_grid(system)):
         return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started, last)
+    if march_state == "cross" or (march_state == "auto" and CROSS_BY_DEFAULT):
+        return _solve_by_cross(problem, system, tolerance, separations, progress, slab_nodes, started, last)
     failure = None
     try:
         result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress,
@@ -270,6 +276,28 @@ def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separatio
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "grid",
               "grid_chunks": int(result.chunks)}  # no roundings, crosses or products to count
     return _converged_result(problem, system, result, trains, report, tolerance, separations,
+                             _time.perf_counter() - started)
+
+
+def _solve_by_cross(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
+                    started: float, last: dict):
+    """:func:`solve_march` on a large grid: :func:`pgdcli.algorithms.cross_march.march_by_cross`."""
+    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    try:
+        result = march_by_cross(system, tolerance, 0.5 * st_delta, max_rank=problem.solver.max_rank,
+                                max_steps=problem.solver.max_steps, callback=progress, slab_nodes=slab_nodes)
+    except GridMarchFailure as failure:
+        return _failed_result(problem, system, failure, grid_region(system, failure.values, failure.indices),
+                              tolerance, int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
+    if not result.converged:
+        failure = GridMarchFailure(f"the cross of the trajectories did not converge: {result.message}",
+                                   float(result.times[-1]), np.zeros((len(system.unknowns), 0)))
+        return _failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+    bonds = [list(train.ranks[1:]) for train in result.trains]
+    report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "cross",
+              "cross_trajectories": int(result.evaluations), "cross_sweeps": int(result.sweeps),
+              "cross_error": float(result.cross_error), "pilot_points": int(result.pilot_points)}
+    return _converged_result(problem, system, result, result.trains, report, tolerance, separations,
                              _time.perf_counter() - started)
 
 

@@ -103,6 +103,12 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
                                 status=f"t = {info['time']:.4g}/{info['end']:.4g}  {info['steps']} steps{rank}")
                 return
             r = info["residual"]
+            if "cross" in info:  # the cross march's half sweeps, after its pilot march
+                done = span * min(1.0, math.log10(max(r, 1e-300)) / math.log10(info["target"]))
+                progress.update(task, completed=max(done, 0.0),
+                                status=f"cross sweep {info['cross']}: {info['trajectories']:,} trajectories, "
+                                       f"difference {r:.2e} (target {info['target']:.0e}), max rank {max(info['ranks'])}")
+                return
             done = min(span, -math.log10(r) if r > 0 else span)
             progress.update(task, completed=max(done, 0.0),
                             status=f"{info['mode']}/{nmax} modes  residual {r:.2e} (tolerance {tol:.0e})")

@@ -20,7 +20,7 @@ __all__ = ["FORMULATIONS", "METHODS", "MARCHES", "default_name", "parse_problem_
 
 FORMULATIONS = ("minres", "galerkin")
 METHODS = ("auto", "pgd", "march")
-MARCHES = ("auto", "grid", "train")
+MARCHES = ("auto", "grid", "cross", "train")
 
 
 def default_name(source: str, name: str | None) -> str:

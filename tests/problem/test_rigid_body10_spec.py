@@ -1,6 +1,6 @@
-"""benchmarks/rigid_body10.yaml (issue 15's 10-D rigid body) states the Kirchhoff equations.
+"""problems/rigid_body10.yaml (issue 15's 10-D rigid body) states the Kirchhoff equations.
 
-Its build is a benchmark (too long for the tests); here the compiled right-hand side of
+Its build is tested in tests/algorithms/test_cross_march.py; here the compiled right-hand side of
 the march at t = 0, at random nodes of the 9-D parameter grid, is held to the equations
 written out by hand with the spec's constants and the moments of inertia of the node.
 """
@@ -14,7 +14,7 @@ import numpy as np
 import pgdcli
 from pgdcli.algorithms.march import compile_system, evaluate_rhs
 
-SPEC = Path(__file__).resolve().parents[2] / "benchmarks" / "rigid_body10.yaml"
+SPEC = Path(__file__).resolve().parents[2] / "problems" / "rigid_body10.yaml"
 M = np.array([0.2, 0.5, 0.8])
 J = np.array([0.1, 0.2, 0.3])
 MASS, FG3 = 1.0, -0.5

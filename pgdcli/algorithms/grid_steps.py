@@ -1,0 +1,249 @@
+"""DOP853 on arrays of parameter nodes: the adaptive march and its replay on other nodes.
+
+The state is the array ``Y`` of shape (unknowns, P) of the unknowns at P parameter nodes: every
+node of the grid (:mod:`pgdcli.algorithms.grid_march`) or a batch of chosen multi-indices
+(:mod:`pgdcli.algorithms.cross_march`). :func:`advance` marches it with scipy's DOP853 pair and
+the train march's step control (the embedded estimate of each unknown in the root-mean-square
+norm over the nodes may be ``LOCAL_FRACTION * tolerance * h / span``) and hands the values at the
+time nodes to a ``keep`` callable; it returns the :class:`Schedule` of its accepted steps.
+:func:`replay` marches other nodes with that schedule, step for step (no step control): on nodes
+drawn from the same grid it computes what :func:`advance` would have computed there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.integrate import DOP853
+
+from ..tensors.cross import tt_values_at
+from .blowup import BlowupWatch
+from .dop853_stepper import dense_weights
+from .general_rhs import underflow_hint
+from .polynomial_rhs import NonlinearSystem
+from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
+
+__all__ = ["GridRhs", "GridMarchFailure", "Schedule", "advance", "replay", "initial_values", "trial_step",
+           "dense_output"]
+
+
+class GridMarchFailure(Exception):
+    """The march on arrays stopped (blow-up, step-size underflow, max_steps); ``time``, ``values`` (m, P),
+    ``indices`` (P, d: the nodes' multi-indices; None for the whole grid) and ``blowup_time`` say where."""
+
+    def __init__(self, message: str, time: float, values: np.ndarray, blowup_time: float | None = None,
+                 indices: np.ndarray | None = None):
+        super().__init__(message)
+        self.time, self.values, self.blowup_time, self.indices = time, values, blowup_time, indices
+
+
+class GridRhs:
+    """``f_s(t, p, u)`` on arrays: ``Y`` of shape (unknowns, P) -> same shape.
+
+    Parameters
+    ----------
+    system : NonlinearSystem
+    indices : ndarray of int, shape (P, d), optional
+        The parameter multi-indices of the P nodes; None: the whole grid (C order).
+
+    Coefficients that do not depend on time are evaluated at the nodes once.
+    """
+
+    def __init__(self, system: NonlinearSystem, indices: np.ndarray | None = None):
+        self.system, self.indices = system, indices
+        self.stats: dict = {}
+        self.shape = system.shape
+        self.fixed: dict = {}
+        for s, monomials in enumerate(system.rhs):
+            for m, (coef, _) in enumerate(monomials):
+                timed = any(f is not None for f in coef.time_funcs) or any(
+                    j.time_func is not None or j.train.timed for j in coef.joints)
+                if not timed:
+                    self.fixed[s, m] = self._at_nodes(coef.at(0.0))
+
+    def _at_nodes(self, train) -> np.ndarray:
+        if self.indices is None:
+            return train.full().reshape(-1)
+        return tt_values_at(train, self.indices)
+
+    def __call__(self, t: float, Y: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(Y)
+        for s, monomials in enumerate(self.system.rhs):
+            for m, (coef, factors) in enumerate(monomials):
+                term = self.fixed.get((s, m))
+                if term is None:
+                    term = self._at_nodes(coef.at(t))
+                for i in factors:
+                    term = term * Y[i]
+                out[s] += term
+            part = self.system.general[s] if self.system.general else None
+            if part is not None:
+                if self.indices is None:
+                    arrays = {name: Y[i].reshape(self.shape) for name, i in part.needed}
+                    values = part.grid_values(t, arrays).reshape(-1)
+                else:
+                    values = part.point_values(t, self.indices, {name: Y[i] for name, i in part.needed})
+                if not np.all(np.isfinite(values)) and np.all(np.isfinite(Y)):  # sqrt(-1), 1/0: for the message
+                    self.stats["cross_nonfinite"] = self.stats.get("cross_nonfinite", 0) + 1
+                out[s] += values
+        return out
+
+
+def initial_values(system: NonlinearSystem, indices: np.ndarray | None = None) -> np.ndarray:
+    """The initial state (unknowns, P) at the nodes (None: the whole grid)."""
+    if indices is None:
+        return np.stack([u.full().reshape(-1) for u in system.initial])
+    return np.stack([tt_values_at(u, indices) for u in system.initial])
+
+
+@dataclass
+class Schedule:
+    """The accepted steps of :func:`advance`: ``(t, h, t_new, outs)`` each (``outs``: the stored times in
+    ``(t, t_new]``), and what the march did."""
+
+    steps: list = field(default_factory=list)
+    times: list = field(default_factory=list)  # every stored time, the initial one first
+    rejected: int = 0
+    local_sum: np.ndarray | None = None  # per unknown: the accepted local error estimates added up
+
+    @property
+    def step_sizes(self) -> list[float]:
+        return [h for _, h, _, _ in self.steps]
+
+
+def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: float, keep, *,
+            max_steps: int = 20000, callback=None, slab_nodes: int | None = None, largest=None) -> Schedule:
+    """March ``y`` (unknowns, P) to the end of the time domain with DOP853 and step control.
+
+    Parameters
+    ----------
+    system : NonlinearSystem
+    rhs : GridRhs
+    y : ndarray, shape (unknowns, P)
+        The initial state at the nodes.
+    tolerance : float
+        Root-mean-square over the nodes, per unknown, of the local errors added up over the march.
+    keep : callable
+        ``keep(list of ndarray (unknowns, P))``: the state at the stored times, in order (the initial
+        state first).
+    max_steps : int
+    callback : callable, optional
+        After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
+    slab_nodes : int, optional
+        Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
+    largest : callable, optional
+        ``largest(y) -> float``, the blow-up watch's measure of the state (default max abs).
+
+    Raises
+    ------
+    GridMarchFailure
+    """
+    nodes = system.time_basis.nodes
+    t, t_final = float(nodes[0]), float(nodes[-1])
+    span = t_final - t
+    scale0 = max(1.0, float(np.max(np.abs(y))))
+    control = StepControl(span, LOCAL_FRACTION * tolerance)
+    stats = rhs.stats  # "cross_nonfinite": right-hand sides not finite at finite stage values (underflow_hint)
+    f = rhs(t, y)
+    keep([y])
+    schedule = Schedule(times=[t], local_sum=np.zeros(len(y)))
+    h = 0.1 * span
+    watch = BlowupWatch(system, y, t_final, largest=largest or _largest)
+    while t < t_final:
+        h = min(h, t_final - t)
+        refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
+                               lambda: underflow_hint(system.general, stats))
+        if refusal:
+            raise GridMarchFailure(refusal, t, y)
+        y_new, K, local = trial_step(rhs, t, y, f, h)
+        error = float(np.max(local)) if local is not None else np.inf
+        ratio = control.ratio(error, h)
+        if ratio > 1.0:
+            schedule.rejected += 1
+            # None means stage-rounding noise in the train march; without roundings, halve the step
+            h = control.rejected(t, h, ratio) or 0.5 * h
+            continue
+        if float(np.max(np.abs(y_new))) > MAX_GROWTH_OF_NORM * scale0:
+            raise GridMarchFailure("the solution blows up", t, y)
+        t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
+        outs = output_times(t, h, t_new, nodes, schedule.times[-1], slab_nodes)
+        keep(dense_output(rhs, t, h, y, y_new, K, outs, t_new))
+        schedule.times.extend(outs)
+        schedule.steps.append((t, h, t_new, outs))
+        schedule.local_sum += local
+        t, y, f = t_new, y_new, K[DOP853.n_stages]
+        h = control.accepted(h, ratio)
+        if callback is not None:
+            callback({"time": t, "end": t_final, "ranks": [], "steps": len(schedule.steps)})
+        if t < t_final:
+            blowup = watch(t, schedule.step_sizes, y)
+            if blowup is not None:
+                raise GridMarchFailure("the solution blows up", t, y, blowup)
+    return schedule
+
+
+def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
+    """March ``y`` (unknowns, P) with the accepted steps of ``schedule``: the stored states.
+
+    Returns
+    -------
+    ndarray, shape (stored times, unknowns, P)
+        Non-finite where a node's march overflowed (the caller refuses it).
+    """
+    out = np.empty((len(schedule.times),) + y.shape)
+    out[0] = y
+    j = 1
+    f = rhs(schedule.times[0], y)
+    for t, h, t_new, outs in schedule.steps:
+        y_new, K, _ = trial_step(rhs, t, y, f, h, estimate=False)
+        for values in dense_output(rhs, t, h, y, y_new, K, outs, t_new):
+            out[j] = values
+            j += 1
+        y, f = y_new, K[DOP853.n_stages]
+    return out
+
+
+def _largest(y: np.ndarray) -> float:
+    return float(np.max(np.abs(y)))
+
+
+def trial_step(rhs: GridRhs, t: float, y: np.ndarray, f: np.ndarray, h: float, estimate: bool = True):
+    """One DOP853 trial step: ``(y_new, K, local)``; K holds the 12 stages and f(t + h, y_new), local
+    the elementwise error estimate (None after a non-finite value, or when ``estimate`` is False)."""
+    A, B, C, E3, E5, n = DOP853.A, DOP853.B, DOP853.C, DOP853.E3, DOP853.E5, DOP853.n_stages
+    K = np.empty((n + 1 + len(DOP853.C_EXTRA),) + y.shape)
+    K[0] = f
+    with np.errstate(all="ignore"):
+        for s in range(1, n):
+            K[s] = rhs(t + C[s] * h, y + h * np.tensordot(A[s, :s], K[:s], axes=1))
+        y_new = y + h * np.tensordot(B, K[:n], axes=1)
+        K[n] = rhs(t + h, y_new)  # the next step's first stage, and the dense output's
+        if not estimate or not np.all(np.isfinite(y_new)):
+            return y_new, K, None
+        # scipy's DOP853 estimate per unknown from the root-mean-square over the nodes (the train march's norm)
+        e5 = np.sqrt(np.mean(np.tensordot(E5, K[:n + 1], axes=1) ** 2, axis=1))
+        e3 = np.sqrt(np.mean(np.tensordot(E3, K[:n + 1], axes=1) ** 2, axis=1))
+        if not (np.all(np.isfinite(e5)) and np.all(np.isfinite(e3))):  # stages overflowed: far too long a step
+            return y_new, K, None
+        denom = np.sqrt(e5 * e5 + 0.01 * e3 * e3)
+        local = np.where(denom > 0.0, h * e5 * e5 / np.where(denom > 0.0, denom, 1.0), 0.0)
+    return y_new, K, local if np.all(np.isfinite(local)) else None
+
+
+def dense_output(rhs: GridRhs, t: float, h: float, y: np.ndarray, y_new: np.ndarray, K: np.ndarray,
+                 outs: list[float], t_new: float) -> list[np.ndarray]:
+    """The arrays at the times ``outs`` inside ``(t, t_new]``: scipy's order-7 dense output of DOP853
+    (three extra stages when a node lies strictly inside the step)."""
+    n = DOP853.n_stages + 1
+    if any(tn < t_new for tn in outs):
+        with np.errstate(all="ignore"):
+            for s, (a, c) in enumerate(zip(DOP853.A_EXTRA, DOP853.C_EXTRA), start=n):
+                K[s] = rhs(t + c * h, y + h * np.tensordot(a[:s], K[:s], axes=1))
+    inside = [tn for tn in outs if tn < t_new]
+    found = []
+    if inside:  # all the step's nodes in one product: weights (nodes, 18) of [y, y_new, K_0 .. K_15]
+        w = np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in inside])
+        values = w[:, 2:] @ K.reshape(K.shape[0], -1) + np.outer(w[:, 0], y) + np.outer(w[:, 1], y_new)
+        found = list(values.reshape((len(inside),) + y.shape))
+    return found + [y_new] * (len(outs) - len(inside))

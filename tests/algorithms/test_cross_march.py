@@ -1,0 +1,138 @@
+"""The cross march (pgdcli.algorithms.cross_march): trajectories at the nodes a tensor-train cross
+names, marched with a pilot's steps (pgdcli.algorithms.grid_steps).
+
+The arrays at chosen nodes must equal the whole grid's at those nodes; a replay of the pilot's steps
+must reproduce the pilot's states; codebooks built by the cross must be within the tolerance of
+scipy's solve_ivp (DOP853, rtol = atol = 1e-12, written here in numpy) at random points off the grid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import PROBLEMS
+from scipy.integrate import solve_ivp
+
+import pgdcli
+from pgdcli import load_spec, parse_spec
+from pgdcli.errors import SpecError
+from pgdcli.algorithms import cross_march, grid_steps
+from pgdcli.algorithms.march import compile_system
+
+# a forced Duffing oscillator with a stiffness, a damping, a forcing frequency and an initial position as
+# coordinates: parameter-dependent and time-dependent coefficients, 10 x 8 x 12 x 8 nodes
+DUFFING = """
+name: duffing4
+coordinates:
+  t: {domain: [0, 3]}
+  k: {domain: [1, 2], nodes: 10}
+  c: {domain: [0.1, 0.4], nodes: 8}
+  w: {domain: [0.8, 1.4], nodes: 12}
+  x0: {domain: [-0.5, 0.5], nodes: 8}
+unknowns:
+  x: {initial: x0}
+  v: {initial: 0}
+equations:
+  - "der(x) = v"
+  - "der(v) = -k*x - c*v - 0.5*x**3 + 0.4*cos(w*t)"
+solver:
+  tolerance: 1e-5
+  march: cross
+"""
+
+
+def duffing_rhs(k, c, w):
+    return lambda t, y: [y[1], -k * y[0] - c * y[1] - 0.5 * y[0] ** 3 + 0.4 * np.cos(w * t)]
+
+
+@pytest.mark.parametrize("source", ["coupled", "duffing"])
+def test_rhs_at_chosen_nodes_equals_the_whole_grids(source):
+    problem = parse_spec(DUFFING, source="d.yaml") if source == "duffing" else load_spec(PROBLEMS / "coupled.yaml")
+    system = compile_system(problem, 1e-8)
+    rng = np.random.default_rng(2)
+    whole = grid_steps.GridRhs(system)
+    y = rng.uniform(-1.0, 1.0, size=(len(system.unknowns), int(np.prod(system.shape))))
+    indices = np.stack([rng.integers(0, n, size=50) for n in system.shape], axis=1)
+    chosen = grid_steps.GridRhs(system, indices)
+    flat = np.ravel_multi_index(tuple(indices.T), system.shape)
+    for t in (0.0, 0.7):
+        np.testing.assert_allclose(chosen(t, y[:, flat]), whole(t, y)[:, flat], rtol=1e-13, atol=1e-13)
+    np.testing.assert_array_equal(grid_steps.initial_values(system, indices),
+                                  grid_steps.initial_values(system)[:, flat])
+
+
+def test_replay_reproduces_the_pilot():
+    system = compile_system(parse_spec(DUFFING, source="d.yaml"), 1e-6)
+    indices = np.stack([np.arange(6), np.arange(6)[::-1], np.zeros(6, int), np.arange(6)], axis=1)
+    kept: list = []
+    rhs = grid_steps.GridRhs(system, indices)
+    schedule = grid_steps.advance(system, rhs, grid_steps.initial_values(system, indices), 1e-6, kept.extend,
+                                  slab_nodes=6)
+    replayed = grid_steps.replay(grid_steps.GridRhs(system, indices[::-1]),
+                                 grid_steps.initial_values(system, indices[::-1]), schedule)
+    assert replayed.shape == (len(schedule.times), 2, 6)
+    np.testing.assert_allclose(replayed[:, :, ::-1], np.stack(kept), rtol=1e-14, atol=1e-14)
+
+
+def test_cross_codebook_against_solve_ivp_off_the_grid():
+    result = pgdcli.solve(parse_spec(DUFFING, source="duffing4.yaml"))
+    assert result.converged, result.message
+    report = result.codebook.report
+    assert report["march"] == "cross"
+    assert report["cross_trajectories"] > 0 and report["pilot_points"] > 0
+    rng = np.random.default_rng(8)
+    times = np.linspace(0.0, 3.0, 13)
+    worst = 0.0
+    for _ in range(25):
+        k, c, w, x0 = rng.uniform([1, 0.1, 0.8, -0.5], [2, 0.4, 1.4, 0.5])
+        ref = solve_ivp(duffing_rhs(k, c, w), (0.0, 3.0), [x0, 0.0], method="DOP853", rtol=1e-12, atol=1e-12,
+                        t_eval=times)
+        got = result.codebook(t=times, k=k, c=c, w=w, x0=x0)
+        worst = max(worst, float(np.max(np.abs(np.asarray(got["x"]).reshape(-1) - ref.y[0]))),
+                    float(np.max(np.abs(np.asarray(got["v"]).reshape(-1) - ref.y[1]))))
+    assert worst <= 1e-5
+
+
+def test_the_10d_rigid_body_against_solve_ivp_off_the_grid():
+    """problems/rigid_body10.yaml: 10^9 grid nodes, built by the cross (~40 s), at random points of its box."""
+    result = pgdcli.solve(load_spec(PROBLEMS / "rigid_body10.yaml"))
+    assert result.converged, result.message
+    assert result.codebook.report["march"] == "cross"
+    mass, j, fg3 = 1.0 + np.array([0.2, 0.5, 0.8]), np.array([0.1, 0.2, 0.3]), -0.5
+
+    def kirchhoff(inertia):
+        def f(t, y):
+            u, w = y[:3], y[3:]
+            du = (np.cross(mass * u, w) + [0.0, 0.0, fg3]) / mass
+            dw = (np.cross((j + inertia) * w, w) + np.cross((mass - 1.0) * u, u)) / (j + inertia)
+            return np.concatenate([du, dw])
+        return f
+
+    rng = np.random.default_rng(4)
+    times = np.linspace(0.0, 1.0, 11)
+    names = ["u1", "u2", "u3", "w1", "w2", "w3"]
+    worst = 0.0
+    for _ in range(30):
+        y0 = rng.uniform(0.5, 1.5, 6)
+        inertia = rng.uniform([0.8, 1.3, 1.8], [1.2, 1.7, 2.2])
+        ref = solve_ivp(kirchhoff(inertia), (0.0, 1.0), y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=times)
+        point = dict(zip(["u10", "u20", "u30", "w10", "w20", "w30", "I1", "I2", "I3"], [*y0, *inertia]))
+        got = result.codebook(t=times, **point)
+        for i, name in enumerate(names):
+            worst = max(worst, float(np.max(np.abs(np.asarray(got[name]).reshape(-1) - ref.y[i]))))
+    assert worst <= 1e-5
+
+
+def test_a_blow_up_in_part_of_the_grid_is_a_clear_failure():
+    spec = DUFFING.replace('"der(v) = -k*x - c*v - 0.5*x**3 + 0.4*cos(w*t)"', '"der(v) = k*x**4"').replace(
+        "x0: {domain: [-0.5, 0.5]", "x0: {domain: [0.5, 3]")
+    result = pgdcli.solve(parse_spec(spec, source="blow.yaml"))
+    assert not result.converged
+    assert "blows up" in result.message or "underflow" in result.message
+    assert "x0=" in result.message  # where: a node of the grid
+
+
+def test_cross_is_a_march_the_spec_accepts():
+    with pytest.raises(SpecError, match="cross"):
+        parse_spec(DUFFING.replace("march: cross", "march: crosss"), source="d.yaml")
+    assert "cross" in cross_march.__all__[1]
