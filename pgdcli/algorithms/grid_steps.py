@@ -62,10 +62,12 @@ class GridRhs:
                 if not timed:
                     self.fixed[s, m] = self._at_nodes(coef.at(0.0))
 
-    def _at_nodes(self, train) -> np.ndarray:
-        if self.indices is None:
-            return train.full().reshape(-1)
-        return tt_values_at(train, self.indices)
+    def _at_nodes(self, train) -> np.ndarray | float:
+        """The train's values at the nodes; one float when they are all equal (a constant coefficient)."""
+        values = train.full().reshape(-1) if self.indices is None else tt_values_at(train, self.indices)
+        if values.size and np.all(values == values[0]):
+            return float(values[0])
+        return values
 
     def __call__(self, t: float, Y: np.ndarray) -> np.ndarray:
         out = np.zeros_like(Y)
@@ -74,8 +76,10 @@ class GridRhs:
                 term = self.fixed.get((s, m))
                 if term is None:
                     term = self._at_nodes(coef.at(t))
-                for i in factors:
-                    term = term * Y[i]
+                if factors:
+                    term = term * Y[factors[0]]
+                    for i in factors[1:]:
+                        term *= Y[i]
                 out[s] += term
             part = self.system.general[s] if self.system.general else None
             if part is not None:

@@ -40,7 +40,7 @@ from .tt_svd import truncation_rank
 __all__ = ["VectorCrossResult", "vector_cross", "tt_vectors_at"]
 
 #: Share of the tolerance, as a root-mean-square over its values, that a fibre matrix's truncation may drop.
-TRUNCATION_SHARE = 0.05
+TRUNCATION_SHARE = 0.01
 #: A half sweep whose error is above this share of the last one in the same direction tightens the
 #: truncation 4x.
 STALLED = 0.5
@@ -96,7 +96,8 @@ def vector_cross(function: Callable[[np.ndarray], np.ndarray], outputs: int, sha
     Parameters
     ----------
     function : callable
-        ``function(indices)``: multi-indices of shape (P, d) -> values of shape (P, outputs).
+        ``function(indices)``: multi-indices of shape (P, d) -> values of shape (outputs, P), the vector of
+        each multi-index a column.
     outputs : int
         M, the length of every vector.
     shape : sequence of int
@@ -227,7 +228,7 @@ class _VectorCross:
             fibres, self.edge = self.edge[1], None
             return fibres
         if k == 0:
-            return self._evaluate(self.right[1]).T[None]
+            return self._evaluate(self.right[1])[None]
         left, right, n = self.left[k], self.right[k + 1], self.shape[k - 1]
         if k == 1:
             prefixes, inverse = np.zeros((1, 0), dtype=int), np.zeros(len(left), dtype=int)
@@ -243,10 +244,10 @@ class _VectorCross:
         return self._pick(points, point_of.reshape(-1), output_of.reshape(-1)).reshape(len(left), n, c)
 
     def _evaluate(self, points: np.ndarray) -> np.ndarray:
-        """All M values at the points, shape (P, M), in calls of at most :data:`BATCH_FLOATS` values."""
+        """All M values at the points, shape (M, P), in calls of at most :data:`BATCH_FLOATS` values."""
         batch = max(1, BATCH_FLOATS // self.outputs)
         self.evaluations += len(points)
-        return np.concatenate([self.function(points[s:s + batch]) for s in range(0, len(points), batch)])
+        return np.concatenate([self.function(points[s:s + batch]) for s in range(0, len(points), batch)], axis=1)
 
     def _pick(self, points: np.ndarray, point_of: np.ndarray, output_of: np.ndarray) -> np.ndarray:
         """The values ``F(points[point_of[e]])[output_of[e]]``, evaluating the points by batches."""
@@ -259,11 +260,11 @@ class _VectorCross:
             values = self.function(points[s:s + batch])
             lo, hi = np.searchsorted(sorted_points, [s, s + batch])
             entries = order[lo:hi]
-            out[entries] = values[point_of[entries] - s, output_of[entries]]
+            out[entries] = values[output_of[entries], point_of[entries] - s]
         return out
 
     def _check(self, train: TT, count: int) -> tuple[float, float]:
         """Root-mean-square and largest difference from ``F`` at fresh random multi-indices."""
         points = self._random_indices(self.shape, count)
-        difference = tt_vectors_at(train, points) - self._evaluate(points)
+        difference = tt_vectors_at(train, points) - self._evaluate(points).T
         return float(np.sqrt(np.mean(difference * difference))), float(np.max(np.abs(difference)))

@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["TT", "tt_round", "tt_round_many", "tt_sum", "tt_hadamard", "tt_rank_one",
+__all__ = ["TT", "tt_round", "tt_round_shared", "tt_round_many", "tt_sum", "tt_hadamard", "tt_rank_one",
            "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate", "is_ones"]
 
 
@@ -207,8 +207,12 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
     norm = np.linalg.norm(cores[0])
     if norm == 0.0:
         return TT([np.zeros((1, c.shape[1], 1)) for c in cores])
-    delta = (tolerance * norm if absolute is None else absolute) / np.sqrt(d - 1)
-    for k in range(d - 1):
+    return _truncate(cores, (tolerance * norm if absolute is None else absolute) / np.sqrt(d - 1), max_rank)
+
+
+def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None) -> TT:
+    """Left-to-right truncated SVDs of right-orthogonal cores 1..d-1, each dropping at most ``delta``."""
+    for k in range(len(cores) - 1):
         r0, n, r1 = cores[k].shape
         u, s, vt = np.linalg.svd(cores[k].reshape(r0 * n, r1), full_matrices=False)
         # smallest rank whose discarded tail has norm <= delta
@@ -219,6 +223,23 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
         cores[k] = u[:, :rank].reshape(r0, n, rank)
         cores[k + 1] = np.tensordot(s[:rank, None] * vt[:rank], cores[k + 1], axes=(1, 0))
     return TT(cores)
+
+
+def tt_round_shared(firsts: Sequence[np.ndarray], shared: Sequence[np.ndarray], *, absolute: float) -> list[TT]:
+    """:func:`tt_round` of the trains ``[first] + shared`` for every first core, ``shared`` orthogonalized once.
+
+    Parameters
+    ----------
+    firsts : sequence of ndarray, each of shape (1, n_0, r_1)
+    shared : sequence of ndarray
+        Cores 1..d-1, common to all the trains (d >= 2).
+    absolute : float
+        Frobenius bound of each train's rounding.
+    """
+    cores = _orthogonalize_right([np.eye(shared[0].shape[0])[None]] + list(shared))
+    carried = cores[0][0]  # (r_1, r_1'): what the orthogonalization moved into the first core
+    delta = absolute / np.sqrt(len(shared))
+    return [_truncate([np.tensordot(first, carried, axes=(2, 0))] + cores[1:], delta, None) for first in firsts]
 
 
 def _pad_to(cores: list[np.ndarray], ranks: list[int]) -> list[np.ndarray]:

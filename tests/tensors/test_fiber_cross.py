@@ -21,13 +21,18 @@ def trajectories(indices: np.ndarray) -> np.ndarray:
     return decay * wave + np.outer(1.0 / (1.0 + x[:, 3] * x[:, 4]), TIMES ** 2)
 
 
+def columns(indices: np.ndarray) -> np.ndarray:
+    """The trajectories as vector_cross takes them: one column per multi-index."""
+    return trajectories(indices).T
+
+
 def held_out(seed: int, count: int = 4000) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, NODES.size, size=(count, 5))
 
 
 @pytest.mark.parametrize("tolerance", [1e-5, 1e-8])
 def test_cross_meets_its_tolerance_where_it_never_looked(tolerance):
-    result = vector_cross(trajectories, TIMES.size, (NODES.size,) * 5, tolerance, largest=10 * tolerance,
+    result = vector_cross(columns, TIMES.size, (NODES.size,) * 5, tolerance, largest=10 * tolerance,
                           rng=np.random.default_rng(0))
     assert result.converged, result.message
     assert result.train.shape == (TIMES.size,) + (NODES.size,) * 5
@@ -46,27 +51,27 @@ def test_exact_rank_three_is_found():
 
     def function(indices):
         terms = np.prod([factors[:, k, indices[:, k]] for k in range(4)], axis=0)  # (3, P)
-        return terms.T @ vectors
+        return vectors.T @ terms
 
     result = vector_cross(function, 12, (7,) * 4, 1e-10, rng=np.random.default_rng(0))
     assert result.converged, result.message
     rounded = tt_round(result.train, absolute=1e-9)
     assert max(rounded.ranks) <= 3
     grid = np.stack(np.meshgrid(*[np.arange(7)] * 4, indexing="ij"), axis=-1).reshape(-1, 4)
-    np.testing.assert_allclose(tt_vectors_at(result.train, grid), function(grid), atol=1e-9)
+    np.testing.assert_allclose(tt_vectors_at(result.train, grid), function(grid).T, atol=1e-9)
 
 
 def test_rank_cap_is_reported_not_hidden():
     table = np.random.default_rng(5).standard_normal((6,) * 4 + (3,))  # no low rank at all
-    result = vector_cross(lambda idx: table[tuple(idx.T)], 3, (6,) * 4, 1e-8, rng=np.random.default_rng(0),
+    result = vector_cross(lambda idx: table[tuple(idx.T)].T, 3, (6,) * 4, 1e-8, rng=np.random.default_rng(0),
                           max_rank=5)
     assert not result.converged
     assert "max_rank=5" in result.message
 
 
 def test_same_seed_same_train_and_bad_arguments():
-    first = vector_cross(trajectories, TIMES.size, (NODES.size,) * 5, 1e-5, rng=np.random.default_rng(4))
-    second = vector_cross(trajectories, TIMES.size, (NODES.size,) * 5, 1e-5, rng=np.random.default_rng(4))
+    first = vector_cross(columns, TIMES.size, (NODES.size,) * 5, 1e-5, rng=np.random.default_rng(4))
+    second = vector_cross(columns, TIMES.size, (NODES.size,) * 5, 1e-5, rng=np.random.default_rng(4))
     assert all(np.array_equal(a, b) for a, b in zip(first.train.cores, second.train.cores))
     with pytest.raises(ValueError, match="outputs >= 1"):
-        vector_cross(trajectories, 0, (3, 3), 1e-5, rng=np.random.default_rng(0))
+        vector_cross(columns, 0, (3, 3), 1e-5, rng=np.random.default_rng(0))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pgdcli.discretization.basis import make_basis
-from pgdcli.tensors.tt import TT, tt_constant, tt_hadamard, tt_rank_one, tt_round, tt_round_many, tt_sum
+from pgdcli.tensors.tt import TT, tt_constant, tt_hadamard, tt_rank_one, tt_round, tt_round_many, tt_round_shared, tt_sum
 
 EPS = np.finfo(float).eps
 SHAPES = {1: (5,), 2: (4, 6), 3: (3, 5, 4), 4: (3, 4, 2, 5)}
@@ -357,3 +357,21 @@ def test_round_many_of_sums_with_ranks_above_the_outer_modes():
         single = tt_round(s, absolute=delta)
         assert x.ranks[0] <= shape[0] and x.ranks[-1] <= shape[-1]
         assert max(x.ranks) >= max(single.ranks)  # batched: the largest rank of the batch per bond
+
+
+def test_round_shared_equals_rounding_each_train():
+    rng = np.random.default_rng(12)
+    # a rank-3 tensor behind rank-9 cores (redundant), and three first cores of different scales
+    low = [rng.standard_normal((1, 5, 3)), rng.standard_normal((3, 6, 3)), rng.standard_normal((3, 4, 1))]
+    shared = [np.concatenate([low[1]] * 3, axis=0).repeat(3, axis=2) / 3.0,
+              np.concatenate([low[2]] * 3, axis=0)]
+    firsts = [scale * np.concatenate([low[0]] * 3, axis=2) for scale in (1.0, 1e-3, 50.0)]
+    delta = 1e-8
+    rounded = tt_round_shared(firsts, shared, absolute=delta)
+    for first, got in zip(firsts, rounded):
+        expected = tt_round(TT([first] + shared), absolute=delta)
+        assert got.ranks == expected.ranks
+        assert max(got.ranks) <= 3
+        full = TT([first] + shared).full()
+        assert np.linalg.norm(got.full() - full) <= delta
+        np.testing.assert_allclose(got.full(), expected.full(), atol=1e-10 * np.abs(full).max())
