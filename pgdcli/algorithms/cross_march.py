@@ -85,7 +85,8 @@ class CrossMarchResult:
 
 
 def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, max_rank: int = 400,
-                   max_steps: int = 20000, callback=None, slab_nodes: int | None = None) -> CrossMarchResult:
+                   max_steps: int = 20000, callback=None, slab_nodes: int | None = None,
+                   budget: int | None = None) -> CrossMarchResult:
     """Pilot march, cross of the trajectories, split and round (module docstring).
 
     Parameters
@@ -102,6 +103,8 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
         the cross (``{"cross", "residual", "target", "ranks", "trajectories"}``).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
+    budget : int, optional
+        Trajectories the cross may ask for (``converged`` False beyond them).
 
     Raises
     ------
@@ -121,7 +124,8 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
         try:
             found = vector_cross(_trajectories(system, schedule), len(system.unknowns) * len(schedule.times),
                                  system.shape, CROSS_SHARE * tolerance, largest=CROSS_LARGEST * tolerance, rng=rng,
-                                 max_rank=max_rank, callback=_sweep_progress(callback, CROSS_SHARE * tolerance))
+                                 max_rank=max_rank, callback=_sweep_progress(callback, CROSS_SHARE * tolerance),
+                                 max_evaluations=budget)
             break
         except _Overflow as overflow:
             if attempt == RETRIES:

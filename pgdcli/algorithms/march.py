@@ -65,6 +65,12 @@ SPACE_TIME_FRACTION = 0.1
 #: ``solver.march: auto`` sends grids too large for the grid march to the cross of trajectories
 #: (:mod:`pgdcli.algorithms.cross_march`) rather than the tensor-train march.
 CROSS_BY_DEFAULT = True
+#: From this many state values (grid nodes x unknowns) on, ``auto`` tries the cross march first on a grid the
+#: grid march could take, with a budget of ``CROSS_BUDGET`` trajectories per grid node (measured,
+#: benchmarks/README.md: the cross is 1.5x faster on coupled.yaml at 40^3 nodes, 7.5x on a 5-D pendulum at
+#: 16^5; it needs more trajectories than the grid has nodes on the rigid body at 8^6 and 1e-6)
+CROSS_FIRST_VALUES = 2 ** 17
+CROSS_BUDGET = 4
 
 
 class MarchFailure(Exception):
@@ -230,10 +236,16 @@ def solve_march(problem, tolerance: float, callback=None):
     slab_nodes = problem.time_coordinate.nodes if auto else None
     march_state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
     check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
-    if march_state == "grid" or (march_state == "auto" and fits_grid(system)):
+    nodes = int(np.prod(system.shape))
+    fits, first = fits_grid(system), nodes * len(system.unknowns) >= CROSS_FIRST_VALUES
+    if march_state == "cross" or (march_state == "auto" and CROSS_BY_DEFAULT and (first or not fits)):
+        # auto on a grid the grid march could take: the cross gets a budget, and the grid march what it left
+        budget = CROSS_BUDGET * nodes if march_state == "auto" and fits else None
+        found = _solve_by_cross(problem, system, tolerance, separations, progress, slab_nodes, started, last, budget)
+        if found is not None:
+            return found
+    if march_state == "grid" or (march_state == "auto" and fits):
         return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started, last)
-    if march_state == "cross" or (march_state == "auto" and CROSS_BY_DEFAULT):
-        return _solve_by_cross(problem, system, tolerance, separations, progress, slab_nodes, started, last)
     failure = None
     try:
         result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress,
@@ -275,20 +287,30 @@ def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separatio
     bonds = [list(train.ranks[1:]) for train in trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "grid",
               "grid_chunks": int(result.chunks)}  # no roundings, crosses or products to count
+    if "cross_abandoned" in last:  # auto tried the cross march first
+        report["cross_abandoned"] = last["cross_abandoned"]
     return _converged_result(problem, system, result, trains, report, tolerance, separations,
                              _time.perf_counter() - started)
 
 
 def _solve_by_cross(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
-                    started: float, last: dict):
-    """:func:`solve_march` on a large grid: :func:`pgdcli.algorithms.cross_march.march_by_cross`."""
+                    started: float, last: dict, budget: int | None = None):
+    """:func:`solve_march` on a large grid: :func:`pgdcli.algorithms.cross_march.march_by_cross`.
+
+    With a ``budget`` (trajectories; the grid march can take the grid), a cross that does not converge
+    within it returns None: the caller marches the whole grid instead.
+    """
     st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     try:
         result = march_by_cross(system, tolerance, 0.5 * st_delta, max_rank=problem.solver.max_rank,
-                                max_steps=problem.solver.max_steps, callback=progress, slab_nodes=slab_nodes)
+                                max_steps=problem.solver.max_steps, callback=progress, slab_nodes=slab_nodes,
+                                budget=budget)
     except GridMarchFailure as failure:
         return _failed_result(problem, system, failure, grid_region(system, failure.values, failure.indices),
                               tolerance, int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
+    if not result.converged and budget is not None:
+        last["cross_abandoned"] = result.message  # for the grid march's report
+        return None
     if not result.converged:
         failure = GridMarchFailure(f"the cross of the trajectories did not converge: {result.message}",
                                    float(result.times[-1]), np.zeros((len(system.unknowns), 0)))

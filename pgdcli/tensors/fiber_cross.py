@@ -90,7 +90,8 @@ def tt_vectors_at(train: TT, indices: np.ndarray) -> np.ndarray:
 def vector_cross(function: Callable[[np.ndarray], np.ndarray], outputs: int, shape: Sequence[int],
                  tolerance: float, *, largest: float | None = None, rng: np.random.Generator, max_rank: int = 400,
                  initial_rank: int = 16, check_points: int = 256, max_sweeps: int = 16,
-                 callback: Callable[[dict], None] | None = None) -> VectorCrossResult:
+                 callback: Callable[[dict], None] | None = None,
+                 max_evaluations: int | None = None) -> VectorCrossResult:
     """A tensor train of shape ``(outputs,) + shape`` within ``tolerance`` of ``F`` at random checks.
 
     Parameters
@@ -117,12 +118,15 @@ def vector_cross(function: Callable[[np.ndarray], np.ndarray], outputs: int, sha
         Half sweeps at most.
     callback : callable, optional
         After every half sweep: ``{"sweep", "error", "largest", "ranks", "evaluations"}``.
+    max_evaluations : int, optional
+        Stop (not converged) after the half sweep that passes this many evaluations.
     """
     shape = tuple(int(n) for n in shape)
     if not shape or min(shape) < 1 or outputs < 1:
         raise ValueError(f"vector_cross needs outputs >= 1 and a grid of d >= 1 modes, got {outputs}, {shape}")
     cross = _VectorCross(function, outputs, shape, tolerance, rng, max_rank, initial_rank)
-    return cross.run(check_points, max_sweeps, np.inf if largest is None else largest, callback)
+    return cross.run(check_points, max_sweeps, np.inf if largest is None else largest, callback,
+                     np.inf if max_evaluations is None else max_evaluations)
 
 
 class _VectorCross:
@@ -146,7 +150,7 @@ class _VectorCross:
         count = min(count, int(np.prod(modes, dtype=float)))
         return np.stack([self.rng.integers(0, n, size=count) for n in modes], axis=1)
 
-    def run(self, check_points: int, max_sweeps: int, largest: float, callback) -> VectorCrossResult:
+    def run(self, check_points: int, max_sweeps: int, largest: float, callback, budget: float) -> VectorCrossResult:
         error = worst = np.inf
         errors: list[float] = []
         message = f"no sweep met the tolerance in {max_sweeps} half sweeps"
@@ -166,6 +170,9 @@ class _VectorCross:
                 return VectorCrossResult(train, True, error, worst, self.evaluations, sweep, f"converged: {found}")
             if self.capped:
                 message = f"a tensor-train rank reached max_rank={self.max_rank} ({found})"
+                break
+            if self.evaluations > budget:
+                message = f"{self.evaluations:,} evaluations, more than the budget of {budget:,} ({found})"
                 break
         else:
             sweep = max_sweeps

@@ -136,3 +136,16 @@ def test_cross_is_a_march_the_spec_accepts():
     with pytest.raises(SpecError, match="cross"):
         parse_spec(DUFFING.replace("march: cross", "march: crosss"), source="d.yaml")
     assert "cross" in cross_march.__all__[1]
+
+
+def test_auto_gives_a_grid_the_cross_first_and_the_grid_march_what_it_left(monkeypatch):
+    from pgdcli.algorithms import march
+
+    spec = DUFFING.replace("  march: cross\n", "")
+    monkeypatch.setattr(march, "CROSS_FIRST_VALUES", 1000)  # the 7680 x 2 values of DUFFING
+    result = pgdcli.solve(parse_spec(spec, source="duffing4.yaml"))
+    assert result.converged and result.codebook.report["march"] == "cross"
+    monkeypatch.setattr(march, "CROSS_BUDGET", 0)  # no trajectory allowed: the first half sweep ends it
+    result = pgdcli.solve(parse_spec(spec, source="duffing4.yaml"))
+    assert result.converged and result.codebook.report["march"] == "grid"
+    assert "more than the budget of 0" in result.codebook.report["cross_abandoned"]

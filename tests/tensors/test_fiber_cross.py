@@ -75,3 +75,11 @@ def test_same_seed_same_train_and_bad_arguments():
     assert all(np.array_equal(a, b) for a, b in zip(first.train.cores, second.train.cores))
     with pytest.raises(ValueError, match="outputs >= 1"):
         vector_cross(columns, 0, (3, 3), 1e-5, rng=np.random.default_rng(0))
+
+
+def test_evaluation_budget_stops_the_cross():
+    result = vector_cross(columns, TIMES.size, (NODES.size,) * 5, 1e-10, rng=np.random.default_rng(0),
+                          max_evaluations=5000)
+    assert not result.converged
+    assert "more than the budget of 5,000" in result.message
+    assert result.evaluations > 5000
