@@ -44,9 +44,9 @@ PILOT_CORNERS = 1024
 CROSS_SHARE = 0.1
 #: The cross's largest difference there, as a share of the tolerance.
 CROSS_LARGEST = 0.5
-#: Nodes marched together: the stages of 8192 nodes stay in the cache (2x faster per node than 65536,
-#: benchmarks/README.md).
-REPLAY_POINTS = 8192
+#: Nodes marched together at most: their stages stay in the cache (8192-16384 nodes: 2x faster per node
+#: than 65536, benchmarks/README.md).
+REPLAY_POINTS = 16384
 #: Times the pilot is marched again with the nodes where its steps overflowed.
 RETRIES = 2
 
@@ -168,17 +168,27 @@ def _trajectories(system: NonlinearSystem, schedule: Schedule):
     """``F(indices)``: the stored states at grid multi-indices (P, d), as (times x unknowns, P)."""
 
     def function(indices: np.ndarray) -> np.ndarray:
+        if len(indices) <= REPLAY_POINTS:  # one replay: its array is the answer (no copy)
+            values = replay(GridRhs(system, indices), initial_values(system, indices), schedule)
+            _refuse_overflow(indices, values)
+            return values.reshape(-1, len(indices))
         out = np.empty((len(schedule.times), len(system.unknowns), len(indices)))
         for start in range(0, len(indices), REPLAY_POINTS):
             chosen = indices[start:start + REPLAY_POINTS]
             values = replay(GridRhs(system, chosen), initial_values(system, chosen), schedule)  # (times, m, P)
-            bad = ~np.all(np.isfinite(values), axis=(0, 1))
-            if np.any(bad):
-                raise _Overflow(chosen[bad], values[:, :, bad][-1])
+            _refuse_overflow(chosen, values)
             out[:, :, start:start + len(chosen)] = values
         return out.reshape(-1, len(indices))
 
     return function
+
+
+def _refuse_overflow(indices: np.ndarray, values: np.ndarray) -> None:
+    """Raise :class:`_Overflow` with the nodes whose replayed values (times, m, P) are not all finite."""
+    if np.isfinite(values.sum()):
+        return
+    bad = ~np.all(np.isfinite(values), axis=(0, 1))
+    raise _Overflow(indices[bad], values[:, :, bad][-1])
 
 
 def _split(train: TT, unknowns: int, times: int, delta: float) -> list[TT]:

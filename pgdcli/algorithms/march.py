@@ -302,7 +302,7 @@ def _solve_by_cross(problem, system: NonlinearSystem, tolerance: float, separati
     """
     st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     try:
-        result = march_by_cross(system, tolerance, 0.5 * st_delta, max_rank=problem.solver.max_rank,
+        result = march_by_cross(system, tolerance, st_delta, max_rank=problem.solver.max_rank,
                                 max_steps=problem.solver.max_steps, callback=progress, slab_nodes=slab_nodes,
                                 budget=budget)
     except GridMarchFailure as failure:

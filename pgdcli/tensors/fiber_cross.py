@@ -15,7 +15,7 @@ a fibre matrix gives the rank its values need, and a fibre matrix whose every co
 with random columns, as the kick of Dolgov & Savostyanov's AMEn-cross; ranks that need less shrink.
 The truncation drops at most a share of the tolerance from each fibre matrix; interpolation
 amplifies it, so a half sweep that does not halve the error of the last one in its direction makes
-that share 4x smaller.
+that share 2x smaller.
 
 Convergence is measured, not assumed: after every half sweep the train is compared with ``F`` at
 fresh random multi-indices (the whole vector each), and the cross stops when the largest
@@ -42,12 +42,13 @@ __all__ = ["VectorCrossResult", "vector_cross", "tt_vectors_at"]
 #: Share of the tolerance, as a root-mean-square over its values, that a fibre matrix's truncation may drop.
 TRUNCATION_SHARE = 0.01
 #: A half sweep whose error is above this share of the last one in the same direction tightens the
-#: truncation 4x.
+#: truncation 2x.
 STALLED = 0.5
 #: Random columns added to every fibre matrix's basis (the kick), beside the growth of a full one.
 KICK = 4
-#: Values (points x vector length) asked of the function in one call.
-BATCH_FLOATS = 2 ** 23
+#: Values (points x vector length) asked of the function in one call: 16 MB, below glibc's largest
+#: mmap threshold (32 MB), so the arrays of successive calls reuse memory instead of faulting in pages.
+BATCH_FLOATS = 2 ** 21
 
 
 @dataclass
@@ -164,7 +165,7 @@ class _VectorCross:
                 callback({"sweep": sweep, "error": error, "largest": worst, "ranks": list(train.ranks),
                           "evaluations": self.evaluations})
             if len(errors) > 2 and error > STALLED * errors[-3]:  # against the last sweep the same way
-                self.share *= 0.25  # the ranks the truncation allows are too small for the tolerance
+                self.share *= 0.5  # the ranks the truncation allows are too small for the tolerance
             found = f"root-mean-square difference {error:.3g}, largest {worst:.3g} at {check_points} random multi-indices"
             if error <= self.tolerance and worst <= largest:
                 return VectorCrossResult(train, True, error, worst, self.evaluations, sweep, f"converged: {found}")
