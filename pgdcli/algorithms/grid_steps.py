@@ -25,7 +25,7 @@ from .polynomial_rhs import NonlinearSystem
 from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
 
 __all__ = ["GridRhs", "GridMarchFailure", "Schedule", "advance", "replay", "initial_values", "trial_step",
-           "dense_output"]
+           "dense_output", "extra_stages"]
 
 
 class GridMarchFailure(Exception):
@@ -64,6 +64,8 @@ class GridRhs:
 
     def _at_nodes(self, train) -> np.ndarray | float:
         """The train's values at the nodes; one float when they are all equal (a constant coefficient)."""
+        if all(r == 1 for r in train.ranks) and all(np.all(c == c.flat[0]) for c in train.cores):
+            return float(np.prod([c.flat[0] for c in train.cores]))  # rank one, constant cores: a constant
         values = train.full().reshape(-1) if self.indices is None else tt_values_at(train, self.indices)
         if values.size and np.all(values == values[0]):
             return float(values[0])
@@ -190,6 +192,9 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
 def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
     """March ``y`` (unknowns, P) with the accepted steps of ``schedule``: the stored states.
 
+    The same arithmetic as :func:`advance`, in one buffer ``[y, y_new, K_0 .. K_15]`` whose dense output
+    at a step's nodes is one matrix product written into the result.
+
     Returns
     -------
     ndarray, shape (stored times, unknowns, P)
@@ -197,14 +202,23 @@ def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
     """
     out = np.empty((len(schedule.times),) + y.shape)
     out[0] = y
-    j = 1
+    buffer = np.empty((2 + DOP853.n_stages + 1 + len(DOP853.C_EXTRA),) + y.shape)
+    buffer[0] = y
+    stages = buffer[2:]
     f = rhs(schedule.times[0], y)
+    j = 1
     for t, h, t_new, outs in schedule.steps:
-        y_new, K, _ = trial_step(rhs, t, y, f, h, estimate=False)
-        for values in dense_output(rhs, t, h, y, y_new, K, outs, t_new):
-            out[j] = values
-            j += 1
-        y, f = y_new, K[DOP853.n_stages]
+        buffer[1], _, _ = trial_step(rhs, t, buffer[0], f, h, estimate=False, stages=stages)
+        inside = [tn for tn in outs if tn < t_new]
+        if inside:
+            extra_stages(rhs, t, h, buffer[0], stages)
+            w = np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in inside])
+            np.matmul(w, buffer.reshape(len(buffer), -1), out=out[j:j + len(inside)].reshape(len(inside), -1))
+            j += len(inside)
+        out[j:j + len(outs) - len(inside)] = buffer[1]
+        j += len(outs) - len(inside)
+        buffer[0] = buffer[1]
+        f = stages[DOP853.n_stages]
     return out
 
 
@@ -212,16 +226,23 @@ def _largest(y: np.ndarray) -> float:
     return float(np.max(np.abs(y)))
 
 
-def trial_step(rhs: GridRhs, t: float, y: np.ndarray, f: np.ndarray, h: float, estimate: bool = True):
+def _combination(weights: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """``sum_s weights[s] K[s]`` for stages K of shape (s, unknowns, P): one matrix-vector product."""
+    return (weights @ K[:len(weights)].reshape(len(weights), -1)).reshape(K.shape[1:])
+
+
+def trial_step(rhs: GridRhs, t: float, y: np.ndarray, f: np.ndarray, h: float, estimate: bool = True,
+               stages: np.ndarray | None = None):
     """One DOP853 trial step: ``(y_new, K, local)``; K holds the 12 stages and f(t + h, y_new), local
-    the elementwise error estimate (None after a non-finite value, or when ``estimate`` is False)."""
+    the elementwise error estimate (None after a non-finite value, or when ``estimate`` is False).
+    ``stages``: an array of shape (16, unknowns, P) to hold K (else a new one)."""
     A, B, C, E3, E5, n = DOP853.A, DOP853.B, DOP853.C, DOP853.E3, DOP853.E5, DOP853.n_stages
-    K = np.empty((n + 1 + len(DOP853.C_EXTRA),) + y.shape)
+    K = np.empty((n + 1 + len(DOP853.C_EXTRA),) + y.shape) if stages is None else stages
     K[0] = f
     with np.errstate(all="ignore"):
         for s in range(1, n):
-            K[s] = rhs(t + C[s] * h, y + h * np.tensordot(A[s, :s], K[:s], axes=1))
-        y_new = y + h * np.tensordot(B, K[:n], axes=1)
+            K[s] = rhs(t + C[s] * h, y + h * _combination(A[s, :s], K))
+        y_new = y + h * _combination(B, K)
         K[n] = rhs(t + h, y_new)  # the next step's first stage, and the dense output's
         if not estimate or not np.all(np.isfinite(y_new)):
             return y_new, K, None
@@ -239,11 +260,8 @@ def dense_output(rhs: GridRhs, t: float, h: float, y: np.ndarray, y_new: np.ndar
                  outs: list[float], t_new: float) -> list[np.ndarray]:
     """The arrays at the times ``outs`` inside ``(t, t_new]``: scipy's order-7 dense output of DOP853
     (three extra stages when a node lies strictly inside the step)."""
-    n = DOP853.n_stages + 1
     if any(tn < t_new for tn in outs):
-        with np.errstate(all="ignore"):
-            for s, (a, c) in enumerate(zip(DOP853.A_EXTRA, DOP853.C_EXTRA), start=n):
-                K[s] = rhs(t + c * h, y + h * np.tensordot(a[:s], K[:s], axes=1))
+        extra_stages(rhs, t, h, y, K)
     inside = [tn for tn in outs if tn < t_new]
     found = []
     if inside:  # all the step's nodes in one product: weights (nodes, 18) of [y, y_new, K_0 .. K_15]
@@ -251,3 +269,10 @@ def dense_output(rhs: GridRhs, t: float, h: float, y: np.ndarray, y_new: np.ndar
         values = w[:, 2:] @ K.reshape(K.shape[0], -1) + np.outer(w[:, 0], y) + np.outer(w[:, 1], y_new)
         found = list(values.reshape((len(inside),) + y.shape))
     return found + [y_new] * (len(outs) - len(inside))
+
+
+def extra_stages(rhs: GridRhs, t: float, h: float, y: np.ndarray, K: np.ndarray) -> None:
+    """The three stages of DOP853's dense output, into ``K[13:16]`` (after a step's 13)."""
+    with np.errstate(all="ignore"):
+        for s, (a, c) in enumerate(zip(DOP853.A_EXTRA, DOP853.C_EXTRA), start=DOP853.n_stages + 1):
+            K[s] = rhs(t + c * h, y + h * _combination(a[:s], K))

@@ -62,6 +62,13 @@ def info(codebook, fmt):
         console.print(f"{label}: {summary['residual']:.3e} ({state})")
     if summary.get("march") == "grid":
         console.print("march: the whole grid array (grid march), compressed once by TT-SVD")
+    if summary.get("cross_abandoned"):
+        console.print(f"the cross march, tried first, gave up: {summary['cross_abandoned']}")
+    if summary.get("cross_march") is not None:
+        c = summary["cross_march"]
+        console.print(f"march: the cross of trajectories (cross march): {c['trajectories']:,} trajectories in "
+                      f"{c['sweeps']} half sweeps, steps from a pilot of {c['pilot_points']:,} nodes; "
+                      f"root-mean-square difference {c['error']:.2e} at random nodes")
     if summary.get("roundings") is not None:
         r = summary["roundings"]
         console.print(f"tensor-train roundings: {r['exact']} exact, {r['sketched']} randomized "

@@ -67,8 +67,13 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
         "solve_time": float(rep.get("wall_time", np.nan)),
         "pgdcli_version": str(rep.get("pgdcli_version", "")),
     }
-    if "march" in rep:  # which march: 'grid' (the whole array, compressed once) or 'train'
+    if "march" in rep:  # which march: 'grid' (the whole array, compressed once), 'cross' or 'train'
         out["march"] = str(rep["march"])
+    if "cross_trajectories" in rep:  # the cross march (pgdcli.algorithms.cross_march)
+        out["cross_march"] = {"trajectories": int(rep["cross_trajectories"]), "sweeps": int(rep["cross_sweeps"]),
+                              "error": float(rep["cross_error"]), "pilot_points": int(rep["pilot_points"])}
+    if "cross_abandoned" in rep:  # auto tried the cross march first, the grid march built the codebook
+        out["cross_abandoned"] = str(rep["cross_abandoned"])
     if "roundings_exact" in rep:
         out["roundings"] = {k: int(rep[f"roundings_{k}"]) for k in ("exact", "sketched", "redone")}
     if "crosses" in rep:  # functions of the unknowns, by cross approximation (pgdcli.algorithms.general_rhs)

@@ -81,10 +81,19 @@ class VectorCrossResult:
 
 
 def tt_vectors_at(train: TT, indices: np.ndarray) -> np.ndarray:
-    """The vectors of a train of shape (M, n_1, ..., n_d) at multi-indices (P, d): shape (P, M)."""
+    """The vectors of a train of shape (M, n_1, ..., n_d) at multi-indices (P, d): shape (P, M).
+
+    Contracted from the last core, one product per node of each mode for the points at that node (a
+    gather of the cores' slices at every point would copy ``P r^2`` values per core).
+    """
     w = train.cores[-1][:, indices[:, -1], 0].T  # (P, r_d)
     for k in range(train.order - 2, 0, -1):
-        w = np.einsum("apb,pb->pa", train.cores[k][:, indices[:, k - 1], :], w)
+        core, column = train.cores[k], indices[:, k - 1]
+        out = np.empty((len(indices), core.shape[0]))
+        for node in range(core.shape[1]):
+            at = column == node
+            out[at] = w[at] @ core[:, node, :].T
+        w = out
     return w @ train.cores[0][0].T
 
 
@@ -219,9 +228,11 @@ class _VectorCross:
             self.capped = True
         size = min(rows, wanted, self.max_rank)
         basis = u[:, :min(rank, size)]
-        if size > basis.shape[1]:
+        if size > basis.shape[1]:  # random columns, orthogonalized against the basis twice (then by QR)
             kick = self.rng.standard_normal((rows, size - basis.shape[1]))
-            basis, _ = qr(np.hstack([basis, kick]), mode="economic")
+            for _ in range(2):
+                kick -= basis @ (basis.T @ kick)
+            basis = np.hstack([basis, qr(kick, mode="economic")[0]])
         return basis, maxvol(basis)
 
     @staticmethod

@@ -149,3 +149,20 @@ def test_auto_gives_a_grid_the_cross_first_and_the_grid_march_what_it_left(monke
     result = pgdcli.solve(parse_spec(spec, source="duffing4.yaml"))
     assert result.converged and result.codebook.report["march"] == "grid"
     assert "more than the budget of 0" in result.codebook.report["cross_abandoned"]
+
+
+def test_info_tells_how_the_cross_march_built_it(tmp_path):
+    from click.testing import CliRunner
+
+    from pgdcli.cli.main import cli
+
+    path = tmp_path / "duffing4.h5"
+    pgdcli.solve(parse_spec(DUFFING, source="duffing4.yaml")).codebook.save(path)
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 0, result.output
+    assert "march: the cross of trajectories (cross march):" in result.output
+    summary = CliRunner().invoke(cli, ["info", str(path), "--format", "json"])
+    import json
+
+    cross = json.loads(summary.stdout)["cross_march"]
+    assert cross["trajectories"] > 0 and cross["sweeps"] >= 1 and cross["error"] <= 1e-6
