@@ -166,3 +166,40 @@ def test_info_tells_how_the_cross_march_built_it(tmp_path):
 
     cross = json.loads(summary.stdout)["cross_march"]
     assert cross["trajectories"] > 0 and cross["sweeps"] >= 1 and cross["error"] <= 1e-6
+
+
+def test_nodes_the_pilot_missed_join_it(monkeypatch):
+    """A pilot kept away from the blow-up (u0 <= 1.5): the cross's trajectories at u0 = 3 overflow, join
+    the pilot, and the new pilot names the blow-up where it is."""
+    spec = """
+name: late
+coordinates:
+  t: {domain: [0, 0.6]}
+  u0: {domain: [0.2, 3], nodes: 12}
+  k: {domain: [0.5, 1], nodes: 12}
+unknowns:
+  u: {initial: u0}
+equations:
+  - "der(u) = k*u**2"
+solver:
+  tolerance: 1e-6
+  march: cross
+"""
+    problem = parse_spec(spec, source="late.yaml")
+    nodes = compile_system(problem, 1e-6).bases["u0"].nodes
+    safe = np.flatnonzero(nodes <= 1.5)
+    pilots = []
+
+    def pilot_indices(shape, rng):
+        found = np.stack(np.meshgrid(safe, np.arange(shape[1]), indexing="ij"), axis=-1).reshape(-1, 2)
+        pilots.append(found)
+        return found
+
+    monkeypatch.setattr(cross_march, "_pilot_indices", pilot_indices)
+    result = pgdcli.solve(problem)
+    assert len(pilots) == 1  # the pilot ran again from the nodes that overflowed, not from a new draw
+    assert not result.converged
+    assert "blows up" in result.message
+    import re
+
+    assert float(re.search(r"near u0=([0-9.]+)", result.message).group(1)) > 2.0  # where the pilot never was
