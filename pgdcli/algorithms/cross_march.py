@@ -135,9 +135,9 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
                                        indices=overflow.indices) from None
             pilot = np.unique(np.vstack([pilot, overflow.indices[:256]]), axis=0)
     trains = _split(found.train, len(system.unknowns), len(schedule.times), delta)
-    breakpoints = np.array([schedule.times[0]] + [end for _, _, end, _ in schedule.steps]) if slab_nodes else None
     return CrossMarchResult(trains, np.array(schedule.times), schedule, found.converged, found.message,
-                            found.evaluations, found.sweeps, found.error, len(pilot), breakpoints)
+                            found.evaluations, found.sweeps, found.error, len(pilot),
+                            schedule.breakpoints() if slab_nodes else None)
 
 
 class _Overflow(Exception):

@@ -162,9 +162,9 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, ma
     schedule = advance(system, rhs, initial_values(system), tolerance, store.extend, max_steps=max_steps,
                        callback=callback, slab_nodes=slab_nodes)
     trains = store.trains()
-    breakpoints = np.array([schedule.times[0]] + [t_new for _, _, t_new, _ in schedule.steps]) if slab_nodes else None
     return GridMarchResult(trains, np.array(schedule.times), len(schedule.steps), schedule.rejected,
-                           float(np.max(schedule.local_sum)), schedule.step_sizes, breakpoints,
+                           float(np.max(schedule.local_sum)), schedule.step_sizes,
+                           schedule.breakpoints() if slab_nodes else None,
                            max(1, len(store.pieces)))
 
 

@@ -25,7 +25,7 @@ from .polynomial_rhs import NonlinearSystem
 from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
 
 __all__ = ["GridRhs", "GridMarchFailure", "Schedule", "advance", "replay", "initial_values", "trial_step",
-           "dense_output", "extra_stages"]
+           "dense_values", "extra_stages"]
 
 
 class GridMarchFailure(Exception):
@@ -117,6 +117,10 @@ class Schedule:
     def step_sizes(self) -> list[float]:
         return [h for _, h, _, _ in self.steps]
 
+    def breakpoints(self) -> np.ndarray:
+        """The start and the end of every step: the slabs' breakpoints (automatic slabs)."""
+        return np.array([self.times[0]] + [t_new for _, _, t_new, _ in self.steps])
+
 
 def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: float, keep, *,
             max_steps: int = 20000, callback=None, slab_nodes: int | None = None, largest=None) -> Schedule:
@@ -156,13 +160,15 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
     schedule = Schedule(times=[t], local_sum=np.zeros(len(y)))
     h = 0.1 * span
     watch = BlowupWatch(system, y, t_final, largest=largest or _largest)
+    buffer = _step_buffer(y)  # [y, y_new, K_0 .. K_15]
+    y = buffer[0]
     while t < t_final:
         h = min(h, t_final - t)
         refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
                                lambda: underflow_hint(system.general, stats))
         if refusal:
             raise GridMarchFailure(refusal, t, y)
-        y_new, K, local = trial_step(rhs, t, y, f, h)
+        y_new, K, local = trial_step(rhs, t, y, f, h, stages=buffer[2:])
         error = float(np.max(local)) if local is not None else np.inf
         ratio = control.ratio(error, h)
         if ratio > 1.0:
@@ -174,11 +180,13 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
             raise GridMarchFailure("the solution blows up", t, y)
         t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
         outs = output_times(t, h, t_new, nodes, schedule.times[-1], slab_nodes)
-        keep(dense_output(rhs, t, h, y, y_new, K, outs, t_new))
+        buffer[1] = y_new
+        keep(list(dense_values(rhs, t, h, buffer, outs, t_new)))
         schedule.times.extend(outs)
         schedule.steps.append((t, h, t_new, outs))
         schedule.local_sum += local
-        t, y, f = t_new, y_new, K[DOP853.n_stages]
+        y[:] = y_new  # buffer[0]
+        t, f = t_new, K[DOP853.n_stages].copy()  # a copy: a rejected trial overwrites the stages
         h = control.accepted(h, ratio)
         if callback is not None:
             callback({"time": t, "end": t_final, "ranks": [], "steps": len(schedule.steps)})
@@ -202,25 +210,24 @@ def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
     """
     out = np.empty((len(schedule.times),) + y.shape)
     out[0] = y
-    buffer = np.empty((2 + DOP853.n_stages + 1 + len(DOP853.C_EXTRA),) + y.shape)
-    buffer[0] = y
+    buffer = _step_buffer(y)
     stages = buffer[2:]
     f = rhs(schedule.times[0], y)
     j = 1
     for t, h, t_new, outs in schedule.steps:
         buffer[1], _, _ = trial_step(rhs, t, buffer[0], f, h, estimate=False, stages=stages)
-        inside = [tn for tn in outs if tn < t_new]
-        if inside:
-            extra_stages(rhs, t, h, buffer[0], stages)
-            w = np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in inside])
-            with np.errstate(all="ignore"):  # an overflowed node: the caller refuses its values
-                np.matmul(w, buffer.reshape(len(buffer), -1), out=out[j:j + len(inside)].reshape(len(inside), -1))
-            j += len(inside)
-        out[j:j + len(outs) - len(inside)] = buffer[1]
-        j += len(outs) - len(inside)
+        dense_values(rhs, t, h, buffer, outs, t_new, out=out[j:j + len(outs)])
+        j += len(outs)
         buffer[0] = buffer[1]
-        f = stages[DOP853.n_stages]
+        f = stages[DOP853.n_stages]  # the next trial copies it into its first stage before overwriting it
     return out
+
+
+def _step_buffer(y: np.ndarray) -> np.ndarray:
+    """``[y, y_new, K_0 .. K_15]`` for states like ``y`` (unknowns, P), ``y`` in the first row."""
+    buffer = np.empty((2 + DOP853.n_stages + 1 + len(DOP853.C_EXTRA),) + y.shape)
+    buffer[0] = y
+    return buffer
 
 
 def _largest(y: np.ndarray) -> float:
@@ -257,19 +264,27 @@ def trial_step(rhs: GridRhs, t: float, y: np.ndarray, f: np.ndarray, h: float, e
     return y_new, K, local if np.all(np.isfinite(local)) else None
 
 
-def dense_output(rhs: GridRhs, t: float, h: float, y: np.ndarray, y_new: np.ndarray, K: np.ndarray,
-                 outs: list[float], t_new: float) -> list[np.ndarray]:
-    """The arrays at the times ``outs`` inside ``(t, t_new]``: scipy's order-7 dense output of DOP853
-    (three extra stages when a node lies strictly inside the step)."""
-    if any(tn < t_new for tn in outs):
-        extra_stages(rhs, t, h, y, K)
-    inside = [tn for tn in outs if tn < t_new]
-    found = []
+def dense_values(rhs: GridRhs, t: float, h: float, buffer: np.ndarray, outs: list[float], t_new: float,
+                 out: np.ndarray | None = None) -> np.ndarray:
+    """The states at the times ``outs`` inside ``(t, t_new]``: scipy's order-7 dense output of DOP853.
+
+    Parameters
+    ----------
+    buffer : ndarray, shape (18, unknowns, P)
+        ``[y, y_new, K_0 .. K_15]`` after a step (three extra stages are computed into it when a node lies
+        strictly inside the step).
+    out : ndarray, shape (len(outs), unknowns, P), optional
+        Where to write them (else a new array).
+    """
+    out = np.empty((len(outs),) + buffer.shape[1:]) if out is None else out
+    inside = sum(1 for tn in outs if tn < t_new)
     if inside:  # all the step's nodes in one product: weights (nodes, 18) of [y, y_new, K_0 .. K_15]
-        w = np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in inside])
-        values = w[:, 2:] @ K.reshape(K.shape[0], -1) + np.outer(w[:, 0], y) + np.outer(w[:, 1], y_new)
-        found = list(values.reshape((len(inside),) + y.shape))
-    return found + [y_new] * (len(outs) - len(inside))
+        extra_stages(rhs, t, h, buffer[0], buffer[2:])
+        w = np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in outs[:inside]])
+        with np.errstate(all="ignore"):  # an overflowed node: the caller refuses its values
+            np.matmul(w, buffer.reshape(len(buffer), -1), out=out[:inside].reshape(inside, -1))
+    out[inside:] = buffer[1]
+    return out
 
 
 def extra_stages(rhs: GridRhs, t: float, h: float, y: np.ndarray, K: np.ndarray) -> None:
