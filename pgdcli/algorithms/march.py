@@ -43,25 +43,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..discretization.coefficients import separation_report_text
-from ..discretization.coordinates import coordinate_infos
 from ..tensors.tt import TT, tt_round_many
 from .blowup import WATCH_AGREE, BlowupWatch, blowup_region
 from .dop853_stepper import Dop853OnTrains, TrialStep
 from .general_rhs import report_entries, underflow_hint
-from .polynomial_rhs import SINGLE_POINT, NonlinearSystem, compile_system, evaluate_rhs, round_terms
+from .polynomial_rhs import NonlinearSystem, compile_system, evaluate_rhs, round_terms
 from .space_time import join_and_round
 from .cross_march import march_by_cross
 from .grid_march import GridMarchFailure, check_forced_grid, fits_grid, grid_region, march_on_grid
+from .march_codebook import SPACE_TIME_FRACTION, converged_result, failed_result
 from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, STAGE_FRACTION, STATE_FRACTION, StepControl,
                            output_times, step_refusal)
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "evaluate_rhs", "round_terms",
            "march", "join_and_round", "solve_march", "WATCH_AGREE"]
 
-# Share of the tolerance for rounding the joined space-time train of the codebook: it sets
-# the codebook's ranks (size, query cost) and is added to the error estimate once.
-SPACE_TIME_FRACTION = 0.1
 #: ``solver.march: auto`` sends grids too large for the grid march to the cross of trajectories
 #: (:mod:`pgdcli.algorithms.cross_march`) rather than the tensor-train march.
 CROSS_BY_DEFAULT = True
@@ -256,7 +252,7 @@ def solve_march(problem, tolerance: float, callback=None):
     if failure is not None:
         state = failure.state
         region = blowup_region(system, state) if state is not None else ""
-        return _failed_result(problem, system, failure, region, tolerance,
+        return failed_result(problem, system, failure, region, tolerance,
                               int(last.get("state", {}).get("steps", 0)), wall)
     st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
     # one unknown at a time: batching would give every unknown the largest ranks of all
@@ -264,7 +260,7 @@ def solve_march(problem, tolerance: float, callback=None):
                             np.random.default_rng(7), batched=False, stats=result.roundings)
     ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)
     report = _march_report(result.roundings, ranks)
-    return _converged_result(problem, system, result, trains, report, tolerance, separations, wall)
+    return converged_result(problem, system, result, trains, report, tolerance, separations, wall)
 
 
 def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
@@ -275,21 +271,21 @@ def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separatio
         result = march_on_grid(system, tolerance, st_delta, max_steps=problem.solver.max_steps, callback=progress,
                                slab_nodes=slab_nodes)
     except GridMarchFailure as failure:
-        return _failed_result(problem, system, failure, grid_region(system, failure.values), tolerance,
+        return failed_result(problem, system, failure, grid_region(system, failure.values), tolerance,
                               int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
     trains = result.trains
     cap = problem.solver.max_rank
     if max(max(train.ranks[1:], default=0) for train in trains) >= cap:  # the train march's cap, on the codebook
         failure = GridMarchFailure(f"a tensor-train rank reached solver.max_rank={cap} (raise it, or loosen the "
                                    f"tolerance)", float(result.times[-1]), np.zeros((len(trains), 0)))
-        return _failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+        return failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
     # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
     bonds = [list(train.ranks[1:]) for train in trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "grid",
               "grid_chunks": int(result.chunks)}  # no roundings, crosses or products to count
     if "cross_abandoned" in last:  # auto tried the cross march first
         report["cross_abandoned"] = last["cross_abandoned"]
-    return _converged_result(problem, system, result, trains, report, tolerance, separations,
+    return converged_result(problem, system, result, trains, report, tolerance, separations,
                              _time.perf_counter() - started)
 
 
@@ -306,7 +302,7 @@ def _solve_by_cross(problem, system: NonlinearSystem, tolerance: float, separati
                                 max_steps=problem.solver.max_steps, callback=progress, slab_nodes=slab_nodes,
                                 budget=budget)
     except GridMarchFailure as failure:
-        return _failed_result(problem, system, failure, grid_region(system, failure.values, failure.indices),
+        return failed_result(problem, system, failure, grid_region(system, failure.values, failure.indices),
                               tolerance, int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
     if not result.converged and budget is not None:
         last["cross_abandoned"] = result.message  # for the grid march's report
@@ -314,92 +310,13 @@ def _solve_by_cross(problem, system: NonlinearSystem, tolerance: float, separati
     if not result.converged:
         failure = GridMarchFailure(f"the cross of the trajectories did not converge: {result.message}",
                                    float(result.times[-1]), np.zeros((len(system.unknowns), 0)))
-        return _failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+        return failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
     bonds = [list(train.ranks[1:]) for train in result.trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "cross",
               "cross_trajectories": int(result.evaluations), "cross_sweeps": int(result.sweeps),
               "cross_error": float(result.cross_error), "pilot_points": int(result.pilot_points)}
-    return _converged_result(problem, system, result, result.trains, report, tolerance, separations,
+    return converged_result(problem, system, result, result.trains, report, tolerance, separations,
                              _time.perf_counter() - started)
-
-
-def _field_order(problem, system: NonlinearSystem) -> tuple[int, ...]:
-    """The coordinates of a field's cores (time first, then the train's modes) as spec indices."""
-    names = [c.name for c in problem.coordinates]
-    single = system.params == [SINGLE_POINT]
-    return tuple(names.index(n) for n in [problem.time] + ([] if single else system.params))
-
-
-def _failed_result(problem, system: NonlinearSystem, failure, region: str, tolerance: float, steps: int,
-                   wall: float):
-    """A not-converged result whose message names where (time, region) the march stopped."""
-    from ..codebook.codebook import Codebook, FieldTT
-    from .result import SolveResult
-    from .. import __version__
-
-    coords = coordinate_infos(problem, march=True)
-    order = _field_order(problem, system)
-    where = f" near {region}" if region else ""
-    if failure.blowup_time is not None:
-        message = (f"not converged: {failure} at t ~ {failure.blowup_time:.4g}{where} (predicted: the march "
-                   f"stopped at t = {failure.time:.6g}, its steps shrinking while 1/max|u| falls to zero "
-                   f"there)")
-    else:
-        message = f"not converged: {failure} at t = {failure.time:.6g}{where}"
-    report = {"converged": False, "status": 3, "message": message, "method": "march", "tolerance": tolerance,
-              "wall_time": wall, "failed_time": failure.time, "steps": steps, "pgdcli_version": __version__}
-    if failure.blowup_time is not None:
-        report["blowup_time"] = float(failure.blowup_time)
-    fields = {u: FieldTT(tuple(np.zeros((1, c.nodes, 1)) for c in [coords[j] for j in order]), order)
-              for u in system.unknowns}
-    cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
-                  description=problem.description)
-    return SolveResult(cb, False, 3, message, np.array([np.inf]), np.zeros(0, dtype=int), wall)
-
-
-def _converged_result(problem, system: NonlinearSystem, result, trains: list[TT], report: dict, tolerance: float,
-                      separations: list, wall: float):
-    """The codebook of a march that reached the end from the space-time train of every unknown.
-
-    ``result`` is a :class:`MarchResult` or a grid march's result (``steps``, ``rejected``,
-    ``step_sizes``, ``times``, ``breakpoints``, ``error_estimate``); ``report`` holds the entries
-    of that march (:func:`_march_report`).
-    """
-    from ..codebook.codebook import Codebook, CoordinateInfo, FieldTT
-    from .result import SolveResult
-    from .. import __version__
-
-    coords = coordinate_infos(problem, march=True)
-    names = [c.name for c in problem.coordinates]
-    order = _field_order(problem, system)
-    if result.breakpoints is not None:  # automatic slabs: the accepted steps
-        t = problem.time_coordinate
-        bp = result.breakpoints.copy()
-        bp[0], bp[-1] = t.domain
-        k = names.index(t.name)
-        coords[k] = CoordinateInfo(t.name, tuple(t.domain), len(result.times), t.discretization, t.role,
-                                   tuple(float(v) for v in bp))
-        # the codebook's basis puts the nodes where the march stored the states
-        assert np.allclose(coords[k].basis().nodes, result.times, rtol=0, atol=1e-12 * max(1.0, abs(bp[-1])))
-    fields = {}
-    for u, train in zip(system.unknowns, trains):
-        cores = train.cores
-        if system.params == [SINGLE_POINT]:  # fold the virtual one-node mode into the time core
-            cores = (np.tensordot(cores[0], cores[1][:, 0, :], axes=(2, 0)),)
-        fields[u] = FieldTT(cores, order)
-    estimate = result.error_estimate + SPACE_TIME_FRACTION * tolerance  # + the space-time rounding
-    message = (f"converged: reached t = {system.time_basis.nodes[-1]:.6g} in {result.steps} steps "
-               f"({result.rejected} rejected), error estimate {estimate:.3g} (tolerance {tolerance:.3g})")
-    report = {"converged": True, "status": 0, "message": message, "method": "march",
-              "modes": int(max(f.rank for f in fields.values())), "residual": float(estimate),
-              "error_estimate": float(estimate), "tolerance": float(tolerance), "steps": int(result.steps),
-              "rejected_steps": int(result.rejected), "step_sizes": np.array(result.step_sizes), **report,
-              "max_rank": int(problem.solver.max_rank), "wall_time": wall, "pgdcli_version": __version__}
-    if separations:  # how many terms each non-separable coefficient needed
-        report["separated_coefficients"] = separation_report_text(separations)
-    cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
-                  description=problem.description)
-    return SolveResult(cb, True, 0, message, np.array([estimate]), np.zeros(0, dtype=int), wall)
 
 
 def _march_report(stats: dict, node_ranks: np.ndarray) -> dict:

@@ -18,7 +18,8 @@ import numpy as np
 
 from ..discretization.coordinates import CoordinateInfo, coordinate_infos
 from ..errors import SolverError
-from .march import SPACE_TIME_FRACTION, join_and_round
+from .march_codebook import SPACE_TIME_FRACTION
+from .space_time import join_and_round
 from .pde_march import UnderResolved, march_pde
 from .pde_system import compile_pde_system
 
