@@ -112,10 +112,18 @@ class Schedule:
     times: list = field(default_factory=list)  # every stored time, the initial one first
     rejected: int = 0
     local_sum: np.ndarray | None = None  # per unknown: the accepted local error estimates added up
+    weights: dict = field(default_factory=dict, repr=False)  # step -> its dense-output weights (replays)
 
     @property
     def step_sizes(self) -> list[float]:
         return [h for _, h, _, _ in self.steps]
+
+    def output_weights(self, k: int) -> np.ndarray:
+        """The dense-output weights (nodes strictly inside, 18) of step ``k``, computed once for all replays."""
+        if k not in self.weights:
+            t, h, t_new, outs = self.steps[k]
+            self.weights[k] = _output_weights(t, h, t_new, outs)
+        return self.weights[k]
 
     def breakpoints(self) -> np.ndarray:
         """The start and the end of every step: the slabs' breakpoints (automatic slabs)."""
@@ -214,9 +222,9 @@ def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
     stages = buffer[2:]
     f = rhs(schedule.times[0], y)
     j = 1
-    for t, h, t_new, outs in schedule.steps:
+    for k, (t, h, t_new, outs) in enumerate(schedule.steps):
         buffer[1], _, _ = trial_step(rhs, t, buffer[0], f, h, estimate=False, stages=stages)
-        dense_values(rhs, t, h, buffer, outs, t_new, out=out[j:j + len(outs)])
+        dense_values(rhs, t, h, buffer, outs, t_new, out=out[j:j + len(outs)], weights=schedule.output_weights(k))
         j += len(outs)
         buffer[0] = buffer[1]
         f = stages[DOP853.n_stages]  # the next trial copies it into its first stage before overwriting it
@@ -265,7 +273,7 @@ def trial_step(rhs: GridRhs, t: float, y: np.ndarray, f: np.ndarray, h: float, e
 
 
 def dense_values(rhs: GridRhs, t: float, h: float, buffer: np.ndarray, outs: list[float], t_new: float,
-                 out: np.ndarray | None = None) -> np.ndarray:
+                 out: np.ndarray | None = None, weights: np.ndarray | None = None) -> np.ndarray:
     """The states at the times ``outs`` inside ``(t, t_new]``: scipy's order-7 dense output of DOP853.
 
     Parameters
@@ -275,16 +283,23 @@ def dense_values(rhs: GridRhs, t: float, h: float, buffer: np.ndarray, outs: lis
         strictly inside the step).
     out : ndarray, shape (len(outs), unknowns, P), optional
         Where to write them (else a new array).
+    weights : ndarray, optional
+        The step's dense-output weights (:meth:`Schedule.output_weights`), else computed here.
     """
     out = np.empty((len(outs),) + buffer.shape[1:]) if out is None else out
     inside = sum(1 for tn in outs if tn < t_new)
     if inside:  # all the step's nodes in one product: weights (nodes, 18) of [y, y_new, K_0 .. K_15]
         extra_stages(rhs, t, h, buffer[0], buffer[2:])
-        w = np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in outs[:inside]])
+        w = _output_weights(t, h, t_new, outs) if weights is None else weights
         with np.errstate(all="ignore"):  # an overflowed node: the caller refuses its values
             np.matmul(w, buffer.reshape(len(buffer), -1), out=out[:inside].reshape(inside, -1))
     out[inside:] = buffer[1]
     return out
+
+
+def _output_weights(t: float, h: float, t_new: float, outs: list[float]) -> np.ndarray:
+    """Weights (nodes strictly inside the step, 18) of ``[y, y_new, K_0 .. K_15]`` at those nodes."""
+    return np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in outs if tn < t_new]).reshape(-1, 18)
 
 
 def extra_stages(rhs: GridRhs, t: float, h: float, y: np.ndarray, K: np.ndarray) -> None:
