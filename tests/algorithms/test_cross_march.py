@@ -41,13 +41,36 @@ solver:
 """
 
 
+# an exothermic stirred tank: an Arrhenius rate exp(-E/T) (a function of an unknown), nodes left to the solver
+CSTR = """
+name: cstr
+coordinates:
+  t: {domain: [0, 3]}
+  k0: {domain: [5, 10]}
+  E: {domain: [1.5, 2.5]}
+  q: {domain: [0.5, 1.5]}
+  c0: {domain: [0.2, 1.0]}
+unknowns:
+  c: {initial: c0}
+  T: {initial: 1}
+equations:
+  - "der(c) = q*(1 - c) - k0*exp(-E/T)*c"
+  - "der(T) = q*(1 - T) + 0.5*k0*exp(-E/T)*c - 0.3*(T - 1)"
+solver:
+  tolerance: 1e-6
+  march: cross
+"""
+
+
 def duffing_rhs(k, c, w):
     return lambda t, y: [y[1], -k * y[0] - c * y[1] - 0.5 * y[0] ** 3 + 0.4 * np.cos(w * t)]
 
 
-@pytest.mark.parametrize("source", ["coupled", "duffing"])
+@pytest.mark.parametrize("source", ["coupled", "duffing", "cstr"])
 def test_rhs_at_chosen_nodes_equals_the_whole_grids(source):
-    problem = parse_spec(DUFFING, source="d.yaml") if source == "duffing" else load_spec(PROBLEMS / "coupled.yaml")
+    specs = {"duffing": DUFFING, "cstr": CSTR.replace("{domain: [", "{nodes: 5, domain: [").replace(
+        "t: {nodes: 5, domain: [", "t: {domain: [")}
+    problem = parse_spec(specs[source], source="d.yaml") if source in specs else load_spec(PROBLEMS / "coupled.yaml")
     system = compile_system(problem, 1e-8)
     rng = np.random.default_rng(2)
     whole = grid_steps.GridRhs(system)
@@ -121,6 +144,27 @@ def test_the_10d_rigid_body_against_solve_ivp_off_the_grid():
         for i, name in enumerate(names):
             worst = max(worst, float(np.max(np.abs(np.asarray(got[name]).reshape(-1) - ref.y[i]))))
     assert worst <= 1e-5
+
+
+def test_a_function_of_the_unknowns_through_the_cross_against_solve_ivp():
+    result = pgdcli.solve(parse_spec(CSTR, source="cstr.yaml"))
+    assert result.converged, result.message
+    assert result.codebook.report["march"] == "cross"
+    rng = np.random.default_rng(99)
+    times = np.linspace(0.0, 3.0, 13)
+    worst = 0.0
+    for _ in range(25):
+        k0, e, q, c0 = rng.uniform([5, 1.5, 0.5, 0.2], [10, 2.5, 1.5, 1.0])
+
+        def f(t, y):
+            rate = k0 * np.exp(-e / y[1]) * y[0]
+            return [q * (1 - y[0]) - rate, q * (1 - y[1]) + 0.5 * rate - 0.3 * (y[1] - 1)]
+
+        ref = solve_ivp(f, (0.0, 3.0), [c0, 1.0], method="DOP853", rtol=1e-12, atol=1e-12, t_eval=times)
+        got = result.codebook(t=times, k0=k0, E=e, q=q, c0=c0)
+        worst = max(worst, *(float(np.max(np.abs(np.asarray(got[n]).reshape(-1) - ref.y[i])))
+                             for i, n in enumerate(["c", "T"])))
+    assert worst <= 1e-6
 
 
 def test_a_blow_up_in_part_of_the_grid_is_a_clear_failure():
