@@ -30,7 +30,7 @@ import numpy as np
 
 from ..tensors.fiber_cross import vector_cross
 from ..tensors.tt import TT, tt_round_shared
-from .grid_steps import GridMarchFailure, GridRhs, Schedule, advance, initial_values, replay
+from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, Schedule, advance, initial_values, replay
 from .polynomial_rhs import NonlinearSystem
 
 __all__ = ["CrossMarchResult", "march_by_cross", "PILOT_POINTS", "CROSS_SHARE"]
@@ -114,15 +114,17 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
     """
     rng = np.random.default_rng(17)  # same spec, same codebook
     pilot = _pilot_indices(system.shape, rng)
+    functions = NodeFunctions(system)
     for attempt in range(RETRIES + 1):
         try:
-            schedule = advance(system, GridRhs(system, pilot), initial_values(system, pilot), tolerance,
-                               lambda values: None, max_steps=max_steps, callback=callback, slab_nodes=slab_nodes)
+            schedule = advance(system, GridRhs(system, pilot, functions), initial_values(system, pilot, functions),
+                               tolerance, lambda values: None, max_steps=max_steps, callback=callback,
+                               slab_nodes=slab_nodes)
         except GridMarchFailure as failure:
             failure.indices = pilot
             raise
         try:
-            found = vector_cross(_trajectories(system, schedule), len(system.unknowns) * len(schedule.times),
+            found = vector_cross(_trajectories(system, schedule, functions), len(system.unknowns) * len(schedule.times),
                                  system.shape, CROSS_SHARE * tolerance, largest=CROSS_LARGEST * tolerance, rng=rng,
                                  max_rank=max_rank, callback=_sweep_progress(callback, CROSS_SHARE * tolerance),
                                  max_evaluations=budget)
@@ -164,18 +166,19 @@ def _pilot_indices(shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarr
     return np.unique(np.vstack([corners, random]), axis=0)
 
 
-def _trajectories(system: NonlinearSystem, schedule: Schedule):
+def _trajectories(system: NonlinearSystem, schedule: Schedule, functions: NodeFunctions):
     """``F(indices)``: the stored states at grid multi-indices (P, d), as (times x unknowns, P)."""
 
     def function(indices: np.ndarray) -> np.ndarray:
         if len(indices) <= REPLAY_POINTS:  # one replay: its array is the answer (no copy)
-            values = replay(GridRhs(system, indices), initial_values(system, indices), schedule)
+            values = replay(GridRhs(system, indices, functions), initial_values(system, indices, functions), schedule)
             _refuse_overflow(indices, values)
             return values.reshape(-1, len(indices))
         out = np.empty((len(schedule.times), len(system.unknowns), len(indices)))
         for start in range(0, len(indices), REPLAY_POINTS):
             chosen = indices[start:start + REPLAY_POINTS]
-            values = replay(GridRhs(system, chosen), initial_values(system, chosen), schedule)  # (times, m, P)
+            values = replay(GridRhs(system, chosen, functions), initial_values(system, chosen, functions),
+                            schedule)  # (times, m, P)
             _refuse_overflow(chosen, values)
             out[:, :, start:start + len(chosen)] = values
         return out.reshape(-1, len(indices))

@@ -17,14 +17,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import DOP853
 
-from ..tensors.cross import tt_values_at
+from ..tensors.cross import tt_point_function, tt_values_at
 from .blowup import BlowupWatch
 from .dop853_stepper import dense_weights
 from .general_rhs import underflow_hint
 from .polynomial_rhs import NonlinearSystem
 from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
 
-__all__ = ["GridRhs", "GridMarchFailure", "Schedule", "advance", "replay", "initial_values", "trial_step",
+__all__ = ["GridRhs", "NodeFunctions", "GridMarchFailure", "Schedule", "advance", "replay", "initial_values", "trial_step",
            "dense_values", "extra_stages"]
 
 
@@ -38,6 +38,35 @@ class GridMarchFailure(Exception):
         self.time, self.values, self.blowup_time, self.indices = time, values, blowup_time, indices
 
 
+def _timed(coef) -> bool:
+    """Whether a coefficient of the compiled system depends on time."""
+    return any(f is not None for f in coef.time_funcs) or any(
+        j.time_func is not None or j.train.timed for j in coef.joints)
+
+
+def _constant(train) -> float | None:
+    """The value of a rank-one train with constant cores (a constant coefficient), else None."""
+    if all(r == 1 for r in train.ranks) and all(np.all(c == c.flat[0]) for c in train.cores):
+        return float(np.prod([c.flat[0] for c in train.cores]))
+    return None
+
+
+class NodeFunctions:
+    """A system's time-free coefficients and initial values as functions of node multi-indices, built once
+    for the many batches of a cross (:func:`pgdcli.tensors.cross.tt_point_function`; a constant as a float).
+    """
+
+    def __init__(self, system: NonlinearSystem):
+        self.coefficients: dict = {}
+        for s, monomials in enumerate(system.rhs):
+            for m, (coef, _) in enumerate(monomials):
+                if not _timed(coef):
+                    train = coef.at(0.0)
+                    value = _constant(train)
+                    self.coefficients[s, m] = tt_point_function(train) if value is None else value
+        self.initial = [tt_point_function(u) for u in system.initial]
+
+
 class GridRhs:
     """``f_s(t, p, u)`` on arrays: ``Y`` of shape (unknowns, P) -> same shape.
 
@@ -46,30 +75,34 @@ class GridRhs:
     system : NonlinearSystem
     indices : ndarray of int, shape (P, d), optional
         The parameter multi-indices of the P nodes; None: the whole grid (C order).
+    functions : NodeFunctions, optional
+        The system's coefficients as functions of the indices (built here when not given).
 
     Coefficients that do not depend on time are evaluated at the nodes once.
     """
 
-    def __init__(self, system: NonlinearSystem, indices: np.ndarray | None = None):
+    def __init__(self, system: NonlinearSystem, indices: np.ndarray | None = None,
+                 functions: NodeFunctions | None = None):
         self.system, self.indices = system, indices
         self.stats: dict = {}
         self.shape = system.shape
         self.fixed: dict = {}
+        if indices is not None:
+            functions = functions or NodeFunctions(system)
+            for key, value in functions.coefficients.items():
+                self.fixed[key] = value if isinstance(value, float) else _one_value(value(indices))
+            return
         for s, monomials in enumerate(system.rhs):
             for m, (coef, _) in enumerate(monomials):
-                timed = any(f is not None for f in coef.time_funcs) or any(
-                    j.time_func is not None or j.train.timed for j in coef.joints)
-                if not timed:
+                if not _timed(coef):
                     self.fixed[s, m] = self._at_nodes(coef.at(0.0))
 
     def _at_nodes(self, train) -> np.ndarray | float:
         """The train's values at the nodes; one float when they are all equal (a constant coefficient)."""
-        if all(r == 1 for r in train.ranks) and all(np.all(c == c.flat[0]) for c in train.cores):
-            return float(np.prod([c.flat[0] for c in train.cores]))  # rank one, constant cores: a constant
-        values = train.full().reshape(-1) if self.indices is None else tt_values_at(train, self.indices)
-        if values.size and np.all(values == values[0]):
-            return float(values[0])
-        return values
+        value = _constant(train)
+        if value is not None:
+            return value
+        return _one_value(train.full().reshape(-1) if self.indices is None else tt_values_at(train, self.indices))
 
     def __call__(self, t: float, Y: np.ndarray) -> np.ndarray:
         out = np.zeros_like(Y)
@@ -96,10 +129,20 @@ class GridRhs:
         return out
 
 
-def initial_values(system: NonlinearSystem, indices: np.ndarray | None = None) -> np.ndarray:
+def _one_value(values: np.ndarray) -> np.ndarray | float:
+    """The values, or one float when they are all equal."""
+    if values.size and np.all(values == values[0]):
+        return float(values[0])
+    return values
+
+
+def initial_values(system: NonlinearSystem, indices: np.ndarray | None = None,
+                   functions: NodeFunctions | None = None) -> np.ndarray:
     """The initial state (unknowns, P) at the nodes (None: the whole grid)."""
     if indices is None:
         return np.stack([u.full().reshape(-1) for u in system.initial])
+    if functions is not None:
+        return np.stack([f(indices) for f in functions.initial])
     return np.stack([tt_values_at(u, indices) for u in system.initial])
 
 

@@ -80,8 +80,16 @@ def test_rhs_at_chosen_nodes_equals_the_whole_grids(source):
     flat = np.ravel_multi_index(tuple(indices.T), system.shape)
     for t in (0.0, 0.7):
         np.testing.assert_allclose(chosen(t, y[:, flat]), whole(t, y)[:, flat], rtol=1e-13, atol=1e-13)
-    np.testing.assert_array_equal(grid_steps.initial_values(system, indices),
-                                  grid_steps.initial_values(system)[:, flat])
+
+    def whole_rhs_at(t):
+        return whole(t, y)[:, flat]
+
+    start = grid_steps.initial_values(system)[:, flat]  # products in another order: equal to rounding
+    np.testing.assert_allclose(grid_steps.initial_values(system, indices), start, rtol=1e-14, atol=1e-15)
+    functions = grid_steps.NodeFunctions(system)
+    np.testing.assert_allclose(grid_steps.initial_values(system, indices, functions), start, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(grid_steps.GridRhs(system, indices, functions)(0.3, y[:, flat]), whole_rhs_at(0.3),
+                               rtol=1e-13, atol=1e-13)
 
 
 def test_replay_reproduces_the_pilot():

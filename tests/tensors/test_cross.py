@@ -30,12 +30,26 @@ def test_maxvol_bounds_the_coefficients():
     assert np.max(np.abs(a @ np.linalg.inv(a[rows]))) <= 1.05 + 1e-12
 
 
-def test_values_at_match_the_full_tensor():
+@pytest.mark.parametrize("table_limit", [0, 2 ** 16])  # contracted at every call, and tabulated once
+@pytest.mark.parametrize("ranks", [(3, 2), (1, 1)])  # the rank-one path of coefficients and initial values too
+def test_values_at_match_the_full_tensor(ranks, table_limit, monkeypatch):
+    from pgdcli.tensors import cross
+
+    monkeypatch.setattr(cross, "TABLE_LIMIT", table_limit)
     rng = np.random.default_rng(2)
-    train = TT([rng.standard_normal((1, 4, 3)), rng.standard_normal((3, 5, 2)), rng.standard_normal((2, 6, 1))])
+    train = TT([rng.standard_normal((1, 4, ranks[0])), rng.standard_normal((ranks[0], 5, ranks[1])),
+                rng.standard_normal((ranks[1], 6, 1))])
     idx = np.stack([rng.integers(0, n, 50) for n in (4, 5, 6)], axis=1)
     full = train.full()
+    cores = [c.copy() for c in train.cores]
     np.testing.assert_allclose(tt_values_at(train, idx), full[idx[:, 0], idx[:, 1], idx[:, 2]], rtol=1e-13, atol=1e-13)
+    assert all(np.array_equal(a, b) for a, b in zip(cores, train.cores))  # the cores untouched
+    # a mode whose slices are equal at every node is folded in (a coefficient free of that coordinate)
+    flat = TT([train.cores[0], np.repeat(train.cores[1][:, :1, :], 5, axis=1), train.cores[2]])
+    np.testing.assert_allclose(tt_values_at(flat, idx), flat.full()[idx[:, 0], idx[:, 1], idx[:, 2]], rtol=1e-13,
+                               atol=1e-13)
+    constant = TT([np.repeat(c[:, :1, :], c.shape[1], axis=1) for c in train.cores])
+    np.testing.assert_allclose(tt_values_at(constant, idx), constant.full()[0, 0, 0], rtol=1e-13, atol=1e-13)
 
 
 def test_tt_from_full_meets_its_bound():
