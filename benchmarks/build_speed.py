@@ -237,20 +237,6 @@ def build(problem_or_path, repeats: int = 1):
     return median, times, result
 
 
-@contextlib.contextmanager
-def train_march():
-    """Every problem through the tensor-train march, however small or large its grid (pgdcli.algorithms.grid_march,
-    pgdcli.algorithms.cross_march)."""
-    from pgdcli.algorithms import grid_march, march
-
-    saved = grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT
-    grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT = 0, False
-    try:
-        yield
-    finally:
-        grid_march.GRID_LIMIT, march.CROSS_BY_DEFAULT = saved
-
-
 def which_march(report) -> str:
     return {"grid": "grid march (whole array + TT-SVD)", "cross": "cross march (pilot steps + cross of trajectories)"}.get(
         report.get("march"), "tensor-train march")
@@ -362,9 +348,8 @@ def bench_coupled(rows: list, work: Path) -> None:
     rows.append((label, f"build: solve(load_spec(coupled.yaml)), median of 3; {which_march(report)}",
                  fmt_time(build_time), "runs " + ", ".join(f"{t:.2f}" for t in build_runs) + " s", "", "", None))
     print("coupled: building by the tensor-train march (3 runs)", file=sys.stderr)
-    with train_march():
-        train_time, _, train_result = build(COUPLED, repeats=3)
-    rows.append((label, "  the same build by the tensor-train march (grid march off), median of 3",
+    train_time, _, train_result = build(with_nodes(COUPLED, 20, 20, march="train"), repeats=3)
+    rows.append((label, "  the same build by the tensor-train march (solver.march: train), median of 3",
                  fmt_time(build_time), f"train march: {fmt_time(train_time)}, {train_result.codebook.report['steps']} "
                  f"steps", f"train/grid {train_time / build_time:.1f}x", "", None))
 
@@ -756,9 +741,8 @@ def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> Non
         raise SystemExit(f"build failed: {result.message}")
     rows.append((label, f"build (1 BLAS thread), one run; {which_march(result.codebook.report)}", fmt_time(elapsed),
                  split_text(elapsed, result, spent), "", "", None))
-    with train_march():
-        train_time, train_result, _ = build_split(problem)
-    rows.append((label, "  the same build by the tensor-train march, one run", fmt_time(elapsed),
+    train_time, train_result, _ = build_split(with_nodes(COUPLED, 20, 40, march="train"))
+    rows.append((label, "  the same build by the tensor-train march (solver.march: train), one run", fmt_time(elapsed),
                  f"train march: {fmt_time(train_time)}", f"train/auto {train_time / elapsed:.1f}x", "", None))
     forced = {march: statistics.median(build_split(with_nodes(COUPLED, 20, 40, march=march))[0] for _ in range(3))
               for march in ("grid", "cross")}
@@ -776,7 +760,7 @@ def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> Non
             rows.append((label, f"  vs ONE vectorized solve_ivp DOP853 rtol=atol={tol:g} over the 64,000 ICs, "
                                 f"median of 3", fmt_time(elapsed), f"vectorized: {fmt_time(vtime)}",
                          f"vectorized/build {vtime / elapsed:.2f}x", ">= 1x", vtime / elapsed >= 1.0))
-            rows.append((label, f"    the cross march's build against the same call", fmt_time(cross_time),
+            rows.append((label, "    the cross march's build against the same call", fmt_time(cross_time),
                          f"vectorized: {fmt_time(vtime)}", f"vectorized/cross {vtime / cross_time:.2f}x", ">= 1x",
                          vtime / cross_time >= 1.0))
     del result

@@ -169,18 +169,17 @@ def _pilot_indices(shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarr
 def _trajectories(system: NonlinearSystem, schedule: Schedule, functions: NodeFunctions):
     """``F(indices)``: the stored states at grid multi-indices (P, d), as (times x unknowns, P)."""
 
+    def replayed(chosen: np.ndarray) -> np.ndarray:  # (times, m, P), finite
+        values = replay(GridRhs(system, chosen, functions), initial_values(system, chosen, functions), schedule)
+        _refuse_overflow(chosen, values)
+        return values
+
     def function(indices: np.ndarray) -> np.ndarray:
         if len(indices) <= REPLAY_POINTS:  # one replay: its array is the answer (no copy)
-            values = replay(GridRhs(system, indices, functions), initial_values(system, indices, functions), schedule)
-            _refuse_overflow(indices, values)
-            return values.reshape(-1, len(indices))
+            return replayed(indices).reshape(-1, len(indices))
         out = np.empty((len(schedule.times), len(system.unknowns), len(indices)))
         for start in range(0, len(indices), REPLAY_POINTS):
-            chosen = indices[start:start + REPLAY_POINTS]
-            values = replay(GridRhs(system, chosen, functions), initial_values(system, chosen, functions),
-                            schedule)  # (times, m, P)
-            _refuse_overflow(chosen, values)
-            out[:, :, start:start + len(chosen)] = values
+            out[:, :, start:start + REPLAY_POINTS] = replayed(indices[start:start + REPLAY_POINTS])
         return out.reshape(-1, len(indices))
 
     return function

@@ -262,15 +262,20 @@ class _VectorCross:
         output_of = np.broadcast_to(left[:, 0][:, None, None], point_of.shape)
         return self._pick(points, point_of.reshape(-1), output_of.reshape(-1)).reshape(len(left), n, c)
 
+    @property
+    def _batch(self) -> int:
+        """Points per call of the function: at most :data:`BATCH_FLOATS` values."""
+        return max(1, BATCH_FLOATS // self.outputs)
+
     def _evaluate(self, points: np.ndarray) -> np.ndarray:
         """All M values at the points, shape (M, P), in calls of at most :data:`BATCH_FLOATS` values."""
-        batch = max(1, BATCH_FLOATS // self.outputs)
+        batch = self._batch
         self.evaluations += len(points)
         return np.concatenate([self.function(points[s:s + batch]) for s in range(0, len(points), batch)], axis=1)
 
     def _pick(self, points: np.ndarray, point_of: np.ndarray, output_of: np.ndarray) -> np.ndarray:
         """The values ``F(points[point_of[e]])[output_of[e]]``, evaluating the points by batches."""
-        batch = max(1, BATCH_FLOATS // self.outputs)
+        batch = self._batch
         order = np.argsort(point_of, kind="stable")
         sorted_points = point_of[order]
         out = np.empty(point_of.size)
