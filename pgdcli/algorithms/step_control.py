@@ -98,6 +98,12 @@ def output_times(t: float, h: float, t_new: float, nodes: np.ndarray, last_store
 def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: float, hint) -> str | None:
     """Why a march cannot try another step (the caps), or None; ``hint()`` adds to a step-size underflow."""
     if steps + rejected >= max_steps:
+        # an explicit method on a stiff problem steps at its stability limit, whatever the tolerance:
+        # say so when the steps are that small, so the user knows what raising max_steps buys
+        if h * max_steps < span:
+            return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain; "
+                    "steps this small on a smooth solution are the stability limit of the explicit DOP853 "
+                    "on a stiff problem: raise solver.max_steps or shorten the time domain)")
         return f"max_steps={max_steps} reached"
     if h < MIN_STEP * span:
         return "step size underflow (the solution blows up or is stiff" + hint() + ")"

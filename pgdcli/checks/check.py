@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .compare import codebook_at_samples, codebook_on_space_grid
-from .sampling import BETWEEN, LINE, check_sample, line_sample, nodes_and_midpoints
+from .sampling import BETWEEN, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
 
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
            "points_text", "unchecked"]
@@ -173,9 +173,12 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     unknowns = [u.name for u in problem.unknowns]
     approx = codebook_at_samples(codebook, points, time, times, unknowns)
     err, ratio, per_unknown = error_and_ratio(reference, approx, ok, tol, relative_tolerance)
+    all_nodes = codebook.coordinate(time).basis().nodes.size
+    which = ("every time node and the midpoints between them" if int(time_node.sum()) == all_nodes else
+             f"{int(time_node.sum())} of the {all_nodes} time nodes (every {checked_time_nodes(np.empty(all_nodes))[1]}th, "
+             f"the last) and the midpoints after them")
     method = (f"DOP853 (rtol = atol = {rtol:.0e}) at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
-              f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes; every time node "
-              f"and the midpoints between them")
+              f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes; {which}")
     if not ok.any():
         return CheckResult(float("nan"), float("nan"), float("nan"), 0, int(ok.size), {}, per_unknown,
                            tolerance=tol, relative_tolerance=relative_tolerance, method=method)

@@ -23,7 +23,7 @@ from .reference_base import sampled_coordinates, space_coordinates  # one defini
 
 __all__ = ["MAX_CORNERS", "SAMPLINGS", "space_coordinates", "sampled_coordinates", "read_points", "check_points_domain",
            "default_samples", "sample_box", "box_corners", "parameter_points", "check_times", "space_points_grid",
-           "check_sample", "line_sample", "nodes_and_midpoints", "CORNERS", "FACE_NODES", "BETWEEN", "LINE"]
+           "check_sample", "line_sample", "nodes_and_midpoints", "checked_time_nodes", "CHECK_TIME_NODES", "CORNERS", "FACE_NODES", "BETWEEN", "LINE"]
 
 
 #: Most corners of the parameter box that are checked (a random subset beyond).
@@ -37,6 +37,10 @@ DEFAULT_SAMPLES_PDE = 4
 MAX_POINTS_FILE_BYTES = 8 << 20
 #: Random points per space coordinate checked besides the codebook's nodes of that coordinate.
 DEFAULT_RANDOM_SPACE_POINTS = 4
+#: Time nodes the checks compare at, at most. A march's codebook has a slab per step (a stiff
+#: problem: ~1e5 nodes), and its reference costs a solve_ivp segment per output time; beyond this,
+#: every k-th node (the last always): spread over the whole time domain.
+CHECK_TIME_NODES = 1024
 SAMPLINGS = ("sobol", "lhs")
 
 def read_points(path: str | os.PathLike, problem) -> dict[str, np.ndarray]:
@@ -228,11 +232,15 @@ def check_times(cb, time: str | None, seed: int, count: int) -> tuple[np.ndarray
         return np.zeros(1), dict(random_times=0, time_nodes=0, times=0)
     time_coordinate = cb.coordinate(time)
     nodes = np.asarray(time_coordinate.basis().nodes, dtype=float)
+    picked, stride = checked_time_nodes(nodes)
     t_low, t_high = time_coordinate.domain
     rng = np.random.default_rng([seed, 1])
     random_times = rng.uniform(t_low, t_high, count)
-    all_times = np.unique(np.clip(np.concatenate([nodes, random_times]), t_low, t_high))
-    return all_times, dict(random_times=count, time_nodes=int(nodes.size), times=int(all_times.size))
+    all_times = np.unique(np.clip(np.concatenate([nodes[picked], random_times]), t_low, t_high))
+    counts = dict(random_times=count, time_nodes=int(picked.size), times=int(all_times.size))
+    if stride > 1:
+        counts |= dict(time_nodes_total=int(nodes.size), time_node_stride=stride)
+    return all_times, counts
 
 
 def space_points_grid(cb, space: list[str], seed: int, count: int) -> dict[str, np.ndarray]:
@@ -341,10 +349,27 @@ def _line_intervals(info, x: np.ndarray, rng) -> np.ndarray:
     return np.concatenate([k, extra.ravel()])
 
 
+def checked_time_nodes(nodes: np.ndarray) -> tuple[np.ndarray, int]:
+    """The indices of the time nodes a check compares at, and their stride: all of them, or every
+    ``stride``-th (the last always) when there are more than :data:`CHECK_TIME_NODES`."""
+    stride = max(1, -(-(nodes.size - 1) // (CHECK_TIME_NODES - 1)))
+    picked = np.arange(0, nodes.size, stride)
+    if picked[-1] != nodes.size - 1:
+        picked = np.append(picked, nodes.size - 1)
+    return picked, stride
+
+
 def nodes_and_midpoints(codebook, time: str) -> tuple[np.ndarray, np.ndarray]:
-    """The time nodes and the midpoints between them, sorted, and which are nodes."""
-    nodes = np.asarray(codebook.coordinate(time).basis().nodes, dtype=float)
-    mids = 0.5 * (nodes[1:] + nodes[:-1])
+    """The time nodes and the midpoints between them, sorted, and which are nodes.
+
+    Beyond :data:`CHECK_TIME_NODES` nodes, the nodes of :func:`checked_time_nodes` and the
+    midpoint of the node interval after each (not of the gaps between the chosen nodes).
+    """
+    all_nodes = np.asarray(codebook.coordinate(time).basis().nodes, dtype=float)
+    picked, _ = checked_time_nodes(all_nodes)
+    nodes = all_nodes[picked]
+    after = picked[picked < all_nodes.size - 1]
+    mids = 0.5 * (all_nodes[after + 1] + all_nodes[after])
     times = np.concatenate([nodes, mids])
     order = np.argsort(times, kind="stable")
     is_node = np.concatenate([np.ones(nodes.size, bool), np.zeros(mids.size, bool)])

@@ -126,7 +126,9 @@ def _verify_tables(report, max_error, max_rel_error) -> list:
     if report.time is None:
         caption = f"{where}, steady; reference: Chebyshev collocation, sparse direct solve, {s['jobs']} job(s), "
     else:
-        caption = (f"{where} x {s['times']} times ({s['time_nodes']} nodes + {s['random_times']} random); "
+        nodes = (f"{s['time_nodes']} of {s['time_nodes_total']} nodes, every {s['time_node_stride']}th"
+                 if "time_nodes_total" in s else f"{s['time_nodes']} nodes")
+        caption = (f"{where} x {s['times']} times ({nodes} + {s['random_times']} random); "
                    f"reference {s['method']} rtol {s['rtol']:.0e} atol {s['atol']:.0e}, {s['jobs']} job(s), ")
     caption += f"{report.wall_time:.2f} s. rel error = max abs error / max |reference| of the unknown."
     table = Table(title=f"pgd verify: {report.problem}", title_justify="left", caption=caption,

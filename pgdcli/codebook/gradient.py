@@ -24,11 +24,14 @@ from typing import Sequence
 
 import numpy as np
 
-from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis
+from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis, barycentric_rows
 from .evaluate import contract_tt, grid_cp, grid_tt
 from .fields import FieldTT
 
 __all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
+
+#: Values of the cardinal rows of one coordinate built at once by :func:`gradient_points` (32 MB).
+CHUNK_VALUES = 1 << 22
 
 
 def derivative_matrix(basis, x) -> np.ndarray:
@@ -65,21 +68,22 @@ def derivative_matrix(basis, x) -> np.ndarray:
 
 
 def _slab_rows(basis: PiecewiseChebyshevBasis, x: np.ndarray) -> np.ndarray:
+    """Each point's cardinal row on its slab times that slab's differentiation matrix (the unit
+    slab's, scaled by ``2 / (b - a)``), placed at the slab's nodes: all points at once."""
     m = basis.slab_size
     slabs = basis.slab_of(x)
+    idx = (slabs * (m - 1))[:, None] + np.arange(m)  # (p, m) global node indices of each point's slab
+    bp = np.asarray(basis.breakpoints)
+    rows = barycentric_rows(x, basis.nodes[idx], basis.bary) @ _unit_derivative(m)
+    rows *= (2.0 / (bp[slabs + 1] - bp[slabs]))[:, None]
     out = np.zeros((x.size, basis.nodes.size))
-    bp = basis.breakpoints
-    for s in np.unique(slabs):
-        local = _slab_basis(bp[s], bp[s + 1], m)  # the slab's nodes, as the composite basis has them
-        first = s * (m - 1)
-        rows = slabs == s
-        out[np.ix_(rows, np.arange(first, first + m))] = local.interpolation_matrix(x[rows]) @ local.derivative
+    out[np.arange(x.size)[:, None], idx] = rows
     return out
 
 
-@lru_cache(maxsize=1024)
-def _slab_basis(low: float, high: float, m: int) -> ChebyshevBasis:
-    return ChebyshevBasis((low, high), m)
+@lru_cache(maxsize=16)
+def _unit_derivative(m: int) -> np.ndarray:
+    return ChebyshevBasis((-1.0, 1.0), m).derivative
 
 
 def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[str]) -> dict:
@@ -103,6 +107,12 @@ def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[
     dict
         ``out[u][k]``: ndarray (P,), the derivative of ``u`` with respect to coordinate ``wrt[k]``.
     """
+    size = flat[0].size if flat else 0
+    block = max(1, CHUNK_VALUES // max(b.nodes.size for b in bases))
+    if size > block:  # (P, n) rows per coordinate: a march's time basis has ~1e4-1e5 nodes
+        parts = [gradient_points(fields, bases, [x[lo:lo + block] for x in flat], wrt, selected)
+                 for lo in range(0, size, block)]
+        return {u: [np.concatenate([p[u][k] for p in parts]) for k in range(len(wrt))] for u in selected}
     mats = [b.interpolation_matrix(x) for b, x in zip(bases, flat)]
     dmats = {j: derivative_matrix(bases[j], flat[j]) for j in wrt}
     out = {}

@@ -32,7 +32,7 @@ class PointData:
     """Constants of one coordinate for the one-point path of :meth:`Codebook.evaluate`."""
 
     __slots__ = ("name", "domain", "low", "high", "lower", "upper", "chebyshev", "nodes", "node_list",
-                 "node_index", "bary", "unit", "modes", "basis", "piecewise", "breaks", "slab", "slab_nodes",
+                 "node_index", "bary", "modes", "basis", "piecewise", "breaks", "slab", "slab_nodes",
                  "bounds")
 
     def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
@@ -46,7 +46,6 @@ class PointData:
         self.node_list = basis.nodes.tolist()
         self.node_index = {v: k for k, v in enumerate(self.node_list)}
         self.bary = getattr(basis, "bary", None)
-        self.unit = np.eye(basis.size)
         self.modes = modes
         self.basis = basis
         self.piecewise = bool(getattr(basis, "slab_size", 0))
@@ -68,7 +67,9 @@ class PointData:
         """The cardinal row (a unit row at a node) of the clipped value ``x``, shape (nodes,)."""
         k, c = self.weights(x)
         if c is None:
-            return self.unit[k]
+            row = np.zeros(self.nodes.size)  # not rows of an identity: a march's time basis has ~1e5 nodes
+            row[k] = 1.0
+            return row
         if self.chebyshev and not self.piecewise:
             return c / _add_reduce(c)
         lo, hi = self.bounds[k]

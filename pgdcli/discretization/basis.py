@@ -24,6 +24,7 @@ This module imports numpy only: it is on the query path.
 
 from __future__ import annotations
 
+from functools import cached_property
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -303,7 +304,6 @@ class PiecewiseChebyshevBasis(Basis1D):
 
     breakpoints: tuple = ()
     bary: np.ndarray = field(init=False, repr=False)
-    derivative: np.ndarray = field(init=False, repr=False)
     slab_size: int = field(init=False, default=0)
 
     def __post_init__(self):
@@ -319,16 +319,11 @@ class PiecewiseChebyshevBasis(Basis1D):
         unit = chebyshev_unit_nodes(m)
         nodes, weights = np.empty(n), np.zeros(n)
         local_w = _clenshaw_curtis_unit_weights(m)
-        local_d = ChebyshevBasis((-1.0, 1.0), m).derivative
-        derivative = np.zeros((n, n))
         for s in range(slabs):
             a, b = bp[s], bp[s + 1]
             idx = slice(s * (m - 1), s * (m - 1) + m)
             nodes[idx] = _map_to_domain(unit.copy(), (a, b))
             weights[idx] += local_w * (b - a) / 2.0
-            rows = range(0 if s == 0 else 1, m)  # a shared node takes its left slab's derivative
-            for r in rows:
-                derivative[s * (m - 1) + r, idx] = local_d[r] * 2.0 / (b - a)
         bary = np.where(np.arange(m) % 2 == 0, 1.0, -1.0)
         bary[0] *= 0.5
         bary[-1] *= 0.5
@@ -338,7 +333,20 @@ class PiecewiseChebyshevBasis(Basis1D):
         object.__setattr__(self, "nodes", nodes)
         object.__setattr__(self, "weights", weights)
         object.__setattr__(self, "bary", bary)
-        object.__setattr__(self, "derivative", derivative)
+
+    @cached_property
+    def derivative(self) -> np.ndarray:
+        """Differentiation matrix at the nodes, shape (n, n): each slab's, a shared node taking its
+        left slab's row. Built on first use: a march's time basis (one slab per step, up to
+        ``max_steps`` of them) is only interpolated, and n x n values would not fit in memory."""
+        n, m, bp = self.nodes.size, self.slab_size, self.breakpoints
+        local_d = ChebyshevBasis((-1.0, 1.0), m).derivative
+        derivative = np.zeros((n, n))
+        for s in range(len(bp) - 1):
+            first = 0 if s == 0 else 1
+            block = local_d[first:] * 2.0 / (bp[s + 1] - bp[s])
+            derivative[s * (m - 1) + first: s * (m - 1) + m, s * (m - 1): s * (m - 1) + m] = block
+        return derivative
 
     def slab_of(self, x: np.ndarray) -> np.ndarray:
         """Slab index of each point (a breakpoint goes to the slab on its right, the end to the last)."""
@@ -357,6 +365,18 @@ class PiecewiseChebyshevBasis(Basis1D):
         out.fill(0.0)
         out[np.arange(x.size)[:, None], idx] = c
         return out
+
+    def interpolate(self, values, x) -> np.ndarray:
+        """Interpolate nodal ``values`` (shape (n, ...)) at ``x`` (shape (p,)): shape (p, ...).
+
+        Each point's slab only: a march's time basis has a slab per step (~1e4-1e5 nodes), where
+        the (p, n) matrix of :meth:`interpolation_matrix` would take gigabytes.
+        """
+        values = np.asarray(values, dtype=float)
+        x = np.atleast_1d(np.asarray(x, dtype=float)).reshape(-1)
+        idx = (self.slab_of(x) * (self.slab_size - 1))[:, None] + np.arange(self.slab_size)
+        rows = barycentric_rows(x, self.nodes[idx], self.bary)  # (p, m)
+        return np.einsum("pm,pm...->p...", rows, values[idx])
 
     time_stiffness = ChebyshevBasis.time_stiffness
     time_mass = ChebyshevBasis.time_mass

@@ -74,7 +74,7 @@ def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *
             shown = min(int(count), rank)
             m = m[:, :shown]
             panel.update(count=shown, rank=rank, singular_values=sigma)
-        panel["values"] = basis.interpolation_matrix(x) @ m
+        panel["values"] = basis.interpolate(m, x)
         panel["node_values"] = np.array(m)
         panels.append(panel)
     out = {"kind": "modes", "problem": codebook.name, "field": name, "panels": panels}

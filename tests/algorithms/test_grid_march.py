@@ -138,6 +138,58 @@ solver:
     assert np.max(np.abs(cb.nodal_values("u") - exact)) <= 1e-6
 
 
+RELAXATION = """
+name: relaxation
+coordinates:
+  t: {domain: [0, 4]}
+  k: {domain: [500, 1000]}
+  y0: {domain: [0, 1], nodes: 4}
+unknowns:
+  y: {initial: y0}
+equations:
+  - "der(y) = -k*(y - cos(t)) - 0.1*y**3"
+solver:
+  tolerance: 1e-6
+"""
+
+
+def test_a_stiff_march_of_thousands_of_slabs_is_checked_on_a_subset_of_its_time_nodes():
+    """Fast relaxation onto a slow forcing: DOP853 steps at its stability limit (~3000 steps, one
+    slab each: ~24,000 time nodes). The time basis is only interpolated (its n x n derivative was
+    built, 4.8 GB, and so was an n x n identity for the one-point path), and the gate and verify
+    compare at every k-th node (their references cost a solve_ivp segment per output time). The
+    codebook against scipy's Radau at random points; max_steps below the stability limit's count
+    says what the steps were."""
+    from scipy.integrate import solve_ivp
+
+    from pgdcli.checks.sampling import CHECK_TIME_NODES
+    from pgdcli.checks.verify import verify
+
+    with threadpool_limits(1):
+        result = pgdcli.solve(parse_spec(RELAXATION, source="relaxation.yaml"))
+    assert result.converged, result.message
+    cb = result.codebook
+    n_time = cb.coordinate("t").basis().nodes.size
+    assert cb.report["steps"] > 1000 and n_time > 10 * CHECK_TIME_NODES
+    assert f"of the {n_time} time nodes" in cb.report["check_method"]
+    rng = np.random.default_rng(5)
+    times = np.concatenate([[0.0, 1e-3, 4.0], rng.uniform(0, 4, 20)])
+    for k, y0 in rng.uniform((500, 0), (1000, 1), (6, 2)):
+        ref = solve_ivp(lambda t, y: -k * (y - np.cos(t)) - 0.1 * y**3, (0, 4), [y0], method="Radau",
+                        rtol=1e-12, atol=1e-14, t_eval=np.sort(times), dense_output=False)
+        got = cb(t=np.sort(times), k=k, y0=y0)["y"]
+        assert np.max(np.abs(got - ref.y[0])) <= 1e-6
+    assert cb(t=float(cb.coordinate("t").basis().nodes[7]), k=500.0, y0=1.0)["y"].shape == ()  # on a node
+    report = verify(cb, samples=8, times=4)
+    assert report.passed() and report.settings["time_nodes_total"] == n_time
+    assert report.settings["time_nodes"] <= CHECK_TIME_NODES + 1
+
+    capped = RELAXATION.replace("tolerance: 1e-6", "tolerance: 1e-6\n  max_steps: 500")
+    result = pgdcli.solve(parse_spec(capped, source="relaxation.yaml"))
+    assert not result.converged
+    assert "max_steps=500 reached (steps of" in result.message and "raise solver.max_steps" in result.message
+
+
 @pytest.mark.parametrize("march", ["train", "grid"])
 def test_solver_march_chooses_the_state(march):
     """``solver.march: train`` keeps a small grid in a tensor train; ``grid`` marches the array (the

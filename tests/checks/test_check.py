@@ -221,3 +221,15 @@ def test_error_and_ratio_leaves_out_failed_samples_in_every_shape():
     np.testing.assert_allclose(err2, err[:, 0])
     _, _, none = error_and_ratio(ref, approx, np.zeros(3, bool), 0.1, 0.0)
     assert np.isnan(none["u"])
+
+
+def test_checked_time_nodes_are_all_of_them_or_every_kth_and_the_last():
+    from pgdcli.checks.sampling import CHECK_TIME_NODES, checked_time_nodes
+
+    few = np.linspace(0.0, 1.0, CHECK_TIME_NODES)
+    picked, stride = checked_time_nodes(few)
+    assert stride == 1 and np.array_equal(picked, np.arange(few.size))
+    for n in (CHECK_TIME_NODES + 1, 24481, 100003):
+        picked, stride = checked_time_nodes(np.linspace(0.0, 1.0, n))
+        assert picked[0] == 0 and picked[-1] == n - 1 and picked.size <= CHECK_TIME_NODES + 1
+        assert np.all(np.diff(picked)[:-1] == stride) and 0 < np.diff(picked)[-1] <= stride

@@ -90,6 +90,23 @@ def test_coupled_tensor_train_time_derivative_is_the_right_hand_side(solved):
         assert np.max(np.abs(grad[name]["t"] - rhs[name])) <= 1e-6, name
 
 
+def test_gradient_in_blocks_of_points_equals_one_block(solved, monkeypatch):
+    """A march's time basis can have ~1e5 nodes: the (points, nodes) rows are built block by block."""
+    import pgdcli.codebook.gradient as gradient
+
+    cb = solved("coupled").codebook
+    p = codebook_points(cb, 300, seed=8)
+    whole = cb.gradient(p)
+    monkeypatch.setattr(gradient, "CHUNK_VALUES", 7 * max(c.nodes for c in cb.coordinates))  # blocks of 7 points
+    blocks = cb.gradient(p)
+    for u in whole:
+        for name in whole[u]:
+            # the same products on fewer rows: BLAS may sum in another order, and the derivative rows'
+            # entries (~2 n^2 / length: ~1e3 here) cancel to O(1): rounding of ~1e3 eps
+            scale = np.max(np.abs(whole[u][name]))
+            np.testing.assert_allclose(blocks[u][name], whole[u][name], rtol=0, atol=1e-11 * scale)
+
+
 def test_coupled_parameter_derivatives_match_finite_differences(solved):
     cb = solved("coupled").codebook
     p = codebook_points(cb, 100, seed=6, corners=False)

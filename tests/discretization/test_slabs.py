@@ -31,6 +31,26 @@ def test_piecewise_basis_nodes_weights_interpolation_and_time_system():
     np.testing.assert_allclose(1.0 + v, np.exp(-b.nodes[1:]), rtol=0, atol=1e-9)
 
 
+def test_piecewise_derivative_is_each_slab_s_built_on_first_use():
+    """A march's time basis has a slab per step (a stiff problem: ~1e5 nodes); its n x n derivative
+    is built only when an operator asks for it, and is then each slab's Chebyshev derivative."""
+    big = make_basis("chebyshev", (0.0, 40.0), 4 * 40000 + 1, breakpoints=tuple(np.linspace(0.0, 40.0, 40001)))
+    assert "derivative" not in vars(big)  # 160001^2 values would be 205 GB
+    b = make_basis("chebyshev", (0.0, 2.0), 3 * 5 + 1, breakpoints=(0.0, 0.5, 1.2, 2.0))  # 6 nodes a slab
+    d = b.derivative
+    assert d is b.derivative and d.shape == (16, 16)
+    p = np.polynomial.Polynomial([0.3, -1.0, 0.5, 2.0, -0.7, 0.1])  # degree 5: exact on 6-node slabs
+    np.testing.assert_allclose(d @ p(b.nodes), p.deriv()(b.nodes), rtol=0, atol=1e-11)
+    assert np.all(d[5, 6:] == 0) and np.all(d[5, :5] != 0)  # a shared node takes its left slab's row
+    # interpolation slab by slab, without the (points, n) matrix: the matrix's values, the nodal values at nodes
+    rng = np.random.default_rng(2)
+    values, x = rng.standard_normal((16, 3)), rng.uniform(0.0, 2.0, 50)
+    np.testing.assert_allclose(b.interpolate(values, x), b.interpolation_matrix(x) @ values, rtol=0, atol=1e-14)
+    assert np.array_equal(b.interpolate(values, b.nodes), values)
+    t = rng.uniform(0.0, 40.0, 1000)
+    np.testing.assert_allclose(big.interpolate(np.sin(big.nodes), t), np.sin(t), rtol=0, atol=1e-6)
+
+
 def test_piecewise_basis_rejects_uneven_slabs():
     with pytest.raises(ValueError, match="equal node counts"):
         make_basis("chebyshev", (0.0, 1.0), 10, breakpoints=(0.0, 0.5, 1.0))
