@@ -17,6 +17,10 @@ The truncation drops at most a share of the tolerance from each fibre matrix; in
 amplifies it, so a half sweep that does not halve the error of the last one in its direction makes
 that share 2x smaller.
 
+The function is deterministic, so every vector it returned is kept (up to :data:`MEMO_FLOATS`
+values) and a multi-index asked again is answered from memory: the sweeps ask for the same fibres
+again once the index sets settle.
+
 Convergence is measured, not assumed: after every half sweep the train is compared with ``F`` at
 fresh random multi-indices (the whole vector each), and the cross stops when the largest
 difference is at most the tolerance. A rank that reaches ``max_rank`` or a sweep budget that
@@ -27,6 +31,7 @@ This module imports numpy, scipy.linalg and :mod:`pgdcli.tensors` only.
 
 from __future__ import annotations
 
+import mmap
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -49,6 +54,11 @@ KICK = 4
 #: Values (points x vector length) asked of the function in one call: 16 MB, below glibc's largest
 #: mmap threshold (32 MB), so the arrays of successive calls reuse memory instead of faulting in pages.
 BATCH_FLOATS = 2 ** 21
+#: Values of evaluated vectors kept to answer a multi-index asked again (1 GiB): the sweeps ask for many
+#: fibres again (the index sets settle), and a later half sweep's check points may have been fibres.
+MEMO_FLOATS = 2 ** 27
+#: A memo of more values than this is kept in small pages (see ``_fresh_array``): 128 MB.
+SMALL_PAGES_ABOVE = 2 ** 24
 
 
 @dataclass
@@ -65,7 +75,8 @@ class VectorCrossResult:
     largest : float
         Largest difference there.
     evaluations : int
-        Multi-indices evaluated (each a whole vector), check points included.
+        Multi-indices evaluated (each a whole vector), check points included; one asked again and
+        answered from memory counts once.
     sweeps : int
         Half sweeps done.
     message : str
@@ -155,6 +166,7 @@ class _VectorCross:
         self.right.append(np.zeros((1, 0), dtype=int))
         self.left: list = [None] * (self.d + 1)  # left[k], k = 1..d: rows of (vector index, i_1, ..., i_{k-1})
         self.edge = None  # (mode, fibres) computed last, reused by the next half sweep's first core
+        self.memo = _Memo.of(shape, outputs)
 
     def _random_indices(self, modes: tuple, count: int) -> np.ndarray:
         count = min(count, int(np.prod(modes, dtype=float)))
@@ -269,12 +281,18 @@ class _VectorCross:
 
     def _evaluate(self, points: np.ndarray) -> np.ndarray:
         """All M values at the points, shape (M, P), in calls of at most :data:`BATCH_FLOATS` values."""
+        slots = self._kept(points)
+        if slots is not None:
+            return self.memo.values[:, slots]
         batch = self._batch
         self.evaluations += len(points)
         return np.concatenate([self.function(points[s:s + batch]) for s in range(0, len(points), batch)], axis=1)
 
     def _pick(self, points: np.ndarray, point_of: np.ndarray, output_of: np.ndarray) -> np.ndarray:
         """The values ``F(points[point_of[e]])[output_of[e]]``, evaluating the points by batches."""
+        slots = self._kept(points)
+        if slots is not None:  # only the values asked for are read, not whole vectors
+            return self.memo.values[output_of, slots[point_of]]
         batch = self._batch
         order = np.argsort(point_of, kind="stable")
         sorted_points = point_of[order]
@@ -287,8 +305,100 @@ class _VectorCross:
             out[entries] = values[output_of[entries], point_of[entries] - s]
         return out
 
+    def _kept(self, points: np.ndarray) -> np.ndarray | None:
+        """The memo's columns of the points (P,), evaluating and keeping the ones not kept yet.
+
+        A full memo is cleared first (the sweeps after this one ask most for its points). None: no
+        memo, or more distinct points than it holds.
+        """
+        if self.memo is None:
+            return None
+        keys = self.memo.keys_of(points)
+        known, slots = self.memo.find(keys)
+        if known.all():
+            return slots
+        new, first, inverse = np.unique(keys[~known], return_index=True, return_inverse=True)
+        capacity = self.memo.values.shape[1]
+        if self.memo.count + len(new) > capacity:  # full: forget it, keep these points
+            known[:] = False
+            new, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+            if len(new) > capacity:
+                return None
+            self.memo.clear()
+        fresh, start, batch = points[~known][first], self.memo.count, self._batch
+        for s in range(0, len(fresh), batch):
+            chunk = fresh[s:s + batch]
+            self.memo.values[:, start + s:start + s + len(chunk)] = self.function(chunk)
+        self.evaluations += len(new)
+        self.memo.insert(new, start)
+        slots[~known] = start + inverse.reshape(-1)
+        return slots
+
     def _check(self, train: TT, count: int) -> tuple[float, float]:
         """Root-mean-square and largest difference from ``F`` at fresh random multi-indices."""
         points = self._random_indices(self.shape, count)
         difference = tt_vectors_at(train, points) - self._evaluate(points).T
         return float(np.sqrt(np.mean(difference * difference))), float(np.max(np.abs(difference)))
+
+
+class _Memo:
+    """The vectors of the multi-indices evaluated so far: column ``rows[j]`` of ``values`` is the vector
+    of the multi-index of linear index ``keys[j]`` (keys sorted).
+
+    Vectors are columns, as the function returns them: stored without a transposed copy (as rows,
+    coupled.yaml's cross took 121 ms against 100 ms).
+    """
+
+    def __init__(self, shape: tuple, capacity: int, outputs: int):
+        self.shape = shape
+        self.keys = np.empty(0, dtype=np.int64)
+        self.rows = np.empty(0, dtype=np.int64)
+        self.values = _fresh_array(outputs, capacity)
+        self.count = 0
+
+    @classmethod
+    def of(cls, shape: tuple, outputs: int) -> "_Memo | None":
+        """A memo for the grid, or None where no vector fits or linear indices would not fit 63 bits."""
+        nodes = float(np.prod(shape, dtype=float))
+        capacity = min(nodes, MEMO_FLOATS // outputs)
+        if capacity < 1 or nodes >= 2.0 ** 62:
+            return None
+        return cls(shape, int(capacity), outputs)
+
+    def keys_of(self, points: np.ndarray) -> np.ndarray:
+        """Linear indices of multi-indices (P, d): shape (P,)."""
+        return np.ravel_multi_index(tuple(points.T), self.shape)
+
+    def find(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which keys are kept (P,) bool, and their columns of ``values`` (P,) (meaningful where kept)."""
+        if not len(self.keys):
+            return np.zeros(len(keys), dtype=bool), np.zeros(len(keys), dtype=np.int64)
+        at = np.minimum(np.searchsorted(self.keys, keys), len(self.keys) - 1)
+        return self.keys[at] == keys, self.rows[at]
+
+    def clear(self) -> None:
+        """Forget every vector (their columns are written again)."""
+        self.keys, self.rows, self.count = self.keys[:0], self.rows[:0], 0
+
+    def insert(self, keys: np.ndarray, start: int) -> None:
+        """Record new sorted, distinct ``keys`` whose vectors were written to columns ``start, start + 1, ...``."""
+        at = np.searchsorted(self.keys, keys)
+        self.keys = np.insert(self.keys, at, keys)
+        self.rows = np.insert(self.rows, at, np.arange(start, start + len(keys)))
+        self.count = start + len(keys)
+
+
+def _fresh_array(rows: int, columns: int) -> np.ndarray:
+    """An uninitialized float array (rows, columns) whose pages the kernel maps as they are written.
+
+    numpy asks the kernel for huge pages for any large array. For a memo of up to
+    :data:`SMALL_PAGES_ABOVE` values that is faster; above it, a memo whose every few thousand new
+    columns touch a page in each of its rows waits on the kernel's compaction for each of those huge
+    pages (the 7-D rigid body's cross, 525 MB: 2.0 s with small pages against 2.4-3.3 s), so a larger
+    one is an anonymous mapping without them.
+    """
+    if rows * columns <= SMALL_PAGES_ABOVE or not hasattr(mmap, "MADV_NOHUGEPAGE"):
+        return np.empty((rows, columns))
+    buffer = mmap.mmap(-1, rows * columns * 8)
+    buffer.madvise(mmap.MADV_NOHUGEPAGE)
+    return np.frombuffer(buffer, dtype=np.float64).reshape(rows, columns)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pgdcli.tensors import fiber_cross
 from pgdcli.tensors.fiber_cross import vector_cross, tt_vectors_at
 from pgdcli.tensors.tt import tt_round
 
@@ -83,3 +84,58 @@ def test_evaluation_budget_stops_the_cross():
     assert not result.converged
     assert "more than the budget of 5,000" in result.message
     assert result.evaluations > 5000
+
+
+MEMO_FLOATS = fiber_cross.MEMO_FLOATS
+
+
+class Counting:
+    """``columns`` that records every multi-index it is asked for."""
+
+    def __init__(self):
+        self.asked: list[np.ndarray] = []
+
+    def __call__(self, indices: np.ndarray) -> np.ndarray:
+        self.asked.append(indices.copy())
+        return columns(indices)
+
+    @property
+    def points(self) -> np.ndarray:
+        return np.vstack(self.asked)
+
+
+def crossed(monkeypatch, memo_floats: int):
+    monkeypatch.setattr(fiber_cross, "MEMO_FLOATS", memo_floats)
+    function = Counting()
+    result = vector_cross(function, TIMES.size, (NODES.size,) * 5, 1e-8, rng=np.random.default_rng(2))
+    assert result.converged, result.message
+    return result, function
+
+
+def test_no_multi_index_is_evaluated_twice_and_the_train_is_the_same(monkeypatch):
+    without, plain = crossed(monkeypatch, 0)
+    result, counted = crossed(monkeypatch, MEMO_FLOATS)
+    points = counted.points
+    assert len(np.unique(points, axis=0)) == len(points) == result.evaluations
+    # the sweeps ask for many fibres again: without the memo they are evaluated again
+    assert len(plain.points) == without.evaluations > 1.3 * result.evaluations
+    assert len(np.unique(plain.points, axis=0)) == result.evaluations
+    assert all(np.array_equal(a, b) for a, b in zip(result.train.cores, without.train.cores))
+
+
+def test_a_full_memo_starts_again_with_the_same_train(monkeypatch):
+    without, _ = crossed(monkeypatch, 0)
+    everything, _ = crossed(monkeypatch, MEMO_FLOATS)
+    # room for 3000 vectors: less than the cross asks for, more than any one request
+    result, counted = crossed(monkeypatch, 3000 * TIMES.size)
+    assert everything.evaluations < result.evaluations < without.evaluations
+    assert len(counted.points) == result.evaluations
+    assert all(np.array_equal(a, b) for a, b in zip(result.train.cores, without.train.cores))
+
+
+def test_a_large_memo_is_kept_in_small_pages(monkeypatch):
+    monkeypatch.setattr(fiber_cross, "SMALL_PAGES_ABOVE", 100 * TIMES.size)
+    result, counted = crossed(monkeypatch, MEMO_FLOATS)
+    without, _ = crossed(monkeypatch, 0)
+    assert len(counted.points) == result.evaluations
+    assert all(np.array_equal(a, b) for a, b in zip(result.train.cores, without.train.cores))
