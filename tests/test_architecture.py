@@ -166,6 +166,11 @@ def test_layers_point_one_way(name):
     layer = _layer(name)
     if layer not in LOWER:
         return
-    allowed = LOWER[layer] | {layer, "", "errors"}
+    allowed = LOWER[layer] | {layer, "", "errors", "pages"}  # errors and memory pages: leaves every layer uses
     wrong = sorted({t for t in _graph()[name] if _layer(t) not in allowed})
     assert not wrong, f"{name} ({layer}) imports {wrong}"
+
+
+@pytest.mark.parametrize("leaf", ["pgdcli.errors", "pgdcli.pages"])
+def test_leaf_modules_import_nothing_of_the_package(leaf):
+    assert not _graph()[leaf], f"{leaf} imports {sorted(_graph()[leaf])}"

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..discretization.coordinates import CoordinateInfo
 from ..errors import QueryError
+from ..pages import huge_page_array
 from .fields import FieldTT
 
 __all__ = ["PointData", "TTStack", "outside_error"]
@@ -25,6 +26,8 @@ __all__ = ["PointData", "TTStack", "outside_error"]
 # their node table (see TTStack); the gemv's output then fits the first-level cache (32 KiB).
 ROW_FIRST_MAX = 4096
 PAIR_MAX = 1 << 20  # values in the merged table of the first two cores (8 MiB)
+# Tables of more bytes than this lie in one mapping in huge pages (see _Arena).
+HUGE_PAGES_ABOVE = 1 << 20
 _add_reduce, _dot, _matmul = np.add.reduce, np.dot, np.matmul
 
 
@@ -122,6 +125,24 @@ class PointData:
         return left, np.array((1.0 - theta, theta))
 
 
+class _Arena:
+    """Arrays carved one after another out of one buffer, in huge pages when it is large.
+
+    A point reads every table once; in 4 KiB pages their page walks cost ~3 us of the rigid
+    body's ~60 (benchmarks/README.md). An array that no longer fits is an ordinary one.
+    """
+
+    def __init__(self, values: int):
+        self.free = huge_page_array(values) if values * 8 > HUGE_PAGES_ABOVE else np.empty(0)
+
+    def empty(self, shape: tuple) -> np.ndarray:
+        size = int(np.prod(shape))
+        if size > self.free.size:
+            return np.empty(shape)
+        out, self.free = self.free[:size].reshape(shape), self.free[size:]
+        return out
+
+
 class TTStack:
     """The tensor-train unknowns that share a core order, zero-padded to common ranks.
 
@@ -135,11 +156,13 @@ class TTStack:
     than ``ROW_FIRST_MAX`` slice values are contracted with the running vector
     first instead (``(q, 1, r0) @ (q, r0, n r1)``): that product's output stays
     in the first-level cache, where the table's would not (measured: a (74, 8, 63)
-    core of 6 unknowns took 33 us that way, 44 us through the table).
+    core of 6 unknowns took 33 us that way, 44 us through the table); its weights
+    are then applied by one gemv of the result seen as ``(q r0, w)``.
 
     The first two cores are merged into one table (see :meth:`_pair`) when the
     first coordinate's window (a time slab: 6-8 nodes) is narrower than the
-    bond between them: fewer flops and one product less (coupled: 4.5 -> 2.5 us).
+    bond between them, or the flops are no more: one product less (coupled:
+    4.5 -> 2.5 us); the last two likewise, reversed (:attr:`tail_pair`).
 
     The train is contracted from both ends: the head (the merged pair, or the
     first core) from the left into ``(q, 1, r)``, the tail (every later core)
@@ -147,6 +170,7 @@ class TTStack:
     kept with the tail coordinates' values: a time series at fixed parameters
     (the first core is the time coordinate's in the march's codebooks) then
     costs the head only. The tail reads the same bytes from either end.
+    All tables lie in one buffer (:class:`_Arena`).
     """
 
     def __init__(self, names: list[str], cores: list[np.ndarray], order: tuple[int, ...], points: Sequence):
@@ -154,73 +178,92 @@ class TTStack:
         self.index = {u: i for i, u in enumerate(names)}
         self.order = order
         self.points = list(points)
-        self.pair = None
-        if len(cores) > 1 and self._merges(cores[0], cores[1], points[order[0]]):
-            self.pair = self._pair(order[0], order[1], cores[0], cores[1], points)
-            self.head = None
-            order, cores = order[2:], cores[2:]
+        head = 2 if len(cores) > 1 and self._merges(cores[0], cores[1], points[order[0]]) else 1
+        # the last two cores, reversed, merge as the first two do (the tail's first product)
+        ends = [c.transpose(0, 3, 2, 1) for c in (cores[-1], cores[-2])] if len(cores) - head >= 2 else []
+        tail_pair = bool(ends) and self._merges(ends[0], ends[1], points[order[-1]])
+        # a table holds its core and a one per node, windows of slabs at most twice the core; merged pairs
+        pairs = ([(cores[0], cores[1])] if head == 2 else []) + ([tuple(ends)] if tail_pair else [])
+        arena = _Arena(sum(2 * c.size + c.shape[2] for c in cores) +
+                       sum(a.shape[2] * b.shape[2] * (a.shape[0] * b.shape[3] + 1) for a, b in pairs))
+        self.pair = self.head = self.tail_pair = None
+        if head == 2:
+            self.pair = self._pair(order[0], order[1], cores[0], cores[1], points, arena)
         else:
-            self.head = self._table(order[0], cores[0], points[order[0]])
-            order, cores = order[1:], cores[1:]
-        # the tail's cores, last first: (coordinate index, through the table?, rows by node, windows, shape)
-        self.tail = [self._table(j, core, points[j], True) if core.size <= ROW_FIRST_MAX * core.shape[2]
-                     else self._vector_first(j, core, points[j]) for j, core in zip(order[::-1], cores[::-1])]
-        self.tail_coordinates = tuple(j for j, *_ in self.tail)
+            self.head = self._table(order[0], cores[0], points[order[0]], arena)
+        tail = list(zip(order[head:], cores[head:]))[::-1]  # last first
+        if tail_pair:
+            self.tail_pair = self._pair(order[-1], order[-2], ends[0], ends[1], points, arena, row=True)
+            tail = tail[2:]
+        # the tail's other cores, last first: (coordinate index, through the table?, rows by node, windows, shape)
+        self.tail = [self._table(j, core, points[j], arena, True) if core.size <= ROW_FIRST_MAX * core.shape[2]
+                     else self._vector_first(j, core, points[j], arena) for j, core in tail]
+        self.tail_coordinates = tuple(j for j, *_ in self.tail) + (self.tail_pair[:2] if tail_pair else ())
         # the cache key: the tail coordinates' values (a tuple, or the one value; () without a tail)
         self._tail_key = itemgetter(*self.tail_coordinates) if self.tail_coordinates else (lambda xs: ())
         self.head_coordinates = tuple(j for j in range(len(points)) if j not in self.tail_coordinates)
         self._cache = None  # (tail coordinates' values, tail vector (q, 1, r), its scale)
 
     @staticmethod
-    def _table(j: int, core: np.ndarray, point: PointData, transposed: bool = False) -> tuple:
+    def _table(j: int, core: np.ndarray, point: PointData, arena: _Arena, transposed: bool = False) -> tuple:
         """A core as a table of one row per node: the stacked slices (q r0 r1 values, or with
         ``transposed`` the slices' transposes, q r1 r0) and a one (the weights' sum)."""
         q, r0, n, r1 = core.shape
-        table = np.empty((n, q * r0 * r1 + 1))
+        table = arena.empty((n, q * r0 * r1 + 1))
         table[:, :-1] = core.transpose(2, 0, 3, 1).reshape(n, -1) if transposed else \
             core.transpose(2, 0, 1, 3).reshape(n, -1)
         table[:, -1] = 1.0  # the weights' sum
         return j, True, table, point.windows(table), (q, r1, r0) if transposed else (q, r0, r1)
 
     @staticmethod
-    def _vector_first(j: int, core: np.ndarray, point: PointData) -> tuple:
+    def _vector_first(j: int, core: np.ndarray, point: PointData, arena: _Arena) -> tuple:
         """A tail core contracted with the running row vector (q, 1, r1) before the weights: per
-        window, the core as (q, r1, r0 w), contiguous (the product reads it row by row), and the
-        shape (q, r0, w) of the product's result."""
+        window, the core as (q, r1, r0 w), contiguous (the product reads it row by row), the
+        shape (q r0, w) of the product's result for the weights' gemv, and that of the new vector."""
         q, r0, n, r1 = core.shape
-        swapped = np.ascontiguousarray(core.transpose(0, 3, 1, 2))  # (q, r1, r0, n)
+        swapped = arena.empty((q, r1, r0, n))
+        swapped[...] = core.transpose(0, 3, 1, 2)
         by_node = [swapped[:, :, :, k] for k in range(n)]  # strided (q, r1, r0) views: BLAS takes them
         windows = []
         for lo, hi in point.window_bounds():
-            window = np.ascontiguousarray(swapped[:, :, :, lo:hi]).reshape(q, r1, r0 * (hi - lo))
-            windows.append((window, (q, r0, hi - lo)))
+            window = swapped
+            if (lo, hi) != (0, n):
+                window = arena.empty((q, r1, r0, hi - lo))
+                window[...] = swapped[:, :, :, lo:hi]
+            windows.append((window.reshape(q, r1, r0 * (hi - lo)), (q * r0, hi - lo), (q, 1, r0)))
         return j, False, by_node, windows, (q, r1)
 
     @staticmethod
     def _merges(first: np.ndarray, second: np.ndarray, point: PointData) -> bool:
-        """Whether the first two cores are cheaper merged: per point ``w n2 q r2`` multiply-adds
-        instead of ``w q r1 + n2 q r1 r2`` (w: the first coordinate's window) and one product less."""
+        """Whether two cores are cheaper merged: per point ``w n2 q r2`` multiply-adds instead of
+        ``w q r1 + n2 q r1 r2`` (w: the first coordinate's window), or about as many and one product
+        less (the rigid body's last two cores: 10,816 against 10,936, 3.3 -> 2.2 us)."""
         q, _, n1, r1 = first.shape
         _, _, n2, r2 = second.shape
         width = max(hi - lo for lo, hi in point.window_bounds())
-        return width < r1 and n2 * (q * r2 + 1) <= ROW_FIRST_MAX and n1 * n2 * (q * r2 + 1) <= PAIR_MAX
+        apart = width * (q * r1 + 1) + n2 * (q * r1 * r2 + 1) + q * r1 * r2
+        fewer = width < r1 or width * n2 * (q * r2 + 1) <= apart
+        return fewer and n2 * (q * r2 + 1) <= ROW_FIRST_MAX and n1 * n2 * (q * r2 + 1) <= PAIR_MAX
 
     @staticmethod
-    def _pair(j1: int, j2: int, first: np.ndarray, second: np.ndarray, points: Sequence) -> tuple:
+    def _pair(j1: int, j2: int, first: np.ndarray, second: np.ndarray, points: Sequence, arena: _Arena,
+              row: bool = False) -> tuple:
         """The first two cores as one table: row ``k1`` holds, for every node ``k2`` of the second
-        coordinate, the stacked ``G1[:, 0, k1, :] G2[:, :, k2, :]`` (``q r2`` values) and a one."""
+        coordinate, the stacked ``G1[:, 0, k1, :] G2[:, :, k2, :]`` (``q r2`` values) and a one.
+        The last two, reversed, give the tail's first vector: then shaped as a ``row`` (q, 1, r2)."""
         q, _, n1, _ = first.shape
         _, _, n2, r2 = second.shape
-        table = np.empty((n1, n2, q * r2 + 1))
+        table = arena.empty((n1, n2, q * r2 + 1))
         table[:, :, :-1] = np.einsum("iar,irbs->abis", first[:, 0], second).reshape(n1, n2, q * r2)
         table[:, :, -1] = 1.0  # the first weights' sum, then (second gemv) the product of both sums
         table = table.reshape(n1, -1)
         return (j1, j2, table, points[j1].windows(table), points[j2].window_bounds(), (n2, q * r2 + 1),
-                (q, r2, 1))
+                (q, 1, r2) if row else (q, r2, 1))
 
-    def _at_pair(self, weights: list) -> tuple[np.ndarray, float]:
-        """The head's vector after the merged first two cores, as a column (q, r2, 1), and its scale."""
-        j1, j2, table, windows, bounds, middle, shape = self.pair
+    @staticmethod
+    def _at_pair(pair: tuple, weights: list) -> tuple[np.ndarray, float]:
+        """The vector after two merged cores (see :meth:`_pair`), and its scale."""
+        j1, j2, table, windows, bounds, middle, shape = pair
         k, c = weights[j1]
         row = (table[k] if c is None else _dot(c, windows[k])).reshape(middle)  # (n2, q r2 + 1)
         k, c = weights[j2]
@@ -250,7 +293,7 @@ class TTStack:
             tail, tail_scale = self._at_tail(weights)
             self._cache = (key, tail, tail_scale)  # one assignment: other threads see old or new
         if self.pair is not None:
-            v, scale = self._at_pair(weights)
+            v, scale = self._at_pair(self.pair, weights)
         else:
             j, _, rows, windows, shape = self.head
             k, c = weights[j]
@@ -268,7 +311,7 @@ class TTStack:
         product then reads its matrix row by row, as the head's do (measured: the (74, 8, 63)
         core of 6 unknowns 7% faster than as (q, r0 w, r1) times a column).
         """
-        v, scale = None, 1.0
+        v, scale = (None, 1.0) if self.tail_pair is None else self._at_pair(self.tail_pair, weights)
         for j, through_table, rows, windows, shape in self.tail:
             k, c = weights[j]
             if through_table:
@@ -281,10 +324,10 @@ class TTStack:
                 v = np.ones((shape[0], 1, 1))  # (q, 1, r_d = 1)
             if c is None:
                 v = _matmul(v, rows[k])
-            else:
-                window, shape = windows[k]
+            else:  # (q, 1, r0 w) as (q r0, w) times the weights: (q, 1, r0)
+                window, flat, out = windows[k]
                 scale *= _add_reduce(c)
-                v = _matmul(_matmul(v, window).reshape(shape), c).reshape(shape[0], 1, -1)  # (q, r0, w) @ (w,)
+                v = _dot(_matmul(v, window).reshape(flat), c).reshape(out)
         return v, scale
 
     @classmethod

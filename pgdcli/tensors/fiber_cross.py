@@ -26,18 +26,18 @@ fresh random multi-indices (the whole vector each), and the cross stops when the
 difference is at most the tolerance. A rank that reaches ``max_rank`` or a sweep budget that
 runs out is reported (``converged`` False, ``message``), never hidden.
 
-This module imports numpy, scipy.linalg, :mod:`mmap` and :mod:`pgdcli.tensors` only.
+This module imports numpy, scipy.linalg, :mod:`pgdcli.tensors` and :mod:`pgdcli.pages` only.
 """
 
 from __future__ import annotations
 
-import mmap
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
 from scipy.linalg import qr
 
+from ..pages import small_page_array
 from .cross import maxvol
 from .tt import TT
 from .tt_svd import truncation_rank
@@ -395,10 +395,8 @@ def _fresh_array(rows: int, columns: int) -> np.ndarray:
     :data:`SMALL_PAGES_ABOVE` values that is faster; above it, a memo whose every few thousand new
     columns touch a page in each of its rows waits on the kernel's compaction for each of those huge
     pages (the 7-D rigid body's cross, 525 MB: 2.0 s with small pages against 2.4-3.3 s), so a larger
-    one is an anonymous mapping without them.
+    one is in small pages.
     """
-    if rows * columns <= SMALL_PAGES_ABOVE or not hasattr(mmap, "MADV_NOHUGEPAGE"):
+    if rows * columns <= SMALL_PAGES_ABOVE:
         return np.empty((rows, columns))
-    buffer = mmap.mmap(-1, rows * columns * 8)
-    buffer.madvise(mmap.MADV_NOHUGEPAGE)
-    return np.frombuffer(buffer, dtype=np.float64).reshape(rows, columns)
+    return small_page_array(rows, columns)

@@ -1,0 +1,58 @@
+"""Float arrays in memory pages of a chosen size: huge pages for tables read whole, small ones for memos.
+
+The kernel maps anonymous memory in 4 KiB pages, or in 2 MiB ones where asked (``madvise``)
+and its transparent huge pages allow. numpy asks for huge pages for every array of 4 MiB and
+more. Two callers want otherwise, both measured (benchmarks/README.md):
+
+- a one-point query reads every core of a tensor-train codebook once (the rigid body: 2.9 MB
+  of tables); in huge pages the tables' page walks go (60 -> 57 us a point);
+- the vector cross's memo of trajectories (up to 1 GiB) is written a few columns at a time
+  across all its rows: in huge pages each first write waited on the kernel's compaction.
+
+Where the platform has no ``madvise`` flags (not Linux) both are plain numpy arrays.
+"""
+
+from __future__ import annotations
+
+import mmap
+
+import numpy as np
+
+__all__ = ["HUGE_PAGE", "huge_page_array", "small_page_array"]
+
+HUGE_PAGE = 1 << 21  # bytes (x86-64 and arm64 with 4 KiB base pages)
+
+
+def huge_page_array(values: int) -> np.ndarray:
+    """An uninitialized float array of ``values`` values starting on a huge-page boundary, in a
+    private anonymous mapping advised to use huge pages (whole huge pages: the mapping is rounded up).
+
+    Parameters
+    ----------
+    values : int
+
+    Returns
+    -------
+    ndarray, shape (values,)
+        A view of the mapping (which lives as long as any view of it).
+    """
+    if not hasattr(mmap, "MADV_HUGEPAGE") or not hasattr(mmap, "MAP_PRIVATE"):
+        return np.empty(values)
+    used = -(-values * 8 // HUGE_PAGE) * HUGE_PAGE  # whole huge pages: a partial one stays in small pages
+    mapping = mmap.mmap(-1, used + HUGE_PAGE, flags=mmap.MAP_PRIVATE)  # + one page to align the start
+    mapping.madvise(mmap.MADV_HUGEPAGE)
+    raw = np.frombuffer(mapping, dtype=np.uint8)
+    start = -raw.ctypes.data % HUGE_PAGE
+    return raw[start:start + values * 8].view(np.float64)
+
+
+def small_page_array(rows: int, columns: int) -> np.ndarray:
+    """An uninitialized float array (rows, columns) in an anonymous mapping advised against huge pages.
+
+    Pages are mapped as they are first written.
+    """
+    if not hasattr(mmap, "MADV_NOHUGEPAGE"):
+        return np.empty((rows, columns))
+    buffer = mmap.mmap(-1, rows * columns * 8)
+    buffer.madvise(mmap.MADV_NOHUGEPAGE)
+    return np.frombuffer(buffer, dtype=np.float64).reshape(rows, columns)
