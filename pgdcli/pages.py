@@ -5,7 +5,7 @@ and its transparent huge pages allow. numpy asks for huge pages for every array 
 more. Two callers want otherwise, both measured (benchmarks/README.md):
 
 - a one-point query reads every core of a tensor-train codebook once (the rigid body: 2.9 MB
-  of tables); in huge pages the tables' page walks go (60 -> 57 us a point);
+  of tables); in huge pages the tables' page walks go (3-4% of a point, A/B in one process);
 - the vector cross's memo of trajectories (up to 1 GiB) is written a few columns at a time
   across all its rows: in huge pages each first write waited on the kernel's compaction.
 

@@ -128,8 +128,8 @@ class PointData:
 class _Arena:
     """Arrays carved one after another out of one buffer, in huge pages when it is large.
 
-    A point reads every table once; in 4 KiB pages their page walks cost ~3 us of the rigid
-    body's ~60 (benchmarks/README.md). An array that no longer fits is an ordinary one.
+    A point reads every table once; in 4 KiB pages their page walks cost 3-4% of the rigid
+    body's point (benchmarks/README.md). An array that no longer fits is an ordinary one.
     """
 
     def __init__(self, values: int):
@@ -237,7 +237,7 @@ class TTStack:
     def _merges(first: np.ndarray, second: np.ndarray, point: PointData) -> bool:
         """Whether two cores are cheaper merged: per point ``w n2 q r2`` multiply-adds instead of
         ``w q r1 + n2 q r1 r2`` (w: the first coordinate's window), or about as many and one product
-        less (the rigid body's last two cores: 10,816 against 10,936, 3.3 -> 2.2 us)."""
+        less (the rigid body's last two cores: 10,816 against 10,936, 3.3 -> 2.4 us)."""
         q, _, n1, r1 = first.shape
         _, _, n2, r2 = second.shape
         width = max(hi - lo for lo, hi in point.window_bounds())
