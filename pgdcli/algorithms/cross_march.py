@@ -195,6 +195,8 @@ def _refuse_overflow(indices: np.ndarray, values: np.ndarray) -> None:
 
 
 def _split(train: TT, unknowns: int, times: int, delta: float) -> list[TT]:
-    """The train of shape (times x unknowns, grid) as one train per unknown, each rounded to ``delta``."""
+    """The train of shape (times x unknowns, grid) as one train per unknown, each rounded to ``delta``
+    with the bonds' shares of it that keep the fewest values (the codebook's size and query cost)."""
     first = train.cores[0].reshape(times, unknowns, -1)
-    return tt_round_shared([first[:, s][None] for s in range(unknowns)], train.cores[1:], absolute=delta)
+    return tt_round_shared([first[:, s][None] for s in range(unknowns)], train.cores[1:], absolute=delta,
+                           allocate=True)

@@ -21,6 +21,8 @@ from typing import Sequence
 
 import numpy as np
 
+from .tt_allocate import truncate_allocated
+
 __all__ = ["TT", "tt_round", "tt_round_shared", "tt_round_many", "tt_sum", "tt_hadamard", "tt_rank_one",
            "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate", "is_ones"]
 
@@ -189,7 +191,7 @@ def _orthogonalize_right(cores: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
-             max_rank: int | None = None) -> TT:
+             max_rank: int | None = None, allocate: bool = False) -> TT:
     """Recompress to the smallest ranks within a Frobenius error bound.
 
     Right-to-left QR orthogonalization, then left-to-right truncated SVDs
@@ -197,7 +199,9 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
     ``delta = tolerance * ||X||`` (relative) or ``absolute`` when given. The
     result differs from ``x`` by at most ``delta`` in the Frobenius norm, which
     bounds the largest entry error too. ``max_rank`` caps every rank (the
-    bound then no longer holds; callers measure it).
+    bound then no longer holds; callers measure it). ``allocate``: the bonds'
+    shares of ``delta`` chosen to keep the fewest values
+    (:func:`pgdcli.tensors.tt_allocate.truncate_allocated`; no ``max_rank``).
     """
     d = x.order
     cores = list(x.cores)
@@ -207,7 +211,12 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
     norm = np.linalg.norm(cores[0])
     if norm == 0.0:
         return TT([np.zeros((1, c.shape[1], 1)) for c in cores])
-    return _truncate(cores, (tolerance * norm if absolute is None else absolute) / np.sqrt(d - 1), max_rank)
+    delta = tolerance * norm if absolute is None else absolute
+    if allocate:
+        if max_rank is not None:
+            raise ValueError("tt_round: allocate does not take a max_rank")
+        return TT(truncate_allocated(cores, delta))
+    return _truncate(cores, delta / np.sqrt(d - 1), max_rank)
 
 
 def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None) -> TT:
@@ -225,7 +234,8 @@ def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None) -> TT
     return TT(cores)
 
 
-def tt_round_shared(firsts: Sequence[np.ndarray], shared: Sequence[np.ndarray], *, absolute: float) -> list[TT]:
+def tt_round_shared(firsts: Sequence[np.ndarray], shared: Sequence[np.ndarray], *, absolute: float,
+                    allocate: bool = False) -> list[TT]:
     """:func:`tt_round` of the trains ``[first] + shared`` for every first core, ``shared`` orthogonalized once.
 
     Parameters
@@ -235,11 +245,15 @@ def tt_round_shared(firsts: Sequence[np.ndarray], shared: Sequence[np.ndarray], 
         Cores 1..d-1, common to all the trains (d >= 2).
     absolute : float
         Frobenius bound of each train's rounding.
+    allocate : bool
+        As :func:`tt_round`'s.
     """
     cores = _orthogonalize_right([np.eye(shared[0].shape[0])[None]] + list(shared))
     carried = cores[0][0]  # (r_1, r_1'): what the orthogonalization moved into the first core
-    delta = absolute / np.sqrt(len(shared))
-    return [_truncate([np.tensordot(first, carried, axes=(2, 0))] + cores[1:], delta, None) for first in firsts]
+    trains = ([np.tensordot(first, carried, axes=(2, 0))] + cores[1:] for first in firsts)
+    if allocate:
+        return [TT(truncate_allocated(train, absolute)) for train in trains]
+    return [_truncate(train, absolute / np.sqrt(len(shared)), None) for train in trains]
 
 
 def _pad_to(cores: list[np.ndarray], ranks: list[int]) -> list[np.ndarray]:
