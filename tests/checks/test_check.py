@@ -50,14 +50,20 @@ def test_sample_holds_every_corner_grid_nodes_and_points_between(solved):
         assert points[n].min() >= 0.0 and points[n].max() <= 1.0
 
 
-def test_sample_beyond_the_corner_budget_is_a_subset_of_corners(solved):
+def test_sample_has_every_corner_within_the_budget_and_a_subset_beyond(solved, monkeypatch):
     cb = solved("rigid_body").codebook
     problem = load_spec(PROBLEMS / "rigid_body.yaml")
-    points, at_nodes = sampling.check_sample(problem, cb)
     names = [c.name for c in problem.parameter_coordinates]
-    box = np.column_stack([points[n][at_nodes] for n in names])
-    corner_rows = np.all((box == 0.5) | (box == 1.5), axis=1)
-    assert corner_rows.sum() >= sampling.CORNERS  # 64 of the 64 corners of a 6-D box, and face points
+
+    def corners() -> np.ndarray:
+        points, at_nodes = sampling.check_sample(problem, cb)
+        box = np.column_stack([points[n][at_nodes] for n in names])
+        return np.unique(box[np.all((box == 0.5) | (box == 1.5), axis=1)], axis=0)
+
+    assert sampling.CORNERS == sampling.MAX_CORNERS  # the gate sees the corners pgd verify sees
+    assert len(corners()) == 64  # all of a 6-D box's, besides face points
+    monkeypatch.setattr(sampling, "CORNERS", 16)
+    assert 16 <= len(corners()) < 64  # a seeded subset (face points may land on more corners)
 
 
 def test_measured_error_is_the_true_error_of_the_codebook(solved):
@@ -104,8 +110,8 @@ def test_report_states_the_measured_error(solved):
     assert rep["march_attempts"].shape[1] == 2
 
 
-def test_march_is_tightened_until_the_check_passes(monkeypatch):
-    """The first check reports 4x the tolerance at the nodes: the march is repeated with a tighter target."""
+def _logistic_with_first_check(monkeypatch, tamper) -> tuple[list, object]:
+    """Solve logistic at 1e-8 with ``tamper(out, problem)`` applied to the first check's result only."""
     real = check.check_codebook
     calls = []
 
@@ -113,16 +119,37 @@ def test_march_is_tightened_until_the_check_passes(monkeypatch):
         out = real(problem, codebook, **kw)
         calls.append(codebook.report["tolerance"])
         if len(calls) == 1:
-            out.error = out.node_error = 4.0 * problem.solver.tolerance
-            out.ratio = out.node_ratio = 4.0
+            tamper(out, problem)
         return out
 
     monkeypatch.setattr(check, "check_codebook", fake)
     text = _variant("logistic", lambda d: d["solver"].update(tolerance=1e-8))
-    result = pgdcli.solve(parse_spec(text, source="logistic-check.yaml"))
+    return calls, pgdcli.solve(parse_spec(text, source="logistic-check.yaml"))
+
+
+def test_march_is_tightened_when_the_error_between_time_nodes_exceeds(monkeypatch):
+    """At the nodes within the tolerance, 2x between the time nodes (the march's slabs): a tighter march."""
+    def tamper(out, problem):
+        out.coordinate_ratio = {**out.coordinate_ratio, problem.time: 2.0}
+        out.error = out.between_error = 2.0 * problem.solver.tolerance
+        out.ratio = 2.0
+
+    calls, result = _logistic_with_first_check(monkeypatch, tamper)
+    assert len(calls) == 2
+    assert calls[1] == pytest.approx(calls[0] * solver.MARCH_SAFETY / 2.0)
+    assert result.codebook.report["check_error"] <= 1e-8 and not result.warnings
+
+
+def test_march_is_tightened_until_the_check_passes(monkeypatch):
+    """The first check reports 4x the tolerance at the nodes: the march is repeated with a tighter target."""
+    def tamper(out, problem):
+        out.error = out.node_error = 4.0 * problem.solver.tolerance
+        out.ratio = out.node_ratio = 4.0
+
+    calls, result = _logistic_with_first_check(monkeypatch, tamper)
     rep = result.codebook.report
     assert len(calls) == 2
-    assert calls[1] == pytest.approx(calls[0] * solver.CHECK_SAFETY / 4.0)
+    assert calls[1] == pytest.approx(calls[0] * solver.MARCH_SAFETY / 4.0)
     assert rep["march_tolerance"] == pytest.approx(calls[1]) and rep["tolerance"] == 1e-8
     np.testing.assert_allclose(rep["march_attempts"][:, 0], calls)
     assert "rejected), 2 marches, max abs error" in result.message and rep["check_error"] <= 1e-8
