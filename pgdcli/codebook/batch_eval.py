@@ -12,7 +12,14 @@ multiply-adds per point in BLAS-sized products, whichever keeps the smaller inte
   vectors ``V`` (shape ``(P, r0)``) times the core unfolded as ``(r0, n r1)``, then each
   point's cardinal row (shape ``(n,)``) times its ``(n, r1)`` block.
 
-Blocks of points are sized so that the intermediates stay in the second-level cache.
+Every intermediate is written into a scratch buffer that lives as long as the batch (one
+set per thread): a fresh array per block and core, freed right after, could make glibc hand
+the memory back to the system and fault it in again at every block (the coupled codebook's
+one-thread batch ran 1.6-1.7x slower in the processes where it did). The cardinal rows are
+stored points last (``(n, P)``, handed on as transposed views) wherever BLAS takes them as a
+matrix: elementwise work then runs along the points, not along ~20 nodes (the rows 1.7x, the
+Khatri-Rao block below 2.3x faster); the rows a batched product takes point by point stay
+points first. Measurements in benchmarks/README.md.
 
 The first core of the train (the time coordinate of the march's codebooks) is split
 into windows: the slabs of a piecewise Chebyshev coordinate, the elements of a linear
@@ -29,22 +36,24 @@ Measurements: ``benchmarks/query_speed_tt.py`` and benchmarks/README.md.
 
 from __future__ import annotations
 
+import math
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..discretization.basis import barycentric_rows
+from ..discretization.basis import barycentric_columns
 
 __all__ = ["TTBatch"]
 
-# Points per block: the block's widest intermediate (points x values per point) takes 3/4 MiB of
-# the second-level cache (1 MiB per core here), the other intermediates the rest. Measured, one
-# thread, 1e5 points, block sizes interleaved in one process (medians of 7, load ~3): coupled
-# (widest 160 values) 162 / 158 / 172-286 ms at 409 / 614 / 819 points; logistic (widest 192)
-# 62 / 60 / 57 ms at 341 / 512 / 682; the rigid body (widest 520) 1.68 / 1.62 / 1.58 s at 126 /
-# 189 / 252 and 2.1 s at 512.
-BLOCK_BYTES = 3 << 18
-MIN_BLOCK, MAX_BLOCK = 32, 1024
+# Points per block: the block's widest intermediate (points x values per point) takes 1.5 MiB,
+# the scratch buffers being reused at every block (the second-level cache is 1 MiB per core
+# here; more points per block amortize the ~50 numpy calls of a block). Measured, one thread,
+# 1e5 points, block sizes in one process (medians of 7) with the scratch buffers: coupled (widest
+# 160) 147.6 / 143.4 / 141.0 / 140.6 ms at 409 / 614 / 1024 / 1536 points; logistic (widest 192)
+# 57.2 / 50.7 / 47.1 / 46.5 ms at 256 / 512 / 1024 / 2048; the rigid body (widest 520) 1.32 /
+# 1.24 / 1.21 / 1.21 s at 126 / 201 / 400 / 600.
+BLOCK_BYTES = 3 << 19
+MIN_BLOCK, MAX_BLOCK = 32, 2048
 # Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
 MAX_PAIR_VALUES = 1 << 22
 
@@ -74,17 +83,22 @@ def _window_of(basis, x: np.ndarray) -> np.ndarray:
     return np.zeros(x.size, dtype=int)
 
 
-def _local_rows(basis, x: np.ndarray, lo: int, width: int) -> np.ndarray:
+def _rows_points_last(basis, x: np.ndarray, lo: int, width: int, out: np.ndarray, work: np.ndarray) -> np.ndarray:
     """Cardinal rows of ``x`` (shape (P,), all in the window starting at node ``lo``) on that
-    window's nodes only, shape (P, width): the arithmetic of the basis's own interpolation rows.
+    window's nodes only, points last: shape (width, P), written into ``out`` (``work``: scratch
+    of the same shape). The arithmetic of the basis's own interpolation rows (a point on a node
+    gets the unit row); the layout lets the first two cores' Khatri-Rao product broadcast along
+    the points (42 against 97 ns per point for 8 x 20 values, 1228 points).
     """
-    if width == basis.nodes.size:
-        return basis.interpolation_matrix(x)
     nodes = basis.nodes[lo:lo + width]
-    if basis.kind == "linear":
-        theta = (x - nodes[0]) / (nodes[1] - nodes[0])
-        return np.column_stack([1.0 - theta, theta])
-    return barycentric_rows(x, nodes, basis.bary)
+    if basis.kind == "linear" and width == 2:
+        theta = np.divide(np.subtract(x, nodes[0], out=out[1]), nodes[1] - nodes[0], out=out[1])
+        np.subtract(1.0, theta, out=out[0])
+        return out
+    if getattr(basis, "bary", np.empty(0)).size != width:  # a whole linear or piecewise basis
+        out[...] = basis.interpolation_matrix(x).T
+        return out
+    return barycentric_columns(x, nodes, basis.bary, out, work)
 
 
 class _Train:
@@ -131,6 +145,9 @@ class _Train:
             self.rest.append((self.order[k], True, np.ascontiguousarray(table), shapes, offsets))
             widest.append(table.shape[1])
         self.block = int(min(MAX_BLOCK, max(MIN_BLOCK, BLOCK_BYTES // (8 * max(widest)))))
+        # coordinates whose rows come points last (see rows): all but those of vector-first cores
+        self.points_last = {self.order[0]} | ({self.order[1]} if self.pair is not None else set()) | {
+            j for j, rows_first, *_ in self.rest if rows_first}
 
     def _pair_table(self, first: list[np.ndarray], second: list[np.ndarray], lo: int) -> np.ndarray:
         """(w n2, sum_u r2_u): ``G1[0, lo + a, :] G2[:, b, :]`` for every unknown, rows ``a n2 + b``."""
@@ -139,7 +156,32 @@ class _Train:
                  for g1, g2 in zip(first, second)]
         return np.ascontiguousarray(np.hstack(parts))
 
-    def contract(self, rows: list[np.ndarray], window: int) -> list[np.ndarray]:
+    def rows(self, bases: Sequence, flat: Sequence[np.ndarray], idx: np.ndarray, window: int,
+             scratch: "_Scratch") -> list[np.ndarray]:
+        """Cardinal rows of the points ``flat[j][idx]`` (a block, all in ``window``), as :meth:`contract` takes them.
+
+        Returns
+        -------
+        list of ndarray
+            Per coordinate, shape (P, n_j); for the train's first coordinate only its window's
+            columns, shape (P, w). Points last in memory (transposed views) except for the
+            coordinates whose core takes each point's row in a batched product (vector first).
+        """
+        rows = []
+        for j, (basis, x) in enumerate(zip(bases, flat)):
+            x = np.take(x, idx, out=scratch.get(("x", j), idx.shape))
+            if j in self.points_last:
+                lo, width = (int(self.starts[window]), self.width) if j == self.order[0] else (0, basis.size)
+                shape = (width, idx.size)
+                rows.append(_rows_points_last(basis, x, lo, width, scratch.get(("rows", j), shape),
+                                              scratch.get("rows work", shape)).T)
+            else:
+                shape = (idx.size, basis.size)
+                rows.append(basis.interpolation_rows(x, scratch.get(("rows", j), shape),
+                                                     scratch.get("rows work", shape)))
+        return rows
+
+    def contract(self, rows: list[np.ndarray], window: int, scratch: "_Scratch") -> list[np.ndarray]:
         """Values of every unknown at a block of points, all in ``window`` of the first coordinate.
 
         Parameters
@@ -148,34 +190,76 @@ class _Train:
             Per coordinate (codebook order), the cardinal rows of the block, shape (P, n_j);
             for the train's first coordinate only their window's columns, shape (P, w).
         window : int
+        scratch : _Scratch
+            The calling thread's buffers for the intermediates.
 
         Returns
         -------
-        list of ndarray, each shape (P,)
+        list of ndarray, each shape (P,): views of ``scratch``, valid until its next block
         """
         lo = int(self.starts[window])
         local = rows[self.order[0]]  # (P, w): the row vanishes outside the window
         p = local.shape[0]
         if self.pair is not None:
+            # points last (rows given as transposed views): the Khatri-Rao block (w n2, P) is one
+            # broadcast along the points, and its transpose goes to BLAS as is
             second = rows[self.order[1]]
-            kr = (local[:, :, None] * second[:, None, :]).reshape(p, -1)  # (P, w n2)
-            running = kr @ self.pair[window]
-            ranks = self.pair_ranks
+            kr = scratch.get("kr", (local.shape[1], second.shape[1], p))  # (w, n2, P)
+            np.multiply(local.T[:, None, :], second.T[None, :, :], out=kr)
+            table, ranks = self.pair[window], self.pair_ranks
+            running = np.matmul(kr.reshape(-1, p).T, table, out=scratch.get("first", (p, table.shape[1])))
         else:
-            running = local @ self.first[lo:lo + self.width]  # (P, sum_u r1_u)
-            ranks = self.first_ranks
+            table, ranks = self.first[lo:lo + self.width], self.first_ranks
+            running = np.matmul(local, table, out=scratch.get("first", (p, table.shape[1])))
         bounds = np.cumsum([0] + ranks)
         vs = [running[:, a:b] for a, b in zip(bounds[:-1], bounds[1:])]
-        for j, rows_first, table, shapes, offsets in self.rest:
+        for k, (j, rows_first, table, shapes, offsets) in enumerate(self.rest):
             w = rows[j]
+            # two sets of outputs in turn: this core reads the last one's (a small footprint in the cache)
+            outs = [scratch.get((k % 2, u), (p, 1, r1)) for u, (_, r1) in enumerate(shapes)]
             if rows_first:  # (P, n) @ (n, r0 r1) for all unknowns, then each point's (r0,) @ (r0, r1)
-                sliced = w @ table
-                vs = [np.matmul(v[:, None, :], sliced[:, a:a + r0 * r1].reshape(p, r0, r1))[:, 0, :]
-                      for v, (r0, r1), a in zip(vs, shapes, offsets)]
+                sliced = np.matmul(w, table, out=scratch.get("sliced", (p, table.shape[1])))
+                for v, (r0, r1), a, out in zip(vs, shapes, offsets, outs):
+                    np.matmul(v[:, None, :], sliced[:, a:a + r0 * r1].reshape(p, r0, r1), out=out)
             else:  # (P, r0) @ (r0, n r1) per unknown, then each point's (n,) @ (n, r1)
-                w = w[:, None, :]
-                vs = [np.matmul(w, (v @ g).reshape(p, n, r1))[:, 0, :] for v, g, (n, r1) in zip(vs, table, shapes)]
+                for v, g, (n, r1), out in zip(vs, table, shapes, outs):
+                    product = np.matmul(v, g, out=scratch.get("product", (p, n * r1)))
+                    np.matmul(w[:, None, :], product.reshape(p, n, r1), out=out)
+            vs = [out[:, 0, :] for out in outs]
         return [v[:, 0] for v in vs]
+
+
+class _Scratch:
+    """One thread's buffers for a batch's intermediates, each reused at every block.
+
+    ``get(key, shape)`` returns a C-contiguous array of ``shape`` over the buffer named ``key``,
+    grown when a block needs more than it holds (the first full block of a train); the views are
+    kept, since most blocks have the same shape and a rigid-body block asks for ~40 of them.
+    """
+
+    def __init__(self):
+        self._buffers: dict = {}
+        self._views: dict = {}
+
+    def get(self, key, shape: tuple[int, ...]) -> np.ndarray:
+        view = self._views.get((key, shape))
+        if view is None:
+            size = math.prod(shape)
+            buffer = self._buffers.get(key)
+            if buffer is None or buffer.size < size:
+                buffer = self._buffers[key] = np.empty(size)
+            view = self._views[key, shape] = buffer[:size].reshape(shape)
+        return view
+
+
+def _blocks(window: np.ndarray, block: int) -> list[tuple[int, int]]:
+    """Bounds ``(lo, hi)`` of blocks of at most ``block`` points, each within one window
+    (``window``: the sorted window index of every point)."""
+    edges = np.flatnonzero(np.diff(window)) + 1
+    bounds = []
+    for lo, hi in zip(np.concatenate([[0], edges]), np.concatenate([edges, [window.size]])):
+        bounds.extend((int(a), int(min(a + block, hi))) for a in range(int(lo), int(hi), block))
+    return bounds
 
 
 class TTBatch:
@@ -222,22 +306,21 @@ class TTBatch:
             if size == 0 or not wanted.intersection(train.names):
                 continue
             first = train.order[0]
-            window = _window_of(self.bases[first], flat[first])
+            # the smallest unsigned type: numpy's stable sort of <= 16-bit integers is a radix sort
+            # (1e5 points in 7 windows: 0.8 ms against 2.0 ms as int64)
+            window = _window_of(self.bases[first], flat[first]).astype(np.min_scalar_type(train.starts.size))
             order = np.argsort(window, kind="stable")
             window = window[order]
-            bounds = []
-            edges = np.flatnonzero(np.diff(window)) + 1
-            for lo, hi in zip(np.concatenate([[0], edges]), np.concatenate([edges, [size]])):
-                bounds.extend((int(a), int(min(a + train.block, hi))) for a in range(int(lo), int(hi), train.block))
+            bounds = _blocks(window, train.block)
             targets = [out.get(u) for u in train.names]
 
-            def run(todo, train=train, order=order, window=window, targets=targets, first=first):
+            def run(todo, train=train, order=order, window=window, targets=targets):
+                scratch = _Scratch()
                 for lo, hi in todo:
                     idx = order[lo:hi]
                     k = int(window[lo])
-                    rows = [_local_rows(b, x[idx], int(train.starts[k]), train.width) if j == first
-                            else b.interpolation_matrix(x[idx]) for j, (b, x) in enumerate(zip(self.bases, flat))]
-                    for target, values in zip(targets, train.contract(rows, k)):
+                    rows = train.rows(self.bases, flat, idx, k, scratch)
+                    for target, values in zip(targets, train.contract(rows, k, scratch)):
                         if target is not None:
                             target[idx] = values
 

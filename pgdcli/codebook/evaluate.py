@@ -155,7 +155,7 @@ class Evaluator:
                 m = hi - lo
                 p = prod[:m]
                 for j, (basis, modes, x, (weights, work)) in enumerate(zip(bases, stacked, flat, scratch)):
-                    w = basis._interpolation_rows(x[lo:hi], weights[:m], work[:m])
+                    w = basis.interpolation_rows(x[lo:hi], weights[:m], work[:m])
                     if j == 0:
                         np.matmul(w, modes, out=p)
                     else:

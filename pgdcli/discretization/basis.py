@@ -36,6 +36,7 @@ __all__ = [
     "LinearBasis",
     "make_basis",
     "chebyshev_unit_nodes",
+    "barycentric_columns",
     "barycentric_rows",
     "KINDS",
 ]
@@ -77,6 +78,24 @@ class Basis1D:
         ndarray, shape (p, n)
             Row ``i`` holds the cardinal functions at ``x[i]``; at a node the
             row is exactly the corresponding unit vector.
+        """
+        raise NotImplementedError
+
+    def interpolation_rows(self, x: np.ndarray, out: np.ndarray, work: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`interpolation_matrix` of ``x`` written into caller-owned buffers.
+
+        Parameters
+        ----------
+        x : ndarray, shape (p,)
+            Evaluation points, float (no domain check here).
+        out : ndarray, shape (p, n)
+            Receives the rows; returned.
+        work : ndarray, shape (p, n), optional
+            Scratch (the Chebyshev basis's differences); allocated when not given.
+
+        Returns
+        -------
+        ndarray, shape (p, n): ``out``
         """
         raise NotImplementedError
 
@@ -174,31 +193,18 @@ class ChebyshevBasis(Basis1D):
     def interpolation_matrix(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float).reshape(-1)
         n = self.nodes.size
-        return self._interpolation_rows(x, np.empty((x.size, n)), np.empty((x.size, n)))
+        return self.interpolation_rows(x, np.empty((x.size, n)), np.empty((x.size, n)))
 
-    def _interpolation_rows(self, x, out, work) -> np.ndarray:
+    def interpolation_rows(self, x, out, work=None) -> np.ndarray:
         """:meth:`interpolation_matrix` of ``x`` (shape (p,)) written into ``out`` (shape (p, n)).
 
-        ``work`` is scratch of the same shape. The arithmetic is the textbook
-        one, ``c = bary / (x - nodes)``, ``c / c.sum()`` row by row, with a
-        row that hits a node (``x == nodes[k]``) replaced by the unit vector
-        ``e_k``. Such a row is found through its row sum, which is not finite
-        (``bary / 0 = inf``), so no (p, n) comparison is made unless needed.
+        ``work`` is scratch of the same shape (allocated if None). The arithmetic of
+        :func:`barycentric_columns` on the transposed views (the same values bit for bit as
+        row by row: numpy sums along memory either way).
         """
-        diff = np.subtract(x[:, None], self.nodes, out=work)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            c = np.divide(self.bary, diff, out=out)
-            s = np.add.reduce(c, axis=1, keepdims=True)
-        odd = ~np.isfinite(s[:, 0])
-        if odd.any():
-            rows = np.flatnonzero(odd)
-            exact = diff[rows] == 0.0
-            hit = exact.any(axis=1)
-            if hit.any():
-                rows = rows[hit]
-                c[rows] = exact[hit]
-                s[rows] = 1.0  # the sum of a unit row
-        return np.divide(c, s, out=c)
+        work = np.empty_like(out) if work is None else work
+        barycentric_columns(x, self.nodes, self.bary, out.T, work.T)
+        return out
 
     def time_stiffness(self, c) -> np.ndarray:
         c = np.asarray(c, dtype=float)
@@ -239,10 +245,10 @@ class LinearBasis(Basis1D):
 
     def interpolation_matrix(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float).reshape(-1)
-        return self._interpolation_rows(x, np.empty((x.size, self.nodes.size)), None)
+        return self.interpolation_rows(x, np.empty((x.size, self.nodes.size)), None)
 
-    def _interpolation_rows(self, x, out, work=None) -> np.ndarray:
-        """:meth:`interpolation_matrix` of ``x`` (shape (p,)) written into ``out`` (shape (p, n))."""
+    def interpolation_rows(self, x, out, work=None) -> np.ndarray:
+        """:meth:`interpolation_matrix` of ``x`` (shape (p,)) written into ``out`` (shape (p, n)); no scratch."""
         nodes = self.nodes
         n = nodes.size
         left = np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, n - 2)
@@ -355,9 +361,9 @@ class PiecewiseChebyshevBasis(Basis1D):
 
     def interpolation_matrix(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float).reshape(-1)
-        return self._interpolation_rows(x, np.empty((x.size, self.nodes.size)), None)
+        return self.interpolation_rows(x, np.empty((x.size, self.nodes.size)), None)
 
-    def _interpolation_rows(self, x, out, work=None) -> np.ndarray:
+    def interpolation_rows(self, x, out, work=None) -> np.ndarray:
         m = self.slab_size
         first = self.slab_of(x) * (m - 1)
         idx = first[:, None] + np.arange(m)  # (p, m) global node indices of each point's slab
@@ -382,6 +388,39 @@ class PiecewiseChebyshevBasis(Basis1D):
     time_mass = ChebyshevBasis.time_mass
     time_load = ChebyshevBasis.time_load
     time_weights = ChebyshevBasis.time_weights
+
+
+def barycentric_columns(x: np.ndarray, nodes: np.ndarray, bary: np.ndarray, out: np.ndarray,
+                        work: np.ndarray) -> np.ndarray:
+    """Barycentric cardinal functions on ``nodes`` at the points ``x``, points last.
+
+    Parameters
+    ----------
+    x : ndarray, shape (p,)
+    nodes, bary : ndarray, shape (m,)
+        The nodes and their barycentric weights.
+    out, work : ndarray, shape (m, p)
+        Receives the values (returned) / scratch; views of any strides.
+
+    Returns
+    -------
+    ndarray, shape (m, p): ``out``
+        Column ``i`` holds the cardinal functions at ``x[i]``: the textbook arithmetic,
+        ``c = bary / (x - nodes)``, ``c / c.sum()``, with a point on node ``k`` given the unit
+        vector ``e_k``. Such a point is found through its sum, which is not finite
+        (``bary / 0 = inf``), so no (m, p) comparison is made unless needed.
+    """
+    diff = np.subtract(x, nodes[:, None], out=work)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.divide(bary[:, None], diff, out=out)
+        total = np.add.reduce(c, axis=0)
+    odd = np.flatnonzero(~np.isfinite(total))
+    if odd.size:
+        exact = diff[:, odd] == 0.0
+        hit = exact.any(axis=0)
+        c[:, odd[hit]] = exact[:, hit]
+        total[odd[hit]] = 1.0  # the sum of a unit vector
+    return np.divide(c, total, out=c)
 
 
 def barycentric_rows(x: np.ndarray, nodes: np.ndarray, bary: np.ndarray) -> np.ndarray:

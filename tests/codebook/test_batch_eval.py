@@ -78,6 +78,10 @@ def _hand_made() -> dict[str, Codebook]:
         # slab window (7) narrower than the first bond (10): first two cores merged per slab
         "slabs, merged pair": {"u": _random_tt(rng, coords, [10, 14, 5], [0, 1, 2, 3]),
                                "v": _random_tt(rng, coords, [12, 9, 4], [0, 1, 2, 3])},
+        # merged pairs whose second coordinate is a whole linear basis (11 nodes), and whose
+        # first is one Chebyshev window (6 nodes) narrower than the first bond (7)
+        "merged pair, linear second": {"u": _random_tt(rng, coords, [9, 8, 4], [0, 2, 1, 3])},
+        "merged pair, one window": {"u": _random_tt(rng, coords, [7, 12, 5], [3, 1, 0, 2])},
         # window (7) wider than the first bond (3): the first core by windows, no merge
         "slabs, no merge": {"u": _random_tt(rng, coords, [3, 8, 4], [0, 1, 2, 3])},
         # one Chebyshev window first; a linear coordinate later

@@ -14,7 +14,7 @@ import pytest
 from numpy.polynomial import Chebyshev
 from scipy.integrate import trapezoid
 
-from pgdcli.discretization.basis import KINDS, ChebyshevBasis, LinearBasis, make_basis
+from pgdcli.discretization.basis import KINDS, ChebyshevBasis, LinearBasis, barycentric_columns, make_basis
 
 EPS = np.finfo(float).eps
 
@@ -187,6 +187,24 @@ def test_interpolation_rows_partition_unity(kind):
     b = make_basis(kind, (-2.0, 3.0), 17)
     x = np.random.default_rng(1).uniform(-2, 3, 300)
     np.testing.assert_allclose(b.interpolation_matrix(x).sum(axis=1), 1.0, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("n", [2, 5, 20])
+def test_barycentric_columns_interpolate_polynomials_exactly(n):
+    """Points last, as the batch path stores them: exact for polynomials of degree < n (against
+    numpy's Chebyshev series), unit columns on the nodes, and the interpolation rows transposed."""
+    b = ChebyshevBasis((-1.0, 3.0), n)
+    rng = np.random.default_rng(n)
+    x = rng.uniform(-1.0, 3.0, 400)
+    x[::7] = b.nodes[rng.integers(0, n, x[::7].size)]
+    out, work = np.empty((n, x.size)), np.empty((n, x.size))
+    cols = barycentric_columns(x, b.nodes, b.bary, out, work)
+    assert cols is out
+    series = Chebyshev(rng.standard_normal(n), domain=[-1.0, 3.0])
+    np.testing.assert_allclose(series(b.nodes) @ cols, series(x), rtol=0, atol=1e-12)
+    on_node = np.isin(x, b.nodes)
+    assert np.array_equal(cols[:, on_node], (x[on_node] == b.nodes[:, None]).astype(float))
+    np.testing.assert_allclose(cols.T, b.interpolation_matrix(x), rtol=0, atol=1e-15)
 
 
 # ----------------------------------------------------------------------------------------------
