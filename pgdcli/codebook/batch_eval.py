@@ -54,6 +54,8 @@ __all__ = ["TTBatch"]
 # 1.24 / 1.21 / 1.21 s at 126 / 201 / 400 / 600.
 BLOCK_BYTES = 3 << 19
 MIN_BLOCK, MAX_BLOCK = 32, 2048
+# Slabs up to this many interior breakpoints are found by counting (see _window_of).
+COUNT_BREAKPOINTS = 32
 # Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
 MAX_PAIR_VALUES = 1 << 22
 
@@ -76,7 +78,15 @@ def _window_of(basis, x: np.ndarray) -> np.ndarray:
     right, the upper end to the last slab or element).
     """
     if int(getattr(basis, "slab_size", 0) or 0):
-        return basis.slab_of(x)
+        interior = basis.breakpoints[1:-1]
+        if len(interior) > COUNT_BREAKPOINTS:
+            return basis.slab_of(x)
+        # the interior breakpoints at or below x, counted: x is in the domain, so this is the
+        # clipped search, 15x faster than searchsorted's unpredictable branches (1e5 points, 7 slabs)
+        window, above = np.zeros(x.shape, np.uint8), np.empty(x.shape, bool)
+        for b in interior:
+            np.add(window, np.greater_equal(x, b, out=above), out=window)
+        return window
     if basis.kind == "linear":
         n = basis.nodes.size
         return np.clip(np.searchsorted(basis.nodes, x, side="right") - 1, 0, n - 2)
@@ -308,7 +318,7 @@ class TTBatch:
             first = train.order[0]
             # the smallest unsigned type: numpy's stable sort of <= 16-bit integers is a radix sort
             # (1e5 points in 7 windows: 0.8 ms against 2.0 ms as int64)
-            window = _window_of(self.bases[first], flat[first]).astype(np.min_scalar_type(train.starts.size))
+            window = _window_of(self.bases[first], flat[first]).astype(np.min_scalar_type(train.starts.size), copy=False)
             order = np.argsort(window, kind="stable")
             window = window[order]
             bounds = _blocks(window, train.block)

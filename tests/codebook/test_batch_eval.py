@@ -16,7 +16,8 @@ import pytest
 
 import pgdcli.codebook.point as point_module
 import pgdcli.codebook.threads as threads_module
-from pgdcli.codebook.batch_eval import TTBatch
+from pgdcli.codebook.batch_eval import TTBatch, _window_of
+from pgdcli.discretization.basis import make_basis
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
 
 
@@ -141,6 +142,16 @@ def test_blocks_and_threads_never_change_a_value(solved, monkeypatch):
         other = cb(**points)
         for u in cb.unknown_names:
             assert other[u].tobytes() == ref[u].tobytes(), threads
+
+
+@pytest.mark.parametrize("slabs", [2, 7, 33, 40])
+def test_slab_windows_as_the_basis_finds_them(slabs):
+    """Counted breakpoints (up to 32 interior ones) and the search beyond give the basis's own slabs,
+    breakpoints (they go right) and the domain's ends included."""
+    breaks = np.linspace(0.0, 2.0, slabs + 1) ** 1.5 / 2.0 ** 0.5
+    basis = make_basis("chebyshev", (0.0, 2.0), slabs * 5 + 1, breakpoints=breaks)
+    x = np.concatenate([np.random.default_rng(slabs).uniform(0.0, 2.0, 5000), breaks, basis.nodes])
+    assert np.array_equal(_window_of(basis, x), basis.slab_of(x))
 
 
 def test_selected_fields_and_shapes():
