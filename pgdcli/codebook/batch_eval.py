@@ -27,7 +27,10 @@ one. A point's cardinal row vanishes outside its window, so the points are group
 window (a stable sort) and each group uses only its window's nodes. When the window is
 narrower than the first bond, the first two cores are merged per window beforehand
 into a table of ``(w n_2, r_2)``: per point ``w n_2 r_2`` multiply-adds instead of
-``w r_1 + r_1 n_2 r_2`` and one product less.
+``w r_1 + r_1 n_2 r_2`` and one product less. A later coordinate of several windows (a
+parameter given slabs by the automatic discretization, or linear elements) is grouped by too
+when the groups stay larger than the blocks: its core then costs a point ``r0 w r1``, not
+``r0 n r1`` (a Brusselator whose rate ``b`` has two slabs of 37 nodes: 1.8x).
 
 The values equal those of the core-by-core row-wise contraction
 (:func:`pgdcli.codebook.evaluate.contract_tt`) to rounding: the same sums in another order.
@@ -155,6 +158,9 @@ class _Train:
             self.rest.append((self.order[k], True, np.ascontiguousarray(table), shapes, offsets))
             widest.append(table.shape[1])
         self.block = int(min(MAX_BLOCK, max(MIN_BLOCK, BLOCK_BYTES // (8 * max(widest)))))
+        # later coordinates of several windows (slabs, linear elements): a block of points within one
+        # window of such a coordinate takes only that window's part of its core (TTBatch.evaluate)
+        self.later_windows = {j: _windows(bases[j]) for j, *_ in self.rest if _windows(bases[j])[0].size > 1}
         # coordinates whose rows come points last (see rows): all but those of vector-first cores
         self.points_last = {self.order[0]} | ({self.order[1]} if self.pair is not None else set()) | {
             j for j, rows_first, *_ in self.rest if rows_first}
@@ -166,40 +172,53 @@ class _Train:
                  for g1, g2 in zip(first, second)]
         return np.ascontiguousarray(np.hstack(parts))
 
-    def rows(self, bases: Sequence, flat: Sequence[np.ndarray], idx: np.ndarray, window: int,
+    def rows(self, bases: Sequence, flat: Sequence[np.ndarray], idx: np.ndarray, windows: dict,
              scratch: "_Scratch") -> list[np.ndarray]:
-        """Cardinal rows of the points ``flat[j][idx]`` (a block, all in ``window``), as :meth:`contract` takes them.
+        """Cardinal rows of the points ``flat[j][idx]`` (a block), as :meth:`contract` takes them.
+
+        ``windows`` maps the first coordinate, and the later ones the block is grouped by, to the
+        window all its points lie in.
 
         Returns
         -------
         list of ndarray
-            Per coordinate, shape (P, n_j); for the train's first coordinate only its window's
-            columns, shape (P, w). Points last in memory (transposed views) except for the
+            Per coordinate, shape (P, n_j); for a coordinate in ``windows`` only its window's
+            columns, shape (P, w_j). Points last in memory (transposed views) except for the
             coordinates whose core takes each point's row in a batched product (vector first).
         """
         rows = []
         for j, (basis, x) in enumerate(zip(bases, flat)):
             x = np.take(x, idx, out=scratch.get(("x", j), idx.shape))
+            lo, width = self._window(j, windows) if j in windows else (0, basis.size)
             if j in self.points_last:
-                lo, width = (int(self.starts[window]), self.width) if j == self.order[0] else (0, basis.size)
                 shape = (width, idx.size)
                 rows.append(_rows_points_last(basis, x, lo, width, scratch.get(("rows", j), shape),
                                               scratch.get("rows work", shape)).T)
-            else:
+            elif width == basis.size:
                 shape = (idx.size, basis.size)
                 rows.append(basis.interpolation_rows(x, scratch.get(("rows", j), shape),
                                                      scratch.get("rows work", shape)))
+            else:  # a window's rows, points first: the same arithmetic on transposed views
+                out, work = scratch.get(("rows", j), (idx.size, width)), scratch.get("rows work", (idx.size, width))
+                _rows_points_last(basis, x, lo, width, out.T, work.T)
+                rows.append(out)
         return rows
 
-    def contract(self, rows: list[np.ndarray], window: int, scratch: "_Scratch") -> list[np.ndarray]:
+    def _window(self, j: int, windows: dict) -> tuple[int, int]:
+        """First node and width of coordinate ``j``'s window ``windows[j]``."""
+        starts, width = (self.starts, self.width) if j == self.order[0] else self.later_windows[j]
+        return int(starts[windows[j]]), width
+
+    def contract(self, rows: list[np.ndarray], windows: dict, scratch: "_Scratch") -> list[np.ndarray]:
         """Values of every unknown at a block of points, all in ``window`` of the first coordinate.
 
         Parameters
         ----------
         rows : list of ndarray
-            Per coordinate (codebook order), the cardinal rows of the block, shape (P, n_j);
-            for the train's first coordinate only their window's columns, shape (P, w).
-        window : int
+            Per coordinate (codebook order), the cardinal rows of the block (see :meth:`rows`).
+        windows : dict
+            Coordinate -> the window of the block's points: the first coordinate, and the later
+            ones the block is grouped by.
         scratch : _Scratch
             The calling thread's buffers for the intermediates.
 
@@ -207,6 +226,7 @@ class _Train:
         -------
         list of ndarray, each shape (P,): views of ``scratch``, valid until its next block
         """
+        window = windows[self.order[0]]
         lo = int(self.starts[window])
         local = rows[self.order[0]]  # (P, w): the row vanishes outside the window
         p = local.shape[0]
@@ -227,12 +247,17 @@ class _Train:
             w = rows[j]
             # two sets of outputs in turn: this core reads the last one's (a small footprint in the cache)
             outs = [scratch.get((k % 2, u), (p, 1, r1)) for u, (_, r1) in enumerate(shapes)]
+            start, width = self._window(j, windows) if j in windows else (0, None)
             if rows_first:  # (P, n) @ (n, r0 r1) for all unknowns, then each point's (r0,) @ (r0, r1)
+                if width is not None:  # the window's rows of the table
+                    table = table[start:start + width]
                 sliced = np.matmul(w, table, out=scratch.get("sliced", (p, table.shape[1])))
                 for v, (r0, r1), a, out in zip(vs, shapes, offsets, outs):
                     np.matmul(v[:, None, :], sliced[:, a:a + r0 * r1].reshape(p, r0, r1), out=out)
             else:  # (P, r0) @ (r0, n r1) per unknown, then each point's (n,) @ (n, r1)
                 for v, g, (n, r1), out in zip(vs, table, shapes, outs):
+                    if width is not None:  # the window's columns of the unfolded core
+                        g, n = g[:, start * r1:(start + width) * r1], width
                     product = np.matmul(v, g, out=scratch.get("product", (p, n * r1)))
                     np.matmul(w[:, None, :], product.reshape(p, n, r1), out=out)
             vs = [out[:, 0, :] for out in outs]
@@ -291,6 +316,35 @@ class TTBatch:
             groups.setdefault(tuple(f.mode_order), []).append(u)
         self.trains = [_Train(names, fields, self.bases) for names in groups.values()]
 
+    def _group_key(self, train: _Train, flat: Sequence[np.ndarray]) -> tuple[np.ndarray, list]:
+        """Each point's group: its window of the train's first coordinate and of the later
+        coordinates worth grouping by, as one mixed-radix integer.
+
+        A later coordinate of several windows is grouped by (most nodes per window first) while
+        the groups stay no more than the blocks of points: the blocks then keep their size, and
+        its core costs a point ``w / n`` of its multiply-adds.
+
+        Returns
+        -------
+        key : ndarray of unsigned int, shape (P,)
+            The smallest type: numpy's stable sort of <= 16-bit integers is a radix sort (1e5
+            points in 7 windows: 0.8 ms against 2.0 ms as int64).
+        radices : list of (coordinate, window count)
+            The later coordinates in the key, most significant first after the first coordinate.
+        """
+        size = flat[0].size
+        first = train.order[0]
+        key = _window_of(self.bases[first], flat[first]).astype(np.int64)
+        groups, radices = train.starts.size, []
+        later = sorted(train.later_windows.items(), key=lambda item: item[1][1] / self.bases[item[0]].size)
+        for j, (starts, _) in later:
+            if groups * starts.size * train.block > size:
+                continue
+            key = key * starts.size + _window_of(self.bases[j], flat[j])
+            groups *= starts.size
+            radices.append((j, starts.size))
+        return key.astype(np.min_scalar_type(groups - 1)), radices
+
     def evaluate(self, flat: Sequence[np.ndarray], selected: Sequence[str],
                  run_chunks: Callable | None = None) -> dict[str, np.ndarray]:
         """Values of the ``selected`` unknowns at the points ``flat[j][i]``.
@@ -316,21 +370,22 @@ class TTBatch:
             if size == 0 or not wanted.intersection(train.names):
                 continue
             first = train.order[0]
-            # the smallest unsigned type: numpy's stable sort of <= 16-bit integers is a radix sort
-            # (1e5 points in 7 windows: 0.8 ms against 2.0 ms as int64)
-            window = _window_of(self.bases[first], flat[first]).astype(np.min_scalar_type(train.starts.size), copy=False)
-            order = np.argsort(window, kind="stable")
-            window = window[order]
-            bounds = _blocks(window, train.block)
+            key, radices = self._group_key(train, flat)
+            order = np.argsort(key, kind="stable")
+            key = key[order]
+            bounds = _blocks(key, train.block)
             targets = [out.get(u) for u in train.names]
 
-            def run(todo, train=train, order=order, window=window, targets=targets):
+            def run(todo, train=train, order=order, key=key, radices=radices, targets=targets, first=first):
                 scratch = _Scratch()
                 for lo, hi in todo:
                     idx = order[lo:hi]
-                    k = int(window[lo])
-                    rows = train.rows(self.bases, flat, idx, k, scratch)
-                    for target, values in zip(targets, train.contract(rows, k, scratch)):
+                    k, windows = int(key[lo]), {}
+                    for j, count in reversed(radices):
+                        k, windows[j] = divmod(k, count)
+                    windows[first] = k
+                    rows = train.rows(self.bases, flat, idx, windows, scratch)
+                    for target, values in zip(targets, train.contract(rows, windows, scratch)):
                         if target is not None:
                             target[idx] = values
 

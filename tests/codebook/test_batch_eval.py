@@ -144,6 +144,26 @@ def test_blocks_and_threads_never_change_a_value(solved, monkeypatch):
             assert other[u].tobytes() == ref[u].tobytes(), threads
 
 
+@pytest.mark.parametrize("name", sorted(HAND_MADE))
+def test_blocks_grouped_by_later_windows(name, monkeypatch):
+    """Small blocks make the batch group points by the windows of later coordinates too (the
+    slab time and the linear coordinate where they are not first): each block then contracts
+    only its windows' parts of those cores. Against the independent contraction."""
+    import pgdcli.codebook.batch_eval as batch_module
+
+    monkeypatch.setattr(batch_module, "MIN_BLOCK", 4)
+    monkeypatch.setattr(batch_module, "BLOCK_BYTES", 64)
+    cb = HAND_MADE[name]
+    fields = {u: f for u, f in cb.fields.items() if isinstance(f, FieldTT)}
+    batch = TTBatch(fields, cb._bases)
+    points = _points(cb, 3000, 21)
+    flat = [np.clip(points[c.name], *c.domain) for c in cb.coordinates]
+    grouped = [j for train in batch.trains for j, _ in batch._group_key(train, flat)[1]]
+    later = [j for train in batch.trains for j in train.later_windows]
+    assert sorted(grouped) == sorted(later)  # every later windowed coordinate is grouped by here
+    _assert_close(batch.evaluate(flat, list(fields)), _reference(cb, points))
+
+
 @pytest.mark.parametrize("slabs", [2, 7, 33, 40])
 def test_slab_windows_as_the_basis_finds_them(slabs):
     """Counted breakpoints (up to 32 interior ones) and the search beyond give the basis's own slabs,
