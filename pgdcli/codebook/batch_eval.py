@@ -57,6 +57,8 @@ __all__ = ["TTBatch"]
 # 1.24 / 1.21 / 1.21 s at 126 / 201 / 400 / 600.
 BLOCK_BYTES = 3 << 19
 MIN_BLOCK, MAX_BLOCK = 32, 2048
+# Points per group (on average) below which a later coordinate's windows are not grouped by.
+MIN_GROUP = 64
 # Slabs up to this many interior breakpoints are found by counting (see _window_of).
 COUNT_BREAKPOINTS = 32
 # Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
@@ -158,17 +160,20 @@ class _Train:
             self.rest.append((self.order[k], True, np.ascontiguousarray(table), shapes, offsets))
             widest.append(table.shape[1])
         self.block = int(min(MAX_BLOCK, max(MIN_BLOCK, BLOCK_BYTES // (8 * max(widest)))))
-        # later coordinates of several windows (slabs, linear elements): a block of points within one
-        # window of such a coordinate takes only that window's part of its core (TTBatch.evaluate)
-        self.later_windows = {j: _windows(bases[j]) for j, *_ in self.rest if _windows(bases[j])[0].size > 1}
+        # later coordinates of several windows (slabs, linear elements; the pair's second one too): a
+        # block of points within one window of such a coordinate takes only that window's part of
+        # its core or of the pair table (TTBatch.evaluate)
+        later = [j for j, *_ in self.rest] + ([self.order[1]] if self.pair is not None else [])
+        self.later_windows = {j: _windows(bases[j]) for j in later if _windows(bases[j])[0].size > 1}
         # coordinates whose rows come points last (see rows): all but those of vector-first cores
         self.points_last = {self.order[0]} | ({self.order[1]} if self.pair is not None else set()) | {
             j for j, rows_first, *_ in self.rest if rows_first}
 
     def _pair_table(self, first: list[np.ndarray], second: list[np.ndarray], lo: int) -> np.ndarray:
-        """(w n2, sum_u r2_u): ``G1[0, lo + a, :] G2[:, b, :]`` for every unknown, rows ``a n2 + b``."""
+        """(n2 w, sum_u r2_u): ``G1[0, lo + a, :] G2[:, b, :]`` for every unknown, rows ``b w + a``
+        (the second coordinate's node major: a window of its nodes is a run of rows)."""
         w = self.width
-        parts = [np.einsum("ar,rbs->abs", g1[0, lo:lo + w], g2).reshape(w * g2.shape[1], g2.shape[2])
+        parts = [np.einsum("ar,rbs->bas", g1[0, lo:lo + w], g2).reshape(g2.shape[1] * w, g2.shape[2])
                  for g1, g2 in zip(first, second)]
         return np.ascontiguousarray(np.hstack(parts))
 
@@ -233,10 +238,13 @@ class _Train:
         if self.pair is not None:
             # points last (rows given as transposed views): the Khatri-Rao block (w n2, P) is one
             # broadcast along the points, and its transpose goes to BLAS as is
-            second = rows[self.order[1]]
-            kr = scratch.get("kr", (local.shape[1], second.shape[1], p))  # (w, n2, P)
-            np.multiply(local.T[:, None, :], second.T[None, :, :], out=kr)
+            second = rows[self.order[1]]  # (P, n2), or its window's columns
+            kr = scratch.get("kr", (second.shape[1], local.shape[1], p))  # (n2, w, P)
+            np.multiply(second.T[:, None, :], local.T[None, :, :], out=kr)
             table, ranks = self.pair[window], self.pair_ranks
+            if self.order[1] in windows:  # the rows of the second coordinate's window
+                start, width = self._window(self.order[1], windows)
+                table = table[start * self.width:(start + width) * self.width]
             running = np.matmul(kr.reshape(-1, p).T, table, out=scratch.get("first", (p, table.shape[1])))
         else:
             table, ranks = self.first[lo:lo + self.width], self.first_ranks
@@ -321,8 +329,8 @@ class TTBatch:
         coordinates worth grouping by, as one mixed-radix integer.
 
         A later coordinate of several windows is grouped by (most nodes per window first) while
-        the groups stay no more than the blocks of points: the blocks then keep their size, and
-        its core costs a point ``w / n`` of its multiply-adds.
+        the groups keep MIN_GROUP points on average: its core then costs a point ``w / n`` of its
+        multiply-adds, for blocks of fewer points.
 
         Returns
         -------
@@ -338,7 +346,7 @@ class TTBatch:
         groups, radices = train.starts.size, []
         later = sorted(train.later_windows.items(), key=lambda item: item[1][1] / self.bases[item[0]].size)
         for j, (starts, _) in later:
-            if groups * starts.size * train.block > size:
+            if groups * starts.size * MIN_GROUP > size:
                 continue
             key = key * starts.size + _window_of(self.bases[j], flat[j])
             groups *= starts.size
