@@ -111,7 +111,7 @@ def _rows_points_last(basis, x: np.ndarray, lo: int, width: int, out: np.ndarray
         np.subtract(1.0, theta, out=out[0])
         return out
     if getattr(basis, "bary", np.empty(0)).size != width:  # a whole linear or piecewise basis
-        out[...] = basis.interpolation_matrix(x).T
+        basis.interpolation_rows(x, out.T, work.T)
         return out
     return barycentric_columns(x, nodes, basis.bary, out, work)
 
@@ -164,7 +164,8 @@ class _Train:
         # block of points within one window of such a coordinate takes only that window's part of
         # its core or of the pair table (TTBatch.evaluate)
         later = [j for j, *_ in self.rest] + ([self.order[1]] if self.pair is not None else [])
-        self.later_windows = {j: _windows(bases[j]) for j in later if _windows(bases[j])[0].size > 1}
+        windows = {j: _windows(bases[j]) for j in later}
+        self.later_windows = {j: w for j, w in windows.items() if w[0].size > 1}
         # coordinates whose rows come points last (see rows): all but those of vector-first cores
         self.points_last = {self.order[0]} | ({self.order[1]} if self.pair is not None else set()) | {
             j for j, rows_first, *_ in self.rest if rows_first}
@@ -199,11 +200,7 @@ class _Train:
                 shape = (width, idx.size)
                 rows.append(_rows_points_last(basis, x, lo, width, scratch.get(("rows", j), shape),
                                               scratch.get("rows work", shape)).T)
-            elif width == basis.size:
-                shape = (idx.size, basis.size)
-                rows.append(basis.interpolation_rows(x, scratch.get(("rows", j), shape),
-                                                     scratch.get("rows work", shape)))
-            else:  # a window's rows, points first: the same arithmetic on transposed views
+            else:  # points first: the same arithmetic on transposed views
                 out, work = scratch.get(("rows", j), (idx.size, width)), scratch.get("rows work", (idx.size, width))
                 _rows_points_last(basis, x, lo, width, out.T, work.T)
                 rows.append(out)
