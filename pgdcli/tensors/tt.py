@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .tt_allocate import truncate_allocated
+from .tt_allocate import rank_within, truncate_allocated
 
 __all__ = ["TT", "tt_round", "tt_round_shared", "tt_round_many", "tt_sum", "tt_hadamard", "tt_rank_one",
            "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate", "is_ones"]
@@ -224,9 +224,7 @@ def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None) -> TT
     for k in range(len(cores) - 1):
         r0, n, r1 = cores[k].shape
         u, s, vt = np.linalg.svd(cores[k].reshape(r0 * n, r1), full_matrices=False)
-        # smallest rank whose discarded tail has norm <= delta
-        tail = np.sqrt(np.cumsum((s * s)[::-1]))[::-1]
-        rank = max(1, int(np.sum(tail > delta)))
+        rank = rank_within(s, delta)
         if max_rank is not None:
             rank = min(rank, max_rank)
         cores[k] = u[:, :rank].reshape(r0, n, rank)

@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["bond_spectra", "allocate_ranks", "truncate_allocated"]
+__all__ = ["bond_spectra", "allocate_ranks", "truncate_allocated", "rank_within"]
 
 
 def bond_spectra(cores: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -48,6 +48,12 @@ def bond_spectra(cores: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.nda
         left[k] = u.reshape(r0, n, s.size)
         left[k + 1] = np.tensordot(s[:, None] * vt, left[k + 1], axes=(1, 0))
     return spectra, left
+
+
+def rank_within(s: np.ndarray, delta: float) -> int:
+    """Smallest rank (at least 1) whose dropped singular values (``s`` descending) have norm <= ``delta``."""
+    dropped = np.sqrt(np.cumsum((s * s)[::-1]))[::-1]  # dropped[r]: the norm of s[r:]
+    return max(1, int(np.sum(dropped > delta)))
 
 
 def _values(ranks: Sequence[int], sizes: Sequence[int]) -> int:
@@ -77,9 +83,8 @@ def allocate_ranks(spectra: Sequence[np.ndarray], sizes: Sequence[int], delta: f
         A rank per bond, each at least 1.
     """
     d = len(sizes)
-    tails = [np.sqrt(np.cumsum((s * s)[::-1]))[::-1] for s in spectra]  # tails[k][r]: norm dropped beyond r
     share = delta / np.sqrt(max(d - 1, 1))
-    equal = [max(1, int(np.sum(t > share))) for t in tails]
+    equal = [rank_within(s, share) for s in spectra]
     ranks = [s.size for s in spectra]
     budget = delta * delta
     while True:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pgdcli.tensors.tt import TT, tt_round, tt_round_shared
-from pgdcli.tensors.tt_allocate import allocate_ranks, bond_spectra, truncate_allocated
+from pgdcli.tensors.tt_allocate import allocate_ranks, bond_spectra, rank_within, truncate_allocated
 
 EPS = np.finfo(float).eps
 
@@ -130,3 +130,14 @@ def test_round_refuses_allocate_with_max_rank():
     train, _ = _smooth_tt((3, 4, 3))
     with pytest.raises(ValueError, match="allocate"):
         tt_round(train, absolute=1e-6, allocate=True, max_rank=2)
+
+
+def test_rank_within_is_the_smallest_rank_dropping_at_most_delta():
+    """Against the definition, rank by rank: the norm of what is dropped beyond it."""
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        s = np.sort(rng.random(rng.integers(1, 12)) ** 3)[::-1]
+        delta = float(rng.uniform(0, 1.2 * np.linalg.norm(s)))
+        fits = [r for r in range(1, s.size + 1) if np.linalg.norm(s[r:]) <= delta]
+        assert rank_within(s, delta) == min(fits)
+    assert rank_within(np.zeros(3), 0.0) == 1
