@@ -29,8 +29,9 @@ narrower than the first bond, the first two cores are merged per window beforeha
 into a table of ``(w n_2, r_2)``: per point ``w n_2 r_2`` multiply-adds instead of
 ``w r_1 + r_1 n_2 r_2`` and one product less. A later coordinate of several windows (a
 parameter given slabs by the automatic discretization, or linear elements) is grouped by too
-when the groups stay larger than the blocks: its core then costs a point ``r0 w r1``, not
-``r0 n r1`` (a Brusselator whose rate ``b`` has two slabs of 37 nodes: 1.8x).
+when the multiply-adds saved outweigh the blocks added (a cost model): its core then costs a
+point ``r0 w r1``, not ``r0 n r1`` (a Brusselator whose rate ``b`` has two slabs of 37 nodes:
+1.8x; an SIR model whose contact rate has 444 linear elements: 4.8x).
 
 The values equal those of the core-by-core row-wise contraction
 (:func:`pgdcli.codebook.evaluate.contract_tt`) to rounding: the same sums in another order.
@@ -57,8 +58,12 @@ __all__ = ["TTBatch"]
 # 1.24 / 1.21 / 1.21 s at 126 / 201 / 400 / 600.
 BLOCK_BYTES = 3 << 19
 MIN_BLOCK, MAX_BLOCK = 32, 2048
-# Points per group (on average) below which a later coordinate's windows are not grouped by.
-MIN_GROUP = 64
+# The cost model that decides whether a later coordinate's windows are grouped by (see
+# TTBatch._group_key): seconds per multiply-add in the blocks' products (~25e9 a second on one
+# core here) and per block of points (~50 numpy calls: coupled, 244 against 65 blocks of 1e5
+# points, 147.6 against 140.6 ms: 39 us a block).
+SECONDS_PER_MADD = 4e-11
+SECONDS_PER_BLOCK = 4e-5
 # Slabs up to this many interior breakpoints are found by counting (see _window_of).
 COUNT_BREAKPOINTS = 32
 # Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
@@ -163,9 +168,14 @@ class _Train:
         # later coordinates of several windows (slabs, linear elements; the pair's second one too): a
         # block of points within one window of such a coordinate takes only that window's part of
         # its core or of the pair table (TTBatch.evaluate)
-        later = [j for j, *_ in self.rest] + ([self.order[1]] if self.pair is not None else [])
+        # and the multiply-adds a point costs in each of those cores (or the pair table), all unknowns
+        later = {j: sum(g.size for g in table) if not rows_first else table.size
+                 for j, rows_first, table, *_ in self.rest}
+        if self.pair is not None:
+            later[self.order[1]] = self.pair[0].size
         windows = {j: _windows(bases[j]) for j in later}
         self.later_windows = {j: w for j, w in windows.items() if w[0].size > 1}
+        self.later_madds = {j: later[j] for j in self.later_windows}
         # coordinates whose rows come points last (see rows): all but those of vector-first cores
         self.points_last = {self.order[0]} | ({self.order[1]} if self.pair is not None else set()) | {
             j for j, rows_first, *_ in self.rest if rows_first}
@@ -325,9 +335,9 @@ class TTBatch:
         """Each point's group: its window of the train's first coordinate and of the later
         coordinates worth grouping by, as one mixed-radix integer.
 
-        A later coordinate of several windows is grouped by (most nodes per window first) while
-        the groups keep MIN_GROUP points on average: its core then costs a point ``w / n`` of its
-        multiply-adds, for blocks of fewer points.
+        A later coordinate of several windows is grouped by (the largest saving first) when the
+        multiply-adds it saves (its core then costs a point ``w / n`` of them) outweigh the blocks
+        its windows add, by the cost model of SECONDS_PER_MADD and SECONDS_PER_BLOCK.
 
         Returns
         -------
@@ -341,9 +351,11 @@ class TTBatch:
         first = train.order[0]
         key = _window_of(self.bases[first], flat[first]).astype(np.int64)
         groups, radices = train.starts.size, []
-        later = sorted(train.later_windows.items(), key=lambda item: item[1][1] / self.bases[item[0]].size)
-        for j, (starts, _) in later:
-            if groups * starts.size * MIN_GROUP > size:
+        saved = {j: train.later_madds[j] * (1.0 - width / self.bases[j].size) * size * SECONDS_PER_MADD
+                 for j, (_, width) in train.later_windows.items()}
+        for j in sorted(saved, key=saved.get, reverse=True):
+            starts = train.later_windows[j][0]
+            if saved[j] <= groups * (starts.size - 1) * SECONDS_PER_BLOCK:
                 continue
             key = key * starts.size + _window_of(self.bases[j], flat[j])
             groups *= starts.size

@@ -146,12 +146,12 @@ def test_blocks_and_threads_never_change_a_value(solved, monkeypatch):
 
 @pytest.mark.parametrize("name", sorted(HAND_MADE))
 def test_blocks_grouped_by_later_windows(name, monkeypatch):
-    """Small groups let the batch group points by the windows of later coordinates too (the
+    """Blocks made free let the batch group points by the windows of later coordinates too (the
     slab time and the linear coordinate where they are not first): each block then contracts
     only its windows' parts of those cores and pair tables. Against the independent contraction."""
     import pgdcli.codebook.batch_eval as batch_module
 
-    monkeypatch.setattr(batch_module, "MIN_GROUP", 4)
+    monkeypatch.setattr(batch_module, "SECONDS_PER_BLOCK", 0.0)
     monkeypatch.setattr(batch_module, "MIN_BLOCK", 4)
     monkeypatch.setattr(batch_module, "BLOCK_BYTES", 64)
     cb = HAND_MADE[name]
