@@ -3,7 +3,7 @@
 Every path interpolates each mode (or core) with its coordinate's own basis, so a query at
 the nodes returns the nodal values exactly:
 
-- one point given as numbers: :class:`~pgdcli.codebook.point.PointData` weights per coordinate,
+- one point given as numbers: :class:`~pgdcli.codebook.point_weights.PointData` weights per coordinate,
   the CP modes of all unknowns side by side, the tensor trains through
   :class:`~pgdcli.codebook.point.TTStack`;
 - a batch: CP unknowns chunk by chunk (:meth:`Evaluator.cp_batch`), tensor trains core by core
@@ -25,7 +25,8 @@ import numpy as np
 
 from ..discretization.coordinates import CoordinateInfo
 from .fields import FieldModes, FieldTT
-from .point import PointData, TTStack
+from .point import TTStack
+from .point_weights import PointData
 from .threads import chunk_bounds, chunk_length, one_blas_thread, run_chunks
 
 __all__ = ["Evaluator", "shared_basis", "contract_tt", "grid_tt", "grid_cp", "nodal_tensor"]
@@ -87,10 +88,6 @@ class Evaluator:
     def rows(self, xs: list[float]) -> list[np.ndarray]:
         """Cardinal rows (a unit row at a node) of one point, coordinate by coordinate."""
         return [p.row(p.clipped(x)) for x, p in zip(xs, self.points)]
-
-    def weights(self, xs: list[float]) -> list[tuple]:
-        """:meth:`PointData.weights` of one point, coordinate by coordinate (checked and clipped as rows)."""
-        return [p.weights(p.clipped(x)) for x, p in zip(xs, self.points)]
 
     def tt_point(self, xs: list[float]) -> dict[str, np.ndarray]:
         """Every unknown at one point when :attr:`tt_all` holds them all (0-d arrays)."""

@@ -1,26 +1,25 @@
-"""One point through a codebook: per-coordinate interpolation weights and the tensor-train stack.
+"""One point through the tensor-train unknowns of a codebook: their stacked cores as tables.
 
 A query of one point (``pgd query`` of a few points, a fit's residual) is dominated by call
-overhead, not flops: the classes here precompute, per coordinate, its nodes, barycentric weights
-and windows (:class:`PointData`) and, for the tensor-train unknowns, their cores as contiguous
-tables (:class:`TTStack`), so a point costs one small BLAS call and one batched product per core.
+overhead and by reading the cores, not flops: per coordinate its nodes, barycentric weights and
+windows are precomputed (:class:`pgdcli.codebook.point_weights.PointData`) and the tensor-train
+unknowns' cores laid out as contiguous tables (:class:`TTStack`), so a point costs one small BLAS
+call and one batched product per core.
 numpy only (the query path). Measurements: benchmarks/query_speed_tt.py, benchmarks/README.md.
 """
 
 from __future__ import annotations
 
-from bisect import bisect_right
 from operator import itemgetter
 from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..discretization.coordinates import CoordinateInfo
-from ..errors import QueryError
 from ..pages import huge_page_array
 from .fields import FieldTT
+from .point_weights import PointData, PointWeights
 
-__all__ = ["PointData", "TTStack", "outside_error"]
+__all__ = ["TTStack"]
 
 # One-point tensor trains: cores with up to this many values per node (all unknowns) go through
 # their node table (see TTStack); the gemv's output then fits the first-level cache (32 KiB).
@@ -29,100 +28,6 @@ PAIR_MAX = 1 << 20  # values in the merged table of the first two cores (8 MiB)
 # Tables of more bytes than this lie in one mapping in huge pages (see _Arena).
 HUGE_PAGES_ABOVE = 1 << 20
 _add_reduce, _dot, _matmul = np.add.reduce, np.dot, np.matmul
-
-
-class PointData:
-    """Constants of one coordinate for the one-point path of :meth:`Codebook.evaluate`."""
-
-    __slots__ = ("name", "domain", "low", "high", "lower", "upper", "chebyshev", "nodes", "node_list",
-                 "node_index", "bary", "modes", "basis", "piecewise", "breaks", "slab", "slab_nodes",
-                 "bounds")
-
-    def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
-        low, high = c.domain
-        slack = 1e-12 * max(1.0, abs(low), abs(high))  # as Codebook._checked
-        self.name, self.domain = c.name, c.domain
-        self.low, self.high = float(low), float(high)
-        self.lower, self.upper = low - slack, high + slack
-        self.chebyshev = basis.kind == "chebyshev"
-        self.nodes = basis.nodes
-        self.node_list = basis.nodes.tolist()
-        self.node_index = {v: k for k, v in enumerate(self.node_list)}
-        self.bary = getattr(basis, "bary", None)
-        self.modes = modes
-        self.basis = basis
-        self.piecewise = bool(getattr(basis, "slab_size", 0))
-        self.breaks = list(getattr(basis, "breakpoints", ()))[1:-1]  # interior breakpoints
-        self.slab = int(getattr(basis, "slab_size", 0))
-        # each slab's nodes as its own array: a point's slab costs a list lookup, not a slice
-        self.slab_nodes = [basis.nodes[s * (self.slab - 1): s * (self.slab - 1) + self.slab]
-                           for s in range(len(self.breaks) + 1)] if self.piecewise else []
-        self.bounds = self.window_bounds()
-
-    def clipped(self, x: float) -> float:
-        """``x`` checked against the domain (with its slack) and clipped into it, as the batch path."""
-        if not (x >= self.lower and x <= self.upper):
-            raise outside_error(self, x)
-        x = x if x > self.low else self.low
-        return x if x < self.high else self.high
-
-    def row(self, x: float) -> np.ndarray:
-        """The cardinal row (a unit row at a node) of the clipped value ``x``, shape (nodes,)."""
-        k, c = self.weights(x)
-        if c is None:
-            row = np.zeros(self.nodes.size)  # not rows of an identity: a march's time basis has ~1e5 nodes
-            row[k] = 1.0
-            return row
-        if self.chebyshev and not self.piecewise:
-            return c / _add_reduce(c)
-        lo, hi = self.bounds[k]
-        row = np.zeros(self.nodes.size)
-        row[lo:hi] = c / _add_reduce(c) if self.piecewise else c  # linear: (1 - theta, theta) as they are
-        return row
-
-    def windows(self, table: np.ndarray) -> list[np.ndarray]:
-        """The row blocks of ``table`` (one row per node) that :meth:`weights` selects.
-
-        One block for a Chebyshev coordinate, one per slab for a piecewise one,
-        one per element (two nodes) for a linear one. Row slices of a C-ordered
-        table: contiguous views, so BLAS takes them as they are.
-        """
-        return [table[lo:hi] for lo, hi in self.window_bounds()]
-
-    def window_bounds(self) -> list[tuple[int, int]]:
-        """Node ranges ``(lo, hi)`` of the windows (see :meth:`windows`)."""
-        if self.piecewise:
-            step = self.slab - 1
-            return [(s * step, s * step + self.slab) for s in range(len(self.slab_nodes))]
-        if self.chebyshev:
-            return [(0, len(self.node_list))]
-        return [(k, k + 2) for k in range(len(self.node_list) - 1)]
-
-    def weights(self, x: float) -> tuple[int, np.ndarray | None]:
-        """Interpolation weights of the clipped value ``x``, not divided by their sum.
-
-        Returns
-        -------
-        (k, None)
-            ``x`` is node ``k`` (its row is the unit row ``k``).
-        (k, c)
-            The row is ``c / c.sum()`` on the nodes of window ``k`` of :meth:`windows`
-            (barycentric weights ``bary / (x - nodes)``, or ``(1 - theta, theta)``).
-            The caller divides once by the product of the sums over all coordinates,
-            which saves a reduction and a division per coordinate.
-        """
-        k = self.node_index.get(x)
-        if k is not None:
-            return k, None
-        if self.piecewise:  # the slab of x (a breakpoint is a node: handled above)
-            s = bisect_right(self.breaks, x)
-            return s, self.bary / (x - self.slab_nodes[s])
-        if self.chebyshev:
-            return 0, self.bary / (x - self.nodes)
-        nodes = self.node_list
-        left = min(max(bisect_right(nodes, x) - 1, 0), len(nodes) - 2)
-        theta = (x - nodes[left]) / (nodes[left + 1] - nodes[left])
-        return left, np.array((1.0 - theta, theta))
 
 
 class _Arena:
@@ -178,6 +83,7 @@ class TTStack:
         self.index = {u: i for i, u in enumerate(names)}
         self.order = order
         self.points = list(points)
+        self.weights = PointWeights(self.points)
         head = 2 if len(cores) > 1 and self._merges(cores[0], cores[1], points[order[0]]) else 1
         # the last two cores, reversed, merge as the first two do (the tail's first product)
         ends = [c.transpose(0, 3, 2, 1) for c in (cores[-1], cores[-2])] if len(cores) - head >= 2 else []
@@ -289,7 +195,7 @@ class TTStack:
                 weights[j] = p.weights(p.clipped(xs[j]))
             tail, tail_scale = cache[1], cache[2]
         else:
-            weights = [p.weights(p.clipped(x)) for x, p in zip(xs, points)]
+            weights = self.weights(xs)
             tail, tail_scale = self._at_tail(weights)
             self._cache = (key, tail, tail_scale)  # one assignment: other threads see old or new
         if self.pair is not None:
@@ -331,7 +237,7 @@ class TTStack:
         return v, scale
 
     @classmethod
-    def build(cls, fields: Mapping, points: Sequence) -> "TTStack | None":
+    def build(cls, fields: Mapping, points: Sequence[PointData]) -> "TTStack | None":
         """The stack of the tensor-train unknowns that share the first one's core order (None: no train).
 
         Parameters
@@ -357,10 +263,3 @@ class TTStack:
                 stack[i, : c.shape[0], :, : c.shape[2]] = c
             cores.append(stack)
         return cls(names, cores, order, points)
-
-
-def outside_error(p: PointData, x: float) -> QueryError:
-    """The out-of-domain error of one point (the batch path's message)."""
-    low, high = p.domain
-    return QueryError(f"coordinate {p.name!r}: value {x!r} is outside the domain [{low:g}, {high:g}]")
-
