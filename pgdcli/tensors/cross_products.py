@@ -31,6 +31,8 @@ import numpy as np
 
 from .cross import maxvol, tt_values_at
 from .tt import TT, is_ones, tt_round
+from .tt_allocate import rank_within
+from .tt_svd import RELATIVE_FLOOR
 
 __all__ = ["ProductCross", "CrossOfProducts", "round_products_by_cross"]
 
@@ -72,11 +74,7 @@ def _right_interface(x: TT, rows: np.ndarray, k: int) -> np.ndarray:
 def _truncated_basis(block: np.ndarray, threshold: float) -> np.ndarray:
     """Orthonormal columns spanning ``block`` up to a discarded tail of norm <= threshold."""
     u, s, _ = np.linalg.svd(block, full_matrices=False)
-    if s.size == 0 or s[0] == 0.0:
-        return u[:, :1]
-    tail = np.sqrt(np.cumsum((s * s)[::-1]))[::-1]
-    rank = max(1, int(np.sum((tail > threshold) & (s > 1e-14 * s[0]))))
-    return u[:, :rank]
+    return u[:, :rank_within(s, threshold, RELATIVE_FLOOR)]
 
 
 class ProductCross:

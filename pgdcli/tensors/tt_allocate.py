@@ -50,10 +50,14 @@ def bond_spectra(cores: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.nda
     return spectra, left
 
 
-def rank_within(s: np.ndarray, delta: float) -> int:
-    """Smallest rank (at least 1) whose dropped singular values (``s`` descending) have norm <= ``delta``."""
+def rank_within(s: np.ndarray, delta: float, floor: float = 0.0) -> int:
+    """Smallest rank (at least 1) whose dropped singular values (``s`` descending) have norm <= ``delta``,
+    every value at most ``floor * s[0]`` dropped too (rounding noise, when ``floor`` is ~1e-14)."""
     dropped = np.sqrt(np.cumsum((s * s)[::-1]))[::-1]  # dropped[r]: the norm of s[r:]
-    return max(1, int(np.sum(dropped > delta)))
+    keep = dropped > delta
+    if floor > 0.0 and s.size:
+        keep &= s > floor * s[0]
+    return max(1, int(np.sum(keep)))
 
 
 def _values(ranks: Sequence[int], sizes: Sequence[int]) -> int:

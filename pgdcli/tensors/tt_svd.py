@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from .tt import TT
+from .tt_allocate import rank_within
 
 __all__ = ["RELATIVE_FLOOR", "tt_from_full", "tt_from_full_sketched", "thin_svd", "truncation_rank"]
 
@@ -59,11 +60,7 @@ def thin_svd(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def truncation_rank(s: np.ndarray, delta: float) -> int:
     """Smallest rank whose discarded singular values have norm <= delta (and above the floor)."""
-    if s.size == 0 or s[0] == 0.0:
-        return 1
-    tail = np.sqrt(np.cumsum((s * s)[::-1]))[::-1]
-    keep = (tail > delta) & (s > RELATIVE_FLOOR * s[0])
-    return max(1, int(np.sum(keep)))
+    return rank_within(s, delta, RELATIVE_FLOOR)
 
 
 def tt_from_full_sketched(values: np.ndarray, absolute: float, rng: np.random.Generator,

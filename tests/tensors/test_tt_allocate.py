@@ -141,3 +141,17 @@ def test_rank_within_is_the_smallest_rank_dropping_at_most_delta():
         fits = [r for r in range(1, s.size + 1) if np.linalg.norm(s[r:]) <= delta]
         assert rank_within(s, delta) == min(fits)
     assert rank_within(np.zeros(3), 0.0) == 1
+
+
+def test_rank_within_drops_values_under_the_floor_even_when_delta_keeps_them():
+    """Against the definition: the smallest rank within delta, capped by the count of values above the floor."""
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        s = np.sort(10.0 ** rng.uniform(-18, 0, rng.integers(1, 12)))[::-1]
+        delta = float(rng.choice([0.0, 1e-17, 1e-9]))
+        floor = float(rng.choice([1e-14, 1e-6]))
+        fits = min(r for r in range(1, s.size + 1) if np.linalg.norm(s[r:]) <= delta)
+        above = int(np.sum(s > floor * s[0]))
+        assert rank_within(s, delta, floor) == max(1, min(fits, above))
+    assert rank_within(np.zeros(4), 0.0, 1e-14) == 1
+    assert rank_within(np.zeros(0), 0.0, 1e-14) == 1
