@@ -83,7 +83,7 @@ class TTStack:
         self.index = {u: i for i, u in enumerate(names)}
         self.order = order
         self.points = list(points)
-        self.weights = PointWeights(self.points)
+        self.weights_of = PointWeights(self.points).of  # a point's weights on every coordinate
         head = 2 if len(cores) > 1 and self._merges(cores[0], cores[1], points[order[0]]) else 1
         # the last two cores, reversed, merge as the first two do (the tail's first product)
         ends = [c.transpose(0, 3, 2, 1) for c in (cores[-1], cores[-2])] if len(cores) - head >= 2 else []
@@ -195,7 +195,7 @@ class TTStack:
                 weights[j] = p.weights(p.clipped(xs[j]))
             tail, tail_scale = cache[1], cache[2]
         else:
-            weights = self.weights(xs)
+            weights = self.weights_of(xs)
             tail, tail_scale = self._at_tail(weights)
             self._cache = (key, tail, tail_scale)  # one assignment: other threads see old or new
         if self.pair is not None:

@@ -144,12 +144,20 @@ class PointWeights:
                        for members in by_count.values() if len(members) > 1]
         grouped = {j for members, *_ in self.groups for j in members}
         self.alone = [j for j in range(len(self.points)) if j not in grouped]
+        #: ``of(xs)``: the weights (see :meth:`__call__`), the plain loop when nothing is grouped
+        self.of = self._grouped if self.groups else self._each
 
     def __call__(self, xs: Sequence[float]) -> list[tuple[int, np.ndarray | None]]:
         """Weights ``(k, c)`` per coordinate (see :meth:`PointData.weights`) of the values ``xs``.
 
         Raises QueryError for the first coordinate (codebook order) outside its domain.
         """
+        return self.of(xs)
+
+    def _each(self, xs: Sequence[float]) -> list:
+        return [p.weights(p.clipped(x)) for x, p in zip(xs, self.points)]
+
+    def _grouped(self, xs: Sequence[float]) -> list:
         points = self.points
         xs = [p.clipped(x) for x, p in zip(xs, points)]
         out: list = [None] * len(points)
