@@ -40,7 +40,7 @@ from .compare import codebook_at_samples, codebook_on_space_grid
 from .sampling import BETWEEN, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
 
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
-           "points_text", "unchecked"]
+           "ordinal", "points_text", "unchecked"]
 
 @dataclass
 class CheckResult:
@@ -123,6 +123,12 @@ def points_text(n: int) -> str:
     return f"{n} check point" + ("s" if n != 1 else "")
 
 
+def ordinal(n: int) -> str:
+    """``"1st"``, ``"2nd"``, ``"3rd"``, ``"4th"``, ``"11th"``, ``"22nd"``."""
+    suffix = "th" if n % 100 in (11, 12, 13) else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
+
 def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float):
     """Reference values ``{unknown: (S, T)}`` and a success mask ``(S,)``.
 
@@ -174,9 +180,10 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     approx = codebook_at_samples(codebook, points, time, times, unknowns)
     err, ratio, per_unknown = error_and_ratio(reference, approx, ok, tol, relative_tolerance)
     all_nodes = codebook.coordinate(time).basis().nodes.size
+    stride = ordinal(checked_time_nodes(np.empty(all_nodes))[1])
     which = ("every time node and the midpoints between them" if int(time_node.sum()) == all_nodes else
-             f"{int(time_node.sum())} of the {all_nodes} time nodes (every {checked_time_nodes(np.empty(all_nodes))[1]}th, "
-             f"the last) and the midpoints after them")
+             f"{int(time_node.sum())} of the {all_nodes} time nodes (every {stride}, the last) and the midpoints "
+             f"after them")
     method = (f"DOP853 (rtol = atol = {rtol:.0e}) at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
               f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes; {which}")
     if not ok.any():

@@ -118,7 +118,10 @@ def grid_axes(args: list[str], cb) -> list:
 def check_domain(c, values) -> None:
     import numpy as np
 
-    bad = ~np.isfinite(values) | (values < c.domain[0]) | (values > c.domain[1])
+    finite = np.isfinite(values)
+    if not finite.all():  # as a points file's cell: not a number, not a value outside the domain
+        raise QueryError(f"coordinate '--{c.name}': {float(values[~finite][0])!r} is not a finite number")
+    bad = (values < c.domain[0]) | (values > c.domain[1])
     if bad.any():
         raise QueryError(f"coordinate '--{c.name}': value {float(values[bad][0])!r} is outside the domain "
                          f"[{c.domain[0]:g}, {c.domain[1]:g}]")

@@ -146,10 +146,10 @@ def read_points(handle, source: str, cb):
                 cell = row[j] if len(row[j]) <= 40 else row[j][:37] + "..."
                 raise QueryError(f"{source}: line {number}: column {c.name!r}: not a number: {cell!r}") from None
             if x != x or x in (float("inf"), float("-inf")):
-                raise QueryError(f"{source}: line {number}: coordinate '--{c.name}': {row[j].strip()!r} is not "
+                raise QueryError(f"{source}: line {number}: column {c.name!r}: {row[j].strip()!r} is not "
                                  f"a finite number")
             if not (c.domain[0] <= x <= c.domain[1]):
-                raise QueryError(f"{source}: line {number}: coordinate '--{c.name}': value {x!r} is outside "
+                raise QueryError(f"{source}: line {number}: column {c.name!r}: value {x!r} is outside "
                                  f"the domain [{c.domain[0]:g}, {c.domain[1]:g}]")
             point.append(x)
         chunk.append(tuple(point))

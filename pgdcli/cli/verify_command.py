@@ -10,6 +10,14 @@ import click
 
 from .group import Failed, cli, run_command, stderr_console
 
+
+class _MethodChoice(click.Choice):
+    """Methods matched in any case and named in an error as the help spells them (click names them
+    lowercased: 'dop853', 'rk45')."""
+
+    def get_invalid_choice_message(self, value, ctx) -> str:
+        return f"{value!r} is not one of {', '.join(map(repr, self.choices))}."
+
 VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.reference.METHODS (no numpy import here)
 
 
@@ -28,7 +36,7 @@ VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.re
                    "the samples and corners.")
 @click.option("--times", "n_times", type=click.IntRange(min=0), default=16, show_default=True, metavar="N",
               help="Random times, checked in addition to every node of the time coordinate.")
-@click.option("--method", type=click.Choice(VERIFY_METHODS, case_sensitive=False), default="DOP853",
+@click.option("--method", type=_MethodChoice(VERIFY_METHODS, case_sensitive=False), default="DOP853",
               metavar="[" + "|".join(VERIFY_METHODS) + "]", show_default=True, help="solve_ivp method of the reference (Radau, BDF or LSODA for stiff problems).")
 @click.option("--rtol", type=click.FloatRange(0, 1, min_open=True, max_open=True),
               help="Relative tolerance of the reference [default: 1e-12; 1e-10 with space coordinates].")
@@ -113,6 +121,8 @@ def _verify_with_progress(console, codebook, verify_codebook, options):
 def _verify_tables(report, max_error, max_rel_error) -> list:
     from rich.table import Table
 
+    from ..checks.check import ordinal
+
     def number(value):
         return "n/a" if not math.isfinite(value) else f"{value:.3e}"
 
@@ -126,7 +136,7 @@ def _verify_tables(report, max_error, max_rel_error) -> list:
     if report.time is None:
         caption = f"{where}, steady; reference: Chebyshev collocation, sparse direct solve, {s['jobs']} job(s), "
     else:
-        nodes = (f"{s['time_nodes']} of {s['time_nodes_total']} nodes, every {s['time_node_stride']}th"
+        nodes = (f"{s['time_nodes']} of {s['time_nodes_total']} nodes, every {ordinal(s['time_node_stride'])}"
                  if "time_nodes_total" in s else f"{s['time_nodes']} nodes")
         caption = (f"{where} x {s['times']} times ({nodes} + {s['random_times']} random); "
                    f"reference {s['method']} rtol {s['rtol']:.0e} atol {s['atol']:.0e}, {s['jobs']} job(s), ")

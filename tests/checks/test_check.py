@@ -260,3 +260,9 @@ def test_checked_time_nodes_are_all_of_them_or_every_kth_and_the_last():
         picked, stride = checked_time_nodes(np.linspace(0.0, 1.0, n))
         assert picked[0] == 0 and picked[-1] == n - 1 and picked.size <= CHECK_TIME_NODES + 1
         assert np.all(np.diff(picked)[:-1] == stride) and 0 < np.diff(picked)[-1] <= stride
+
+
+@pytest.mark.parametrize("n,text", [(1, "1st"), (2, "2nd"), (3, "3rd"), (4, "4th"), (11, "11th"), (12, "12th"),
+                                    (13, "13th"), (21, "21st"), (22, "22nd"), (101, "101st"), (111, "111th")])
+def test_ordinal_of_a_time_node_stride(n, text):
+    assert check.ordinal(n) == text

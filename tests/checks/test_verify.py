@@ -261,7 +261,7 @@ def test_codebook_without_spec_is_invalid_input(tmp_path):
         (["{cb}", "--max-rel-error", "nan"], None, "--max-rel-error"),
         (["{cb}", "--times", "-2"], None, "--times"),
         (["{cb}", "--jobs", "0"], None, "--jobs"),
-        (["{cb}", "--method", "Euler"], None, "--method"),
+        (["{cb}", "--method", "Euler"], None, "'Euler' is not one of 'DOP853', 'RK45', 'Radau', 'BDF', 'LSODA'"),
         (["{cb}", "--points", "{points}"], "k,c,z\n1,0.2,3\n", "unknown column 'z'"),
         (["{cb}", "--points", "{points}"], "t,k,c\n1,1,0.2\n", "time coordinate"),
         (["{cb}", "--points", "{points}"], "k\n1\n", "missing column"),

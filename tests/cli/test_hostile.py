@@ -152,9 +152,9 @@ def test_f2_points_are_read_lazily(codebook_path):
 @pytest.mark.parametrize("data,needles", [
     (b"\xff\xfet,k,c\n1,2,0.3\n", ["line 1", "UTF-8"]),
     (b"t,k,c\n1,2,0.3\n1,\xff,0.3\n", ["line 3", "UTF-8"]),
-    (b"t,k,c\n1,2,0.3\n1,nan,0.3\n", ["line 3", "'--k'", "finite"]),
-    (b"t,k,c\n1,2,0.3\n\n1,2,inf\n", ["line 4", "'--c'", "finite"]),  # blank lines count
-    (b"t,k,c\n1,2,0.3\n1,2,7\n", ["line 3", "'--c'", "7.0", "[0.1, 0.5]"]),
+    (b"t,k,c\n1,2,0.3\n1,nan,0.3\n", ["line 3", "column 'k'", "finite"]),
+    (b"t,k,c\n1,2,0.3\n\n1,2,inf\n", ["line 4", "column 'c'", "finite"]),  # blank lines count
+    (b"t,k,c\n1,2,0.3\n1,2,7\n", ["line 3", "column 'c'", "7.0", "[0.1, 0.5]"]),
     (b"t,k,c\n1,2,\x000.3\n", ["line 2"]),
     (b"t,k,c\n" + b"1" * 70000 + b"\n", ["line 2", "longer"]),
 ])
