@@ -305,7 +305,7 @@ def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0
     attempts = []
     notes = []
     for _ in range(CHECK_ATTEMPTS):
-        result = marcher(problem, target, callback=callback)
+        result = marcher(problem, target, callback=callback, learned=learned)
         if not result.converged:
             if kept is None:
                 # the report speaks of the user's tolerance; the march's own target beside it

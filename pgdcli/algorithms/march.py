@@ -64,9 +64,12 @@ CROSS_BY_DEFAULT = True
 #: From this many state values (grid nodes x unknowns) on, ``auto`` tries the cross march first on a grid the
 #: grid march could take, with a budget of ``CROSS_BUDGET`` trajectories per grid node (measured,
 #: benchmarks/README.md: the cross is 1.5x faster on coupled.yaml at 40^3 nodes, 7.5x on a 5-D pendulum at
-#: 16^5; it needs more trajectories than the grid has nodes on the rigid body at 8^6 and 1e-6)
+#: 16^5; it needs more trajectories than the grid has nodes on the rigid body at 8^6 and 1e-6). A
+#: trajectory of the cross costs a fifth to a sixth of a node of the grid march (rigid body 4.3 against
+#: 21 us, a Lotka-Volterra model 56 against 367 us): the budget stops the cross about where it has cost
+#: what the grid march will (that model's cross converges at 5.1 a node, 157 s against 200 s).
 CROSS_FIRST_VALUES = 2 ** 17
-CROSS_BUDGET = 4
+CROSS_BUDGET = 5
 
 
 class MarchFailure(Exception):
@@ -205,8 +208,14 @@ def _check_caps(trial: TrialStep, max_rank: int, max_norm: float, t: float, y: l
         raise MarchFailure("the solution blows up", t, y)
 
 
-def solve_march(problem, tolerance: float, callback=None):
+def solve_march(problem, tolerance: float, callback=None, learned: dict | None = None):
     """Solve a (nonlinear) problem by the separated time march; see :func:`pgdcli.driver.solve`.
+
+    ``learned`` (updated) carries what one solve of the automatic resolution learned to the next
+    on a finer grid: ``"cross_abandoned"``, the message of a cross march that ran past its budget
+    of trajectories. A finer grid asks the cross for more trajectories a node, not fewer (an unseen
+    Lotka-Volterra model: 3.6 a node at 65^3 nodes, 5.1 at 129 x 65^2), so from then on the grid
+    march takes any grid it can hold at once.
 
     Returns
     -------
@@ -234,12 +243,17 @@ def solve_march(problem, tolerance: float, callback=None):
     check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
     nodes = int(np.prod(system.shape))
     fits, first = fits_grid(system), nodes * len(system.unknowns) >= CROSS_FIRST_VALUES
-    if march_state == "cross" or (march_state == "auto" and CROSS_BY_DEFAULT and (first or not fits)):
+    abandoned = (learned or {}).get("cross_abandoned")
+    if abandoned and fits and march_state == "auto":
+        last["cross_abandoned"] = f"in an earlier solve of the automatic resolution: {abandoned}"
+    elif march_state == "cross" or (march_state == "auto" and CROSS_BY_DEFAULT and (first or not fits)):
         # auto on a grid the grid march could take: the cross gets a budget, and the grid march what it left
         budget = CROSS_BUDGET * nodes if march_state == "auto" and fits else None
         found = _solve_by_cross(problem, system, tolerance, separations, progress, slab_nodes, started, last, budget)
         if found is not None:
             return found
+        if learned is not None:
+            learned["cross_abandoned"] = last["cross_abandoned"]
     if march_state == "grid" or (march_state == "auto" and fits):
         return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started, last)
     failure = None

@@ -29,8 +29,10 @@ __all__ = ["solve_pde_march", "SLAB_NODES"]
 SLAB_NODES = 5
 
 
-def solve_pde_march(problem, tolerance: float, callback=None):
+def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | None = None):
     """March a nonlinear PDE in one space coordinate; see :func:`pgdcli.driver.solve`.
+
+    ``learned``: as :func:`pgdcli.algorithms.march.solve_march`'s (nothing to carry here).
 
     Returns
     -------

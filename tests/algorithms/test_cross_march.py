@@ -203,6 +203,29 @@ def test_auto_gives_a_grid_the_cross_first_and_the_grid_march_what_it_left(monke
     assert "more than the budget of 0" in result.codebook.report["cross_abandoned"]
 
 
+def test_a_cross_abandoned_in_one_solve_is_not_tried_again_in_the_next(monkeypatch):
+    """What a solve of the automatic resolution learned (``learned``) sends the next one to the grid march."""
+    from pgdcli.algorithms import march
+
+    problem = parse_spec(DUFFING.replace("  march: cross\n", ""), source="duffing4.yaml")
+    monkeypatch.setattr(march, "CROSS_FIRST_VALUES", 1000)
+    monkeypatch.setattr(march, "CROSS_BUDGET", 0)
+    crosses = []
+    real = march.march_by_cross
+    monkeypatch.setattr(march, "march_by_cross", lambda *a, **k: crosses.append(1) or real(*a, **k))
+    learned: dict = {}
+    first = march.solve_march(problem, 1e-6, learned=learned)
+    assert first.converged and first.codebook.report["march"] == "grid" and len(crosses) == 1
+    assert "more than the budget of 0" in learned["cross_abandoned"]
+    second = march.solve_march(problem, 1e-6, learned=learned)
+    assert second.converged and second.codebook.report["march"] == "grid" and len(crosses) == 1
+    assert second.codebook.report["cross_abandoned"].startswith("in an earlier solve of the automatic resolution")
+    for u in ("x", "v"):  # the same grid march, with or without the cross before it
+        assert np.array_equal(first.codebook.fields[u].cores[1], second.codebook.fields[u].cores[1])
+    march.solve_march(problem, 1e-6)  # nothing learned: the cross is tried
+    assert len(crosses) == 2
+
+
 def test_info_tells_how_the_cross_march_built_it(tmp_path):
     from click.testing import CliRunner
 
