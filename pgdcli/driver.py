@@ -292,7 +292,8 @@ def _checked_march(problem, *, tolerance: float, relative_tolerance: float = 0.0
     as a bound on the max abs error, and this is where it is made one (see
     :mod:`pgdcli.checks.check`). Errors between the parameter nodes (interpolation) do not
     fall with a tighter march: they are for :mod:`pgdcli.adapt` (more nodes).
-    ``learned`` (updated) carries the target that met the tolerance at the nodes to the next call.
+    ``learned`` (updated) carries the target that met the tolerance at the nodes to the next call, and
+    whether a cross march was abandoned (:func:`pgdcli.algorithms.march.solve_march`).
     """
     from .algorithms.march import solve_march
     from .algorithms.pde_solve import solve_pde_march
