@@ -21,7 +21,8 @@ are reported apart, so that the gate can name what is missing:
   and grid nodes on edges and faces, at the time nodes: the solver's own error,
   which a tighter solve reduces (``node_ratio``);
 * per parameter coordinate, :data:`~pgdcli.checks.sampling.LINE` points off the nodes in that coordinate
-  only, the others at nodes: that coordinate's interpolation error, which only
+  only, the others at nodes, and one from each corner of the others' box (up to
+  :data:`~pgdcli.checks.sampling.CORNER_LINES`): that coordinate's interpolation error, which only
   more nodes in it reduce (``coordinate_ratio[name]``);
 * the node points at the midpoints between time nodes: the time interpolation
   error (``coordinate_ratio[time]``);
@@ -37,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .compare import codebook_at_samples, codebook_on_space_grid
-from .sampling import BETWEEN, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
+from .sampling import BETWEEN, CORNER_LINES, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
 
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
            "ordinal", "points_text", "unchecked"]
@@ -185,7 +186,8 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
              f"{int(time_node.sum())} of the {all_nodes} time nodes (every {stride}, the last) and the midpoints "
              f"after them")
     method = (f"DOP853 (rtol = atol = {rtol:.0e}) at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
-              f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes; {which}")
+              f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes and one from each "
+              f"corner of the others (up to {CORNER_LINES}); {which}")
     if not ok.any():
         return CheckResult(float("nan"), float("nan"), float("nan"), 0, int(ok.size), {}, per_unknown,
                            tolerance=tol, relative_tolerance=relative_tolerance, method=method)

@@ -66,6 +66,29 @@ def test_sample_has_every_corner_within_the_budget_and_a_subset_beyond(solved, m
     assert 16 <= len(corners()) < 64  # a seeded subset (face points may land on more corners)
 
 
+@pytest.mark.parametrize("name,limit", [("coupled", 64), ("rigid_body", 64), ("rigid_body", 8)])
+def test_lines_run_off_the_nodes_of_each_coordinate_from_every_corner_of_the_others(solved, monkeypatch, name,
+                                                                                      limit):
+    """Per coordinate, one point off its nodes from each corner of the other coordinates' box (a subset
+    of CORNER_LINES beyond): where an unseen SEIRS model's interpolation error in E0 peaked."""
+    monkeypatch.setattr(sampling, "CORNER_LINES", limit)
+    cb = solved(name).codebook
+    problem = load_spec(PROBLEMS / f"{name}.yaml")
+    names = [c.name for c in problem.parameter_coordinates]
+    points, line = sampling.line_sample(problem, cb)
+    for j, n in enumerate(names):
+        others = [o for o in names if o != n]
+        rows = line == j
+        off = ~np.isin(points[n][rows], cb.coordinate(n).basis().nodes)
+        assert off.all()  # every point of the coordinate's line is off its nodes
+        ends = np.column_stack([np.isin(points[o][rows], problem.coordinate(o).domain) for o in others])
+        at_corner = np.column_stack([points[o][rows] for o in others])[ends.all(axis=1)]
+        corners = {tuple(c) for c in at_corner}
+        assert len(corners) >= min(2 ** len(others), limit)  # all corners of the others, or a subset of `limit`
+        if 2 ** len(others) > limit:
+            assert len(corners) <= limit + sampling.LINE  # the random lines may land on a few corners too
+
+
 def test_measured_error_is_the_true_error_of_the_codebook(solved):
     """check_codebook against the exact logistic solution at the same points and times."""
     result = solved("logistic")

@@ -80,6 +80,38 @@ def test_accurate_or_honestly_refused(name):
     assert true > tol
 
 
+def _seirs(t, y, p):
+    s, e, i, r = y
+    return [-p["beta"] * s * i + p["omega"] * r, p["beta"] * s * i - p["sigma"] * e, p["sigma"] * e - p["gamma"] * i,
+            p["gamma"] * i - p["omega"] * r]
+
+
+@pytest.mark.slow
+def test_an_error_peak_at_the_ends_of_five_coordinates_is_seen_by_the_gate():
+    """The SEIRS model's interpolation error in E0 peaks with the others at ends of their domains: the
+    gate's lines from every corner of the others see it, and the automatic resolution refines E0."""
+    problem = pgdcli.parse_spec((HERE / "seirs_wide.yaml").read_text(), source="seirs_wide.yaml")
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    cb = result.codebook
+    tol = problem.solver.tolerance
+    times = np.linspace(0.0, 20.0, 41)
+    nodes = cb.coordinate("E0").basis().nodes
+    rng = np.random.default_rng(5)
+    face = {"sigma": 0.5, "gamma": 0.3, "omega": 0.05, "I0": 0.001}  # where the 9-node codebook was 1.4x off
+    points = [{**face, "beta": beta, "E0": float(e0)} for beta in (1.0, 1.12, 3.0)
+              for e0 in 0.5 * (nodes[1:] + nodes[:-1])]
+    points += [{c.name: float(rng.choice(c.domain)) if rng.random() < 0.5 else float(rng.uniform(*c.domain))
+                for c in cb.coordinates if c.name != "t"} for _ in range(60)]  # half the coordinates at ends
+    worst = 0.0
+    for p in points:
+        y0 = [1.0 - p["E0"] - p["I0"], p["E0"], p["I0"], 0.0]
+        ref = solve_ivp(_seirs, (0.0, 20.0), y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=times, args=(p,)).y
+        got = cb.evaluate({"t": times, **{n: np.full(times.size, v) for n, v in p.items()}})
+        worst = max(worst, *(float(np.max(np.abs(got[u] - ref[k]))) for k, u in enumerate(cb.unknown_names)))
+    assert worst <= tol, worst
+
+
 def test_advection_diffusion_is_refused_with_its_residual(tmp_path):
     """Advection moves the solution with a: the enrichment reaches max_modes; exit 1, nothing written."""
     from click.testing import CliRunner
