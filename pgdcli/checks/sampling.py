@@ -291,11 +291,7 @@ def check_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray
     rng = np.random.default_rng([seed, 11])
     m = len(names)
     last = [len(x) - 1 for x in nodes]
-    if 2**m <= CORNERS:
-        ends = (np.arange(2**m)[:, None] >> np.arange(m)[None, :]) & 1
-    else:
-        ends = np.unique(rng.integers(0, 2, size=(4 * CORNERS, m)), axis=0)
-        ends = ends[rng.permutation(ends.shape[0])[:CORNERS]]
+    ends = _corners(m, rng, CORNERS)
     corner_index = np.where(ends == 1, last, 0)
     face_index = np.column_stack([rng.integers(0, len(x), FACE_NODES) for x in nodes])
     on_end = rng.random((FACE_NODES, m)) < 0.5
@@ -340,7 +336,7 @@ def line_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray]
                 ends = rng.random(size) < 0.5
                 cols[n2].append(np.where(ends, x2[np.where(rng.random(size) < 0.5, 0, len(x2) - 1)], x2[idx]))
         others = [(n2, x2) for n2, x2 in zip(names, nodes) if n2 != n]
-        ends = _corners(len(others), corner_rng)
+        ends = _corners(len(others), corner_rng, CORNER_LINES)
         k = corner_rng.integers(0, len(x) - 1, ends.shape[0])
         cols[n].append(x[k] + (x[k + 1] - x[k]) * (0.5 + corner_rng.uniform(-0.25, 0.25, k.size)))
         for i, (n2, x2) in enumerate(others):
@@ -350,14 +346,15 @@ def line_sample(problem, codebook, seed: int = 0) -> tuple[dict[str, np.ndarray]
     return points, np.repeat(np.arange(len(names)), counts)
 
 
-def _corners(m: int, rng) -> np.ndarray:
-    """Corners of an m-D box as 0/1 rows: all, or :data:`CORNER_LINES` seeded distinct ones (none for m = 0)."""
+def _corners(m: int, rng, limit: int) -> np.ndarray:
+    """Corners of an m-D box as 0/1 rows: all of them, or ``limit`` distinct ones drawn from ``rng`` (none
+    for m = 0)."""
     if m == 0:
         return np.zeros((0, 0), dtype=int)
-    if 2**m <= CORNER_LINES:
+    if 2**m <= limit:
         return (np.arange(2**m)[:, None] >> np.arange(m)[None, :]) & 1
-    ends = np.unique(rng.integers(0, 2, size=(4 * CORNER_LINES, m)), axis=0)
-    return ends[rng.permutation(ends.shape[0])[:CORNER_LINES]]
+    ends = np.unique(rng.integers(0, 2, size=(4 * limit, m)), axis=0)
+    return ends[rng.permutation(ends.shape[0])[:limit]]
 
 
 def _line_intervals(info, x: np.ndarray, rng) -> np.ndarray:
