@@ -413,3 +413,21 @@ def test_an_enrichment_stopped_by_max_modes_is_named_not_blamed_on_nodes():
     with threadpool_limits(1):
         enough = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 60\n", source="enough.yaml"))
     assert enough.accurate is True
+
+
+@pytest.mark.parametrize("measured,tail,says", [
+    (2.0, 7.3, "its Chebyshev tail estimates an error between its nodes of 7.3 x the tolerance"),
+    (7.3, 2.0, "error between its nodes 7.3 x the tolerance"),
+])
+def test_a_refusal_says_whether_a_coordinates_error_was_measured_or_estimated(measured, tail, says):
+    """The larger of the error measured off the coordinate's nodes and its Chebyshev tail is quoted, as what it is
+    (a 7-coordinate kinetics model's refusal quoted its tail, 7.3x, as the error between its nodes)."""
+    from pgdcli.adapt import _refusal
+    from pgdcli.checks.check import CheckResult
+
+    problem = parse_spec(COARSE, source="coarse.yaml")
+    check = CheckResult(4e-6, 1e-7, 4e-6, 200, 0, {}, {}, ratio=4.0, node_ratio=0.1, between_ratio=4.0,
+                        coordinate_ratio={"t": 0.1, "k": measured}, tail_ratio={"k": tail}, tolerance=1e-6,
+                        method="DOP853")
+    text = _refusal(problem, check, True, {})
+    assert text == f"coordinate 'k' lacks resolution ({says}; it has nodes: 5; add nodes or write 'nodes: auto')"
