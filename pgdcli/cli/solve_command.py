@@ -118,6 +118,7 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
     from ..codebook.fields import FieldTT
+    from ..codebook.summary import coordinate_ratios
 
     cb = result.codebook
     rep = cb.report
@@ -139,7 +140,9 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         **({"march": str(rep["march"])} if march and "march" in rep else {}),
         **({"check_error": _finite_or_none(rep["check_error"]), "check_points": int(rep["check_points"]),
             "check_ratio": _finite_or_none(rep["check_ratio"]), "check_where": short_where(rep["check_where"]),
-            "check_method": str(rep["check_method"])}
+            "check_method": str(rep["check_method"]), "check_node_error": _finite_or_none(rep["check_node_error"]),
+            "check_between_error": _finite_or_none(rep["check_between_error"]),
+            "check_coordinate_ratio": coordinate_ratios(rep)}
            if "check_error" in rep else {}),
         "relative_tolerance": float(rep.get("relative_tolerance", 0.0)),
         "resolution": _resolution_summary(cb),

@@ -12,7 +12,7 @@ import numpy as np
 from .fields import FieldTT
 from .io import FORMAT_NAME, FORMAT_VERSION
 
-__all__ = ["accurate", "nodes_chosen", "summary"]
+__all__ = ["accurate", "coordinate_ratios", "nodes_chosen", "summary"]
 
 
 def accurate(report) -> bool | None:
@@ -112,4 +112,16 @@ def _check_summary(rep) -> dict:
             out[name] = finite(key)
     if "check_method" in rep:
         out["method"] = str(rep["check_method"])
+    ratios = coordinate_ratios(rep)
+    if ratios is not None:
+        out["coordinate_ratio"] = ratios
     return out
+
+
+def coordinate_ratios(rep) -> dict | None:
+    """Per coordinate, the solve-time check's error off its nodes over the tolerance (the parts a
+    refusal names; None for NaN), or None when the report has none."""
+    if "check_coordinates" not in rep or not str(rep["check_coordinates"]):
+        return None
+    ratios = np.atleast_1d(np.asarray(rep["check_coordinate_ratio"], dtype=float))
+    return {n: (float(v) if np.isfinite(v) else None) for n, v in zip(str(rep["check_coordinates"]).split(","), ratios)}

@@ -338,6 +338,13 @@ def test_solve_json_and_info_report_the_same_nodes_chosen(tmp_path):
     text = runner.invoke(cli, ["info", str(out)]).stdout
     k = " -> ".join(str(r["nodes"]["k"]) for r in chosen["rounds"])
     assert f"k: {k}" in text
+    # the check's parts: the same in both, per coordinate as the codebook's report holds them
+    solved = json.loads(res.stdout)
+    rep = Codebook.load(out).report
+    ratios = dict(zip(str(rep["check_coordinates"]).split(","), np.atleast_1d(rep["check_coordinate_ratio"]).tolist()))
+    assert solved["check_coordinate_ratio"] == info["check"]["coordinate_ratio"] == ratios
+    assert set(ratios) == {"t", "k", "c", "x0"}
+    assert solved["check_node_error"] == info["check"]["node_error"] <= solved["check_error"]
 
 
 def test_codebook_at_a_steady_report_grid_is_verifys_own():
