@@ -23,8 +23,8 @@ from .reference_base import sampled_coordinates, space_coordinates  # one defini
 
 __all__ = ["MAX_CORNERS", "SAMPLINGS", "space_coordinates", "sampled_coordinates", "read_points", "check_points_domain",
            "default_samples", "sample_box", "box_corners", "parameter_points", "check_times", "space_points_grid",
-           "check_sample", "line_sample", "nodes_and_midpoints", "checked_time_nodes", "CHECK_TIME_NODES", "CORNERS", "FACE_NODES", "BETWEEN", "LINE",
-           "CORNER_LINES"]
+           "check_sample", "line_sample", "nodes_and_midpoints", "checked_time_nodes", "CHECK_TIME_NODES", "CORNERS",
+           "FACE_NODES", "BETWEEN", "LINE", "CORNER_LINES"]
 
 
 #: Most corners of the parameter box that are checked (a random subset beyond).

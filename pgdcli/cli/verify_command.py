@@ -18,6 +18,7 @@ class _MethodChoice(click.Choice):
     def get_invalid_choice_message(self, value, ctx) -> str:
         return f"{value!r} is not one of {', '.join(map(repr, self.choices))}."
 
+
 VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.reference.METHODS (no numpy import here)
 
 

@@ -106,9 +106,10 @@ def _window_of(basis, x: np.ndarray) -> np.ndarray:
 def _rows_points_last(basis, x: np.ndarray, lo: int, width: int, out: np.ndarray, work: np.ndarray) -> np.ndarray:
     """Cardinal rows of ``x`` (shape (P,), all in the window starting at node ``lo``) on that
     window's nodes only, points last: shape (width, P), written into ``out`` (``work``: scratch
-    of the same shape; either may be the transposed view of a points-first buffer). The arithmetic of the basis's own interpolation rows (a point on a node
-    gets the unit row); the layout lets the first two cores' Khatri-Rao product broadcast along
-    the points (42 against 97 ns per point for 8 x 20 values, 1228 points).
+    of the same shape; either may be the transposed view of a points-first buffer). The
+    arithmetic of the basis's own interpolation rows (a point on a node gets the unit row); the
+    layout lets the first two cores' Khatri-Rao product broadcast along the points (42 against
+    97 ns per point for 8 x 20 values, 1228 points).
     """
     nodes = basis.nodes[lo:lo + width]
     if basis.kind == "linear" and width == 2:

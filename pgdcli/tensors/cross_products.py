@@ -31,8 +31,7 @@ import numpy as np
 
 from .cross import maxvol, tt_values_at
 from .tt import TT, is_ones, tt_round
-from .tt_allocate import rank_within
-from .tt_svd import RELATIVE_FLOOR
+from .tt_svd import truncation_rank
 
 __all__ = ["ProductCross", "CrossOfProducts", "round_products_by_cross"]
 
@@ -74,7 +73,7 @@ def _right_interface(x: TT, rows: np.ndarray, k: int) -> np.ndarray:
 def _truncated_basis(block: np.ndarray, threshold: float) -> np.ndarray:
     """Orthonormal columns spanning ``block`` up to a discarded tail of norm <= threshold."""
     u, s, _ = np.linalg.svd(block, full_matrices=False)
-    return u[:, :rank_within(s, threshold, RELATIVE_FLOOR)]
+    return u[:, :truncation_rank(s, threshold)]
 
 
 class ProductCross:
