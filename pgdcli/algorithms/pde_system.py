@@ -191,6 +191,20 @@ def _elimination(unknown, x_name: str, D1: np.ndarray):
     return C, g, Z
 
 
+def _lift(C: np.ndarray, g: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """A function on the nodes ``xs`` (n,) meeting the two boundary rows ``C @ l = g``.
+
+    ``a + b (x - x0)`` where it can; two gradient conditions fix only its slope (the system with
+    ``1`` in the basis is singular), so there ``b (x - x0) + c (x - x0)**2``.
+    """
+    s = xs - xs[0]
+    for basis in (np.stack([np.ones_like(xs), s], axis=1), np.stack([s, s * s], axis=1)):
+        M = C @ basis
+        if abs(np.linalg.det(M)) > 1e-12 * float(np.abs(M).max()) ** 2:
+            break
+    return basis @ np.linalg.solve(M, g)
+
+
 def compile_pde_system(problem, bases: dict, *, rounding: float = 1e-13) -> PdeSystem:
     """The split system of ``problem`` on the nodes of ``bases`` (coordinate -> Basis1D, time excluded).
 
@@ -203,8 +217,7 @@ def compile_pde_system(problem, bases: dict, *, rounding: float = 1e-13) -> PdeS
     D1 = bases[x.name].derivative
     C, g, Z = _elimination(unknown, x.name, D1)
     xs = grid[0]
-    basis = np.stack([np.ones_like(xs), xs - xs[0]], axis=1)  # lift l = a + b (x - x0): two conditions
-    lift = basis @ np.linalg.solve(C @ basis, g)
+    lift = _lift(C, g, xs)
     A = (D1 @ D1 @ Z)[1:-1]
     diffusion, terms, mass = None, [], None
     for monomial, sep in problem.equations[0].polynomial.items():
