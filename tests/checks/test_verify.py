@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from conftest import spec_text
+from conftest import reseal, spec_text
 import pgdcli
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
@@ -108,6 +108,7 @@ def test_corrupted_modes_are_caught(accurate, tmp_path):
         data = modes[()]
         data[3, 0] *= 1.0 + 1e-5  # one nodal value of the first mode, at an interior c node
         modes[...] = data
+    reseal(path)  # intact as a file, wrong in its numbers: verify's to find
     result = run("verify", path, "--max-error", "1e-8", "-j", 1, "--format", "json")
     assert result.exit_code == 1
     report = json.loads(result.stdout)
