@@ -18,6 +18,7 @@ import numpy as np
 
 from .algorithms.enrichment import run_enrichment
 from .algorithms.result import SolveResult
+from .checks.budget import check_budget
 from .codebook.codebook import Codebook, FieldModes
 from .discretization.coefficients import separation_report_text
 from .discretization.coordinates import coordinate_infos
@@ -108,10 +109,11 @@ def check_solvable(problem, tolerance: float, relative_tolerance: float, max_mod
         raise SolverError(f"relative_tolerance must be in [0, 1), got {relative_tolerance}")
     if max_modes < 1:
         raise SolverError(f"max_modes must be at least 1, got {max_modes}")
+    march = _use_march(problem)
+    check_budget(problem, march=march)
     check_initial_finite(problem)
     check_coefficients_finite(problem)
     check_initial_meets_boundary(problem, tolerance, relative_tolerance)
-    march = _use_march(problem)
     if march:
         from .algorithms.grid_march import check_forced_grid
 

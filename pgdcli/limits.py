@@ -13,6 +13,7 @@ variable                       default                          bounds
 ``PGD_MAX_TIME_NODES``         100000                           time nodes of a codebook (slabs x nodes)
 ``PGD_MAX_PERIODS``            10000                            periods of the fastest oscillation over t
 ``PGD_MAX_STATE_SIZE``         8192                             unknowns x time nodes of the enrichment
+``PGD_QUERY_MAX_POINTS``       10000000                         points of a query, rows of fit data
 =============================  ===============================  ==========================================
 """
 
@@ -23,13 +24,18 @@ from dataclasses import dataclass
 
 from .errors import PgdError
 
-__all__ = ["Limit", "LIMITS", "limit", "MAX_COORDINATES", "MAX_UNKNOWNS", "physical_memory"]
+__all__ = ["Limit", "LIMITS", "limit", "MAX_COORDINATES", "MAX_UNKNOWNS", "DEFAULT_CHECK_SECONDS", "MAX_LINE_BYTES",
+           "physical_memory"]
 
 #: Coordinates of a problem at most: the exported evaluators report a clamped coordinate by one
 #: bit of a C ``int`` (and the cross march's cost grows with every coordinate).
 MAX_COORDINATES = 30
 #: Unknowns of a problem at most (after second-order equations are written as first-order ones).
 MAX_UNKNOWNS = 256
+#: Longest line of a points file or of fit data (bytes).
+MAX_LINE_BYTES = 65536
+#: Seconds the reference integrations of ``pgd verify`` and ``pgd plot`` may take (``--max-seconds``).
+DEFAULT_CHECK_SECONDS = 300.0
 
 
 def physical_memory() -> int:
@@ -68,6 +74,7 @@ LIMITS = {
                         "bytes of one array a solve or a check allocates"),
     "time_nodes": Limit("PGD_MAX_TIME_NODES", 100_000, "time nodes of a codebook"),
     "periods": Limit("PGD_MAX_PERIODS", 10_000, "periods of the fastest oscillation over the time domain"),
+    "query_points": Limit("PGD_QUERY_MAX_POINTS", 10_000_000, "points of a query, rows of fit data"),
     "state_size": Limit("PGD_MAX_STATE_SIZE", 8192, "unknowns x time nodes of the enrichment's dense state"),
 }
 

@@ -12,8 +12,8 @@ import numpy as np
 
 from ..errors import SolverError
 from ..problem.general import evaluate as general_tree_values, is_general, tree_of
-from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, checked_params,
-                             checked_times, run_in_chunks, sample_subset)
+from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_deadline, check_tolerances,
+                             checked_params, checked_times, run_in_chunks, sample_subset)
 
 __all__ = ["solve_reference_vectorized"]
 
@@ -153,6 +153,8 @@ class CompiledSystem:
         self.last_y = y
         if self.evaluations > self.max_evaluations:
             raise ReferenceBudgetExceeded
+        if self.evaluations & 63 == 1:
+            check_deadline()
         K = 1 if y.ndim == 1 else y.shape[1]
         U = y.reshape(self.S, self.q, K)
         G = np.zeros((self.S, self.q, K))
