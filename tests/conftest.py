@@ -211,15 +211,20 @@ def reseal(path) -> None:
     A test that simulates an intact file with wrong numbers (a solver's bug, not a disk's)
     edits the arrays and then reseals the file, so that only the numbers differ.
     """
+    import json
+
     import h5py
 
-    from pgdcli.codebook.file_checks import CONTENT_DIGEST, DIGEST_ATTRIBUTE, array_digest, metadata_digest
+    from pgdcli.codebook.file_checks import ARRAY_DIGESTS, CONTENT_DIGEST, array_digest, metadata_digest, survey
 
     with h5py.File(path, "r+") as f:
+        digests = {}
+
         def visit(name, obj):
-            if isinstance(obj, h5py.Dataset) and DIGEST_ATTRIBUTE in obj.attrs:
+            if isinstance(obj, h5py.Dataset):
                 value = obj[()]
-                obj.attrs[DIGEST_ATTRIBUTE] = array_digest(value.decode() if isinstance(value, bytes) else value)
+                digests[name] = array_digest(value.decode() if isinstance(value, bytes) else value)
 
         f.visititems(visit)
-        f.attrs[CONTENT_DIGEST] = metadata_digest(f, str(path))
+        f.attrs[ARRAY_DIGESTS] = json.dumps(digests, sort_keys=True, separators=(",", ":"))
+        f.attrs[CONTENT_DIGEST] = metadata_digest(survey(f, str(path)))

@@ -323,8 +323,7 @@ def verify(
             progress(done, S)
 
     report_progress(0)
-    if max_seconds is not None:
-        settings["max_seconds"] = max_seconds = _check_tolerance("max_seconds", max_seconds)
+    settings["max_seconds"] = max_seconds = _check_tolerance("max_seconds", max_seconds)
     with time_budget(max_seconds):
         result, approx, space_grid = _reference_and_codebook(cb, problem, sample_points, S, all_times, opts,
                                                              settings, method, rtol, atol, space_nodes,

@@ -10,16 +10,20 @@ Codebooks travel between machines and people, so a file is treated as untrusted 
   when its declared size is stored in the file (no fill values or decompression that expand a
   small file into gigabytes) and its shape is the one the codebook's metadata implies; an
   attribute is read only when it declares at most :data:`MAX_ATTRIBUTE_BYTES`;
-- **intact** (format 1.1): every array carries HDF5's Fletcher-32 checksum and a SHA-256 of its
-  contents, and the root carries a SHA-256 of all metadata (every attribute, the arrays' digests
-  included); a mismatch is "the codebook is corrupted", naming the dataset.
+- **intact** (format 1.1): every array carries HDF5's Fletcher-32 checksum, the root lists a
+  SHA-256 of every array's contents (:data:`ARRAY_DIGESTS`) and holds a SHA-256 of all
+  metadata, that list included (:data:`CONTENT_DIGEST`); a mismatch is "the codebook is
+  corrupted", naming the dataset.
 
-numpy, h5py and the standard library only (the query path).
+:func:`survey` walks the file once and keeps every attribute, so the reader and the digest use
+the same values and HDF5 is asked for each only once. numpy, h5py and the standard library only
+(the query path).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import stat
 
@@ -28,27 +32,54 @@ import numpy as np
 from ..errors import CodebookError
 from ..limits import limit
 
-__all__ = ["Survey", "open_codebook", "survey", "read_array", "read_attribute", "array_digest",
-           "metadata_digest", "DIGEST_ATTRIBUTE", "CONTENT_DIGEST", "MAX_ATTRIBUTE_BYTES", "MAX_OBJECTS"]
+__all__ = ["Survey", "open_codebook", "survey", "read_array", "read_text", "array_digest", "metadata_digest",
+           "ARRAY_DIGESTS", "CONTENT_DIGEST", "MAX_ATTRIBUTE_BYTES", "MAX_OBJECTS"]
 
-#: Attribute holding a dataset's SHA-256 (hex), and the root's digest of all metadata.
-DIGEST_ATTRIBUTE = "sha256"
+#: Root attributes: the arrays' SHA-256 (JSON, path -> hex), and the SHA-256 of all metadata.
+ARRAY_DIGESTS = "array-sha256"
 CONTENT_DIGEST = "content-sha256"
 #: Largest attribute read (bytes declared), attributes per object, objects per file, depth.
-MAX_ATTRIBUTE_BYTES = 2**20
+MAX_ATTRIBUTE_BYTES = 4 * 2**20
 MAX_ATTRIBUTES = 1000
 MAX_OBJECTS = 100_000
 MAX_DEPTH = 8
-#: Filters pgdcli writes (Fletcher-32) or older h5py defaults may add (shuffle); nothing else is read.
-_ALLOWED_FILTERS = None  # set on first use: h5py is imported lazily
 
 
 class Survey:
-    """The datasets of a file: path -> (shape, dtype, checked), after :func:`survey` accepted it."""
+    """A file's objects after :func:`survey` accepted them.
+
+    Attributes
+    ----------
+    source : str
+        The file's name in messages.
+    datasets : dict
+        Path -> (shape, dtype) of every dataset.
+    attrs : dict
+        Path (``""`` for the root) -> {attribute name: value} of every object.
+    objects : dict
+        Path -> the h5py object.
+    """
 
     def __init__(self, source: str) -> None:
         self.source = source
-        self.datasets: dict[str, tuple[tuple[int, ...], np.dtype, bool]] = {}
+        self.datasets: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
+        self.attrs: dict[str, dict] = {}
+        self.objects: dict = {}
+
+    def attr(self, path: str, name: str, default=None):
+        """Attribute ``name`` of the object at ``path`` (``default`` when absent)."""
+        return self.attrs.get(path, {}).get(name, default)
+
+    def array_digests(self) -> dict[str, str]:
+        """The root's list of array digests (path -> hex), checked to be a JSON object of strings."""
+        text = self.attr("", ARRAY_DIGESTS)
+        try:
+            digests = json.loads(text.decode() if isinstance(text, bytes) else str(text))
+        except (ValueError, UnicodeDecodeError):
+            digests = None
+        if not isinstance(digests, dict) or not all(isinstance(v, str) for v in digests.values()):
+            raise _corrupt(self.source, f"no readable {ARRAY_DIGESTS} list of array digests")
+        return digests
 
 
 def open_codebook(path: str):
@@ -78,76 +109,97 @@ def open_codebook(path: str):
         raise CodebookError(f"{path}: not a readable HDF5 file (truncated or not a codebook)") from None
 
 
-def _allowed_filters() -> frozenset:
-    global _ALLOWED_FILTERS
-    if _ALLOWED_FILTERS is None:
-        from h5py import h5z
-
-        _ALLOWED_FILTERS = frozenset({h5z.FILTER_FLETCHER32, h5z.FILTER_SHUFFLE})
-    return _ALLOWED_FILTERS
-
-
 def survey(f, source: str) -> Survey:
-    """Walk every link and object of an open file; refuse what is not self-contained and bounded.
+    """Walk every link and object of an open file once; refuse what is not self-contained and bounded.
 
     Raises
     ------
     CodebookError
         "corrupt codebook: ..." naming the object: a soft or external link, external storage, a
         virtual dataset, an unknown filter, an array whose declared bytes are not stored in the
-        file, too many objects or attributes, or nesting deeper than a codebook has.
+        file, an attribute too large, too many objects or attributes, or nesting too deep.
     """
     import h5py
 
     out = Survey(source)
+    names = _link_names(f, source)
     seen: set = set()
-    pending = [(f, "", 0)]
-    count = 0
-    while pending:
-        group, prefix, depth = pending.pop()
-        _check_attributes(group, prefix or "/", source)
-        for name in _member_names(group, prefix, source):
-            where = f"{prefix}/{name}" if prefix else name
-            link = group.get(name, getlink=True)
-            if not isinstance(link, h5py.HardLink):
-                kind = "an external link" if isinstance(link, h5py.ExternalLink) else "a soft link"
-                raise _corrupt(source, f"{where!r} is {kind}; a codebook holds only its own objects")
-            count += 1
-            if count > MAX_OBJECTS:
-                raise _corrupt(source, f"more than {MAX_OBJECTS} objects")
-            obj = group[name]
-            key = obj.id
-            if key in seen:
-                raise _corrupt(source, f"{where!r} links back to an object already seen (a link loop)")
-            seen.add(key)
-            if isinstance(obj, h5py.Group):
-                if depth + 1 > MAX_DEPTH:
-                    raise _corrupt(source, f"{where!r} is nested deeper than a codebook's layout")
-                pending.append((obj, where, depth + 1))
-            elif isinstance(obj, h5py.Dataset):
-                out.datasets[where] = _check_dataset(obj, where, source)
-            else:
-                raise _corrupt(source, f"{where!r} is a {type(obj).__name__}, not a group or dataset")
+    out.attrs[""] = _attributes(f, "/", source)
+    out.objects[""] = f
+    for where in names:
+        obj = f[where]
+        if obj.id in seen:
+            raise _corrupt(source, f"{where!r} names an object already seen (a second hard link or a loop)")
+        seen.add(obj.id)
+        out.objects[where] = obj
+        out.attrs[where] = _attributes(obj, where, source)
+        if isinstance(obj, h5py.Dataset):
+            out.datasets[where] = _check_dataset(obj, where, source)
+        elif not isinstance(obj, h5py.Group):
+            raise _corrupt(source, f"{where!r} is a {type(obj).__name__}, not a group or dataset")
     return out
 
 
-def _member_names(group, prefix: str, source: str) -> list[str]:
+def _link_names(f, source: str) -> list[str]:
+    """Every link's path, each checked to be a hard link, in HDF5's own (C) walk of the file."""
+    from h5py import h5l
+
+    names: list[str] = []
+    problem: list[str] = []
+
+    def visit(name: bytes, info):
+        try:
+            text = name.decode()
+        except UnicodeDecodeError:
+            problem.append(f"a link name {name[:40]!r} is not UTF-8")
+            return True
+        if info.type != h5l.TYPE_HARD:
+            kind = "an external link" if info.type == h5l.TYPE_EXTERNAL else "a soft link"
+            problem.append(f"{text!r} is {kind}; a codebook holds only its own objects")
+        elif len(names) >= MAX_OBJECTS:
+            problem.append(f"more than {MAX_OBJECTS} objects")
+        elif text.count("/") >= MAX_DEPTH:
+            problem.append(f"{text!r} is nested deeper than a codebook's layout")
+        else:
+            names.append(text)
+            return None
+        return True  # stop the walk
+
     try:
-        names = list(group.keys())
+        f.id.links.visit(visit, info=True)
     except (OSError, RuntimeError, ValueError, KeyError) as exc:
-        raise _corrupt(source, f"group {prefix or '/'!r} cannot be listed ({_one_line(exc)})") from None
+        raise _corrupt(source, f"its links cannot be read ({_one_line(exc)})") from None
+    if problem:
+        raise _corrupt(source, problem[0])
     return names
 
 
-def _check_attributes(obj, where: str, source: str) -> None:
-    count = obj.id.get_num_attrs() if hasattr(obj.id, "get_num_attrs") else len(obj.attrs)
-    if count > MAX_ATTRIBUTES:
-        raise _corrupt(source, f"{where!r} has {count} attributes (at most {MAX_ATTRIBUTES})")
+def _attributes(obj, where: str, source: str) -> dict:
+    """All attributes of ``obj``, each read only after its declared size is checked."""
+    try:
+        count = obj.id.get_num_attrs() if hasattr(obj.id, "get_num_attrs") else len(obj.attrs)
+        if count > MAX_ATTRIBUTES:
+            raise _corrupt(source, f"{where!r} has {count} attributes (at most {MAX_ATTRIBUTES})")
+        if not count:
+            return {}
+        values = {}
+        for name in obj.attrs:
+            size = int(obj.attrs.get_id(name).get_storage_size())
+            if size > MAX_ATTRIBUTE_BYTES:
+                raise _corrupt(source, f"attribute {name!r} of {where!r} declares {size} bytes "
+                                       f"(at most {MAX_ATTRIBUTE_BYTES})")
+            values[str(name)] = obj.attrs[name]
+        return values
+    except CodebookError:
+        raise
+    except (OSError, RuntimeError, ValueError, TypeError, KeyError, UnicodeDecodeError) as exc:
+        raise CodebookError(f"{source}: the codebook is corrupted: the attributes of {where!r} cannot be read "
+                            f"({_one_line(exc)})") from None
 
 
-def _check_dataset(ds, where: str, source: str) -> tuple[tuple[int, ...], np.dtype, bool]:
+def _check_dataset(ds, where: str, source: str) -> tuple[tuple[int, ...], np.dtype]:
     """Storage of one dataset: in the file, unfiltered or checksummed, as large as it declares."""
-    from h5py import h5d
+    from h5py import h5d, h5z
 
     try:
         dcpl = ds.id.get_create_plist()
@@ -162,7 +214,7 @@ def _check_dataset(ds, where: str, source: str) -> tuple[tuple[int, ...], np.dty
         raise _corrupt(source, f"dataset {where!r} is a virtual dataset (its data would come from other files)")
     if external:
         raise _corrupt(source, f"dataset {where!r} keeps its data in another file (external storage)")
-    unknown = [fid for fid in filters if fid not in _allowed_filters()]
+    unknown = [fid for fid in filters if fid not in (h5z.FILTER_FLETCHER32, h5z.FILTER_SHUFFLE)]
     if unknown:
         raise _corrupt(source, f"dataset {where!r} uses HDF5 filter {unknown[0]}, which pgdcli does not write")
     if dtype.kind not in "fiub" and not (dtype.kind == "O" and shape == ()):
@@ -174,32 +226,27 @@ def _check_dataset(ds, where: str, source: str) -> tuple[tuple[int, ...], np.dty
                                f"(PGD_MAX_CODEBOOK_BYTES)")
     if declared and stored < declared:
         raise _corrupt(source, f"dataset {where!r} declares {declared} bytes but stores {stored}")
-    return shape, dtype, bool(filters)
+    return shape, dtype
 
 
-def read_array(f, survey_: Survey, where: str, shape: tuple[int, ...] | None = None, *,
-               checked: bool = False, finite: bool = True) -> np.ndarray:
+def read_array(survey_: Survey, where: str, shape: tuple[int, ...] | None = None, *,
+               digests: dict | None = None, finite: bool = True) -> np.ndarray:
     """Dataset ``where`` after checking its declared shape (``None``: any); float64 when ``finite``.
 
-    With ``checked`` its SHA-256 attribute must match its contents. A Fletcher-32 failure or
-    a digest mismatch is "the codebook is corrupted"; with ``finite`` so is a NaN or infinity.
+    With ``digests`` (format 1.1) its SHA-256 must be the listed one. A Fletcher-32 failure or a
+    digest mismatch is "the codebook is corrupted"; with ``finite`` so is a NaN or infinity.
     """
     source = survey_.source
     if where not in survey_.datasets:
         raise _corrupt(source, f"missing dataset {where!r}")
-    found, dtype, _ = survey_.datasets[where]
+    found, dtype = survey_.datasets[where]
     if shape is not None and found != tuple(shape):
         raise _corrupt(source, f"dataset {where!r} has shape {found}, expected {tuple(shape)}")
     if dtype.kind not in "fiu":
         raise _corrupt(source, f"dataset {where!r} has type {dtype}, expected numbers")
-    ds = f[where]
-    try:
-        raw = ds[()]
-    except (OSError, RuntimeError, ValueError) as exc:
-        raise CodebookError(f"{source}: the codebook is corrupted: dataset {where!r} cannot be read "
-                            f"({_one_line(exc)})") from None
-    if checked:
-        _check_digest(ds, raw, where, source)
+    raw = _read(survey_, where)
+    if digests is not None:
+        _check_digest(digests, raw, where, source)
     if not finite:
         return np.asarray(raw)
     values = np.asarray(raw, dtype=float)
@@ -208,65 +255,33 @@ def read_array(f, survey_: Survey, where: str, shape: tuple[int, ...] | None = N
     return values
 
 
-def read_text(f, survey_: Survey, where: str, *, checked: bool = False, limit_bytes: int = 2**20) -> str:
+def read_text(survey_: Survey, where: str, *, digests: dict | None = None, limit_bytes: int = 2**20) -> str:
     """A scalar string dataset (the stored spec), at most ``limit_bytes`` long."""
     source = survey_.source
-    found, dtype, _ = survey_.datasets[where]
-    ds = f[where]
-    try:
-        raw = ds[()]
-    except (OSError, RuntimeError, ValueError) as exc:
-        raise CodebookError(f"{source}: the codebook is corrupted: dataset {where!r} cannot be read "
-                            f"({_one_line(exc)})") from None
-    if isinstance(raw, np.ndarray) and raw.dtype.kind in "iu" and raw.ndim == 1:
-        raw = raw.astype(np.uint8).tobytes()
+    raw = _read(survey_, where)
     if not isinstance(raw, (bytes, str)):
         raise _corrupt(source, f"dataset {where!r} is not text")
     if len(raw) > limit_bytes:
         raise _corrupt(source, f"dataset {where!r} holds {len(raw)} bytes of text (at most {limit_bytes})")
-    if checked:
-        _check_digest(ds, raw, where, source)
+    if digests is not None:
+        _check_digest(digests, raw, where, source)
     try:
         return raw.decode() if isinstance(raw, bytes) else str(raw)
     except UnicodeDecodeError:
         raise _corrupt(source, f"dataset {where!r} is not UTF-8 text") from None
 
 
-def read_attribute(obj, name: str, source: str, default=None):
-    """Attribute ``name`` of ``obj`` (``default`` when absent), its declared size checked first."""
+def _read(survey_: Survey, where: str):
     try:
-        if name not in obj.attrs:
-            return default
-        aid = obj.attrs.get_id(name)
-        size = int(aid.get_storage_size())
-        if size > MAX_ATTRIBUTE_BYTES:
-            raise _corrupt(source, f"attribute {name!r} declares {size} bytes (at most {MAX_ATTRIBUTE_BYTES})")
-        return obj.attrs[name]
-    except CodebookError:
-        raise
-    except (OSError, RuntimeError, ValueError, TypeError, KeyError) as exc:
-        raise CodebookError(f"{source}: the codebook is corrupted: attribute {name!r} cannot be read "
+        return survey_.objects[where][()]
+    except (OSError, RuntimeError, ValueError, TypeError) as exc:
+        raise CodebookError(f"{survey_.source}: the codebook is corrupted: dataset {where!r} cannot be read "
                             f"({_one_line(exc)})") from None
 
 
-def attribute_names(obj, source: str) -> list[str]:
-    """The attribute names of ``obj`` (bounded by :func:`survey`), each checked to be readable text."""
-    try:
-        return [str(n) for n in obj.attrs.keys()]
-    except (OSError, RuntimeError, ValueError, UnicodeDecodeError) as exc:
-        raise CodebookError(f"{source}: the codebook is corrupted: attributes cannot be listed "
-                            f"({_one_line(exc)})") from None
-
-
-def _check_digest(ds, raw, where: str, source: str) -> None:
-    stored = read_attribute(ds, DIGEST_ATTRIBUTE, source)
-    if isinstance(stored, bytes):
-        stored = stored.decode("ascii", "replace")
-    if stored is None:
-        raise _corrupt(source, f"dataset {where!r} has no {DIGEST_ATTRIBUTE} digest")
-    if str(stored) != array_digest(raw):
-        raise CodebookError(f"{source}: the codebook is corrupted: dataset {where!r} does not match its "
-                            f"{DIGEST_ATTRIBUTE} digest")
+def _check_digest(digests: dict, raw, where: str, source: str) -> None:
+    if digests.get(where) != array_digest(raw):
+        raise CodebookError(f"{source}: the codebook is corrupted: dataset {where!r} does not match its digest")
 
 
 def array_digest(value) -> str:
@@ -294,23 +309,16 @@ def _canonical(value) -> bytes:
     return f"{little.dtype.str}:{arr.shape}:".encode() + np.ascontiguousarray(little).tobytes()
 
 
-def metadata_digest(f, source: str) -> str:
-    """SHA-256 (hex) of every attribute in the file but the root's own digest, in path order."""
-    import h5py
-
+def metadata_digest(survey_: Survey) -> str:
+    """SHA-256 (hex) of the file's structure and every attribute but the root's own digest."""
     h = hashlib.sha256()
-    pending = [("", f)]
-    while pending:
-        where, obj = pending.pop()
-        for name in sorted(attribute_names(obj, source)):
+    h.update(json.dumps(sorted(survey_.objects)).encode())
+    for where in sorted(survey_.attrs):
+        for name in sorted(survey_.attrs[where]):
             if where == "" and name == CONTENT_DIGEST:
                 continue
-            h.update(f"{where}@{name}=".encode())
-            h.update(_canonical(read_attribute(obj, name, source)))
-            h.update(b"\n")
-        if isinstance(obj, h5py.Group):
-            h.update(f"{where}:{sorted(obj.keys())}\n".encode())
-            pending.extend((f"{where}/{n}", obj[n]) for n in sorted(obj.keys(), reverse=True))
+            h.update(f"\n{where}@{name}=".encode())
+            h.update(_canonical(survey_.attrs[where][name]))
     return h.hexdigest()
 
 

@@ -6,6 +6,7 @@ module does not import the class (it is imported by it). numpy and h5py only (th
 
 from __future__ import annotations
 
+import json
 import os
 
 import numpy as np
@@ -16,8 +17,8 @@ from ..errors import CodebookError
 from ..limits import MAX_COORDINATES, MAX_UNKNOWNS, limit
 from ..names import identifier_problem, printable, problem_name_problem
 from .fields import FieldModes, FieldTT
-from .file_checks import (CONTENT_DIGEST, DIGEST_ATTRIBUTE, Survey, array_digest, attribute_names, metadata_digest,
-                          open_codebook, read_array, read_attribute, read_text, survey)
+from .file_checks import (ARRAY_DIGESTS, CONTENT_DIGEST, Survey, array_digest, metadata_digest, open_codebook,
+                          read_array, read_text, survey)
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "SUPPORTED_MAJOR", "save", "to_bytes", "write_atomic", "write_contents",
            "load_parts", "read_contents"]
@@ -102,12 +103,12 @@ def write_atomic(path: str | os.PathLike, data: bytes | str, *, what: str = "the
     return path
 
 
-def _array(group, name: str, values) -> None:
-    """A dataset with Fletcher-32 (one chunk) where HDF5 allows it, and its SHA-256."""
+def _array(group, name: str, values, digests: dict) -> None:
+    """A dataset with Fletcher-32 (one chunk) where HDF5 allows it; its SHA-256 into ``digests``."""
     values = np.asarray(values)
     chunked = values.ndim > 0 and values.size > 0
     ds = group.create_dataset(name, data=values, chunks=values.shape if chunked else None, fletcher32=chunked)
-    ds.attrs[DIGEST_ATTRIBUTE] = array_digest(ds[()])
+    digests[ds.name.lstrip("/")] = array_digest(ds[()])
 
 
 def write_contents(cb, f) -> None:
@@ -122,8 +123,8 @@ def write_contents(cb, f) -> None:
     f.attrs["created"] = cb.created
     f.attrs["coordinate-order"] = np.array(cb.coordinate_names, dtype=object)
     f.attrs["unknown-order"] = np.array(cb.unknown_names, dtype=object)
-    spec = f.create_dataset("spec", data=cb.spec_text)
-    spec.attrs[DIGEST_ATTRIBUTE] = array_digest(cb.spec_text)
+    f.create_dataset("spec", data=cb.spec_text)
+    digests = {"spec": array_digest(cb.spec_text)}
     gc = f.create_group("coordinates")
     for c in cb.coordinates:
         g = gc.create_group(c.name)
@@ -132,7 +133,7 @@ def write_contents(cb, f) -> None:
         g.attrs["role"] = c.role
         if c.breakpoints:
             g.attrs["breakpoints"] = np.array(c.breakpoints, dtype=float)
-        _array(g, "nodes", c.basis().nodes)
+        _array(g, "nodes", c.basis().nodes, digests)
     gu = f.create_group("unknowns")
     for u, fm in cb.fields.items():
         g = gu.create_group(u)
@@ -141,20 +142,21 @@ def write_contents(cb, f) -> None:
             g.attrs["mode-order"] = np.array([cb.coordinates[j].name for j in fm.mode_order], dtype=object)
             gc = g.create_group("cores")
             for j, core in zip(fm.mode_order, fm.cores):
-                _array(gc, cb.coordinates[j].name, core)
+                _array(gc, cb.coordinates[j].name, core, digests)
             continue
         g.attrs["representation"] = "cp"
-        _array(g, "alphas", fm.alphas)
+        _array(g, "alphas", fm.alphas, digests)
         gm = g.create_group("modes")
         for c, m in zip(cb.coordinates, fm.modes):
-            _array(gm, c.name, m)
+            _array(gm, c.name, m, digests)
     gr = f.create_group("report")
     for key, value in cb.report.items():
         if isinstance(value, np.ndarray):
-            _array(gr, key, value)
+            _array(gr, key, value, digests)
         elif value is not None:
             gr.attrs[key] = value
-    f.attrs[CONTENT_DIGEST] = metadata_digest(f, "<memory>")
+    f.attrs[ARRAY_DIGESTS] = json.dumps(digests, sort_keys=True, separators=(",", ":"))
+    f.attrs[CONTENT_DIGEST] = metadata_digest(survey(f, "<memory>"))
 
 
 def load_parts(path: str | os.PathLike, basis, *, evaluation_only: bool = False) -> dict:
@@ -185,48 +187,50 @@ def load_parts(path: str | os.PathLike, basis, *, evaluation_only: bool = False)
 def read_contents(f, p: str, basis, *, evaluation_only: bool = False) -> dict:
     """The constructor arguments of the codebook in an open HDF5 file (``p`` names it in errors)."""
     found = survey(f, p)
-    version, checked = _format(f, p)
+    version, checked = _format(found, p)
+    digests = None
     if checked:
-        stored = attr_str(read_attribute(f, CONTENT_DIGEST, p))
+        stored = attr_str(found.attr("", CONTENT_DIGEST))
         if not stored:
             raise CodebookError(f"{p}: corrupt codebook: no {CONTENT_DIGEST} digest of its metadata")
-        if stored != metadata_digest(f, p):
+        if stored != metadata_digest(found):
             raise CodebookError(f"{p}: the codebook is corrupted: its metadata does not match its "
                                 f"{CONTENT_DIGEST} digest")
-    name = attr_str(read_attribute(f, "name", p, "codebook"))
+        digests = found.array_digests()
+    name = attr_str(found.attr("", "name", "codebook"))
     why = problem_name_problem(name)
     if why:
         raise CodebookError(f"{p}: corrupt codebook: problem name {printable_name(name)}: {why}")
-    coord_names = _names(read_attribute(f, "coordinate-order", p), "coordinate", MAX_COORDINATES, p)
-    unknown_names = _names(read_attribute(f, "unknown-order", p), "unknown", MAX_UNKNOWNS, p)
-    coords = [_coordinate(f, found, p, c, basis, checked) for c in coord_names]
+    coord_names = _names(found.attr("", "coordinate-order"), "coordinate", MAX_COORDINATES, p)
+    unknown_names = _names(found.attr("", "unknown-order"), "unknown", MAX_UNKNOWNS, p)
+    coords = [_coordinate(found, c, basis, digests) for c in coord_names]
     declared = 0
     fields = {}
     for u in unknown_names:
-        fields[u], size = _field(f, found, p, u, coords, checked)
+        fields[u], size = _field(found, u, coords, digests)
         declared += size
         if declared > limit("codebook_bytes"):
             raise CodebookError(f"{p}: corrupt codebook: its arrays declare more than "
                                 f"{limit('codebook_bytes')} bytes (PGD_MAX_CODEBOOK_BYTES)")
     spec = ""
     if not evaluation_only and "spec" in found.datasets:
-        spec = read_text(f, found, "spec", checked=checked)
+        spec = read_text(found, "spec", digests=digests)
     return dict(
         coordinates=coords, fields=fields, name=name, spec_text=spec,
-        report=_report(f, found, p, checked, arrays=not evaluation_only),
-        description=attr_str(read_attribute(f, "description", p, "")),
-        created=attr_str(read_attribute(f, "created", p, "")) or None,
+        report=_report(found, digests, arrays=not evaluation_only),
+        description=attr_str(found.attr("", "description", "")),
+        created=attr_str(found.attr("", "created", "")) or None,
         partial=evaluation_only, format_version=version,
     )
 
 
-def _format(f, p: str) -> tuple[str, bool]:
+def _format(found: Survey, p: str) -> tuple[str, bool]:
     """Check the format name and version: the version, and whether the file carries digests (1.1 on)."""
-    kind = attr_str(read_attribute(f, "encoding-type", p))
+    kind = attr_str(found.attr("", "encoding-type"))
     if kind != FORMAT_NAME:
         raise CodebookError(f"{p}: not a pgdcli codebook (encoding-type {printable_name(kind)}, expected "
                             f"{FORMAT_NAME!r})")
-    version = attr_str(read_attribute(f, "encoding-version", p))
+    version = attr_str(found.attr("", "encoding-version"))
     try:
         major, minor = (int(v) for v in version.split("."))
     except ValueError:
@@ -258,19 +262,19 @@ def _names(value, what: str, most: int, p: str) -> list[str]:
     return names
 
 
-def _coordinate(f, found: Survey, p: str, name: str, basis, checked: bool) -> CoordinateInfo:
+def _coordinate(found: Survey, name: str, basis, digests: dict | None) -> CoordinateInfo:
+    p = found.source
     where = f"coordinates/{name}"
     if f"{where}/nodes" not in found.datasets:
         raise CodebookError(f"{p}: corrupt codebook: coordinate {name!r} has no nodes")
-    g = f[where]
-    domain = _floats(read_attribute(g, "domain", p), f"coordinate {name!r}: domain", p)
+    domain = _floats(found.attr(where, "domain"), f"coordinate {name!r}: domain", p)
     if len(domain) != 2 or not domain[0] < domain[1]:
         raise CodebookError(f"{p}: corrupt codebook: coordinate {name!r}: domain {domain} is not [low, high] "
                             f"with low < high")
-    kind = attr_str(read_attribute(g, "discretization", p))
+    kind = attr_str(found.attr(where, "discretization"))
     if kind not in KINDS:
         raise CodebookError(f"{p}: coordinate {name!r} has unknown discretization {printable_name(kind)}")
-    role = attr_str(read_attribute(g, "role", p, "parameter"))
+    role = attr_str(found.attr(where, "role", "parameter"))
     if role not in ROLES:
         raise CodebookError(f"{p}: corrupt codebook: coordinate {name!r} has role {printable_name(role)}")
     shape = found.datasets[f"{where}/nodes"][0]
@@ -278,7 +282,7 @@ def _coordinate(f, found: Survey, p: str, name: str, basis, checked: bool) -> Co
     if len(shape) != 1 or not 2 <= shape[0] <= most:
         raise CodebookError(f"{p}: corrupt codebook: coordinate {name!r} has nodes of shape {shape} "
                             f"(expected 2 to {most} nodes)")
-    breakpoints = _floats(read_attribute(g, "breakpoints", p, ()), f"coordinate {name!r}: breakpoints", p)
+    breakpoints = _floats(found.attr(where, "breakpoints", ()), f"coordinate {name!r}: breakpoints", p)
     if breakpoints and not (len(breakpoints) <= shape[0] and breakpoints[0] == domain[0]
                             and breakpoints[-1] == domain[1] and np.all(np.diff(breakpoints) > 0)):
         raise CodebookError(f"{p}: corrupt codebook: coordinate {name!r}: breakpoints do not split its domain")
@@ -287,7 +291,7 @@ def _coordinate(f, found: Survey, p: str, name: str, basis, checked: bool) -> Co
         expected = basis(info).nodes
     except (ValueError, ZeroDivisionError) as exc:
         raise CodebookError(f"{p}: corrupt codebook: coordinate {name!r}: {one_line(exc)}") from None
-    nodes = read_array(f, found, f"{where}/nodes", shape, checked=checked)
+    nodes = read_array(found, f"{where}/nodes", shape, digests=digests)
     if not np.array_equal(expected, nodes):  # built once: the codebook reuses it
         raise CodebookError(f"{p}: stored nodes of coordinate {name!r} do not match its {kind} basis")
     return info
@@ -303,35 +307,16 @@ def _floats(value, what: str, p: str) -> tuple:
     return tuple(float(v) for v in arr)
 
 
-def _field(f, found: Survey, p: str, u: str, coords: list, checked: bool):
+def _field(found: Survey, u: str, coords: list, digests: dict | None):
     """One unknown's field, every array's shape checked against the coordinates before it is read."""
+    p = found.source
     where = f"unknowns/{u}"
-    if where not in f:
+    if where not in found.attrs:
         raise CodebookError(f"{p}: corrupt codebook: no unknown {u!r}")
-    g = f[where]
     names = [c.name for c in coords]
-    representation = attr_str(read_attribute(g, "representation", p, "cp"))
+    representation = attr_str(found.attr(where, "representation", "cp"))
     if representation == "tensor-train":
-        order = _names(read_attribute(g, "mode-order", p), f"unknown {u!r}: mode", len(names), p)
-        stray = [c for c in order if c not in names]
-        if stray:
-            raise CodebookError(f"{p}: unknown {u!r}: tensor-train core for unknown coordinate {stray[0]!r}")
-        if len(order) != len(names):
-            raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: {len(order)} cores for {len(names)} "
-                                f"coordinates")
-        shapes, left = [], 1
-        for k, c in enumerate(order):
-            shape = found.datasets.get(f"{where}/cores/{c}", ((),))[0]
-            n = coords[names.index(c)].nodes
-            last = k == len(order) - 1
-            if len(shape) != 3 or shape[0] != left or shape[1] != n or (last and shape[2] != 1):
-                raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: core {c!r} has shape {shape}, "
-                                    f"expected ({left}, {n}, {'1' if last else 'r'})")
-            shapes.append(shape)
-            left = shape[2]
-        cores = tuple(read_array(f, found, f"{where}/cores/{c}", shape, checked=checked)
-                      for c, shape in zip(order, shapes))
-        return FieldTT(cores, tuple(names.index(c) for c in order)), sum(8 * int(np.prod(s)) for s in shapes)
+        return _tensor_train(found, u, coords, digests)
     if representation != "cp":
         raise CodebookError(f"{p}: unknown {u!r} has representation {printable_name(representation)}, which "
                             f"this pgdcli does not know; upgrade pgdcli (pip install -U pgdcli)")
@@ -339,28 +324,52 @@ def _field(f, found: Survey, p: str, u: str, coords: list, checked: bool):
     if len(rank_shape) != 1:
         raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: alphas of shape {rank_shape}, expected (rank,)")
     rank = rank_shape[0]
-    alphas = read_array(f, found, f"{where}/alphas", (rank,), checked=checked)
-    modes = tuple(read_array(f, found, f"{where}/modes/{c.name}", (c.nodes, rank), checked=checked) for c in coords)
+    alphas = read_array(found, f"{where}/alphas", (rank,), digests=digests)
+    modes = tuple(read_array(found, f"{where}/modes/{c}", (n.nodes, rank), digests=digests)
+                  for c, n in zip(names, coords))
     return FieldModes(alphas, modes), 8 * rank * (1 + sum(c.nodes for c in coords))
 
 
-def _report(f, found: Survey, p: str, checked: bool, *, arrays: bool) -> dict:
+def _tensor_train(found: Survey, u: str, coords: list, digests: dict | None):
+    p = found.source
+    where = f"unknowns/{u}"
+    names = [c.name for c in coords]
+    order = _names(found.attr(where, "mode-order"), f"unknown {u!r}: mode", len(names), p)
+    stray = [c for c in order if c not in names]
+    if stray:
+        raise CodebookError(f"{p}: unknown {u!r}: tensor-train core for unknown coordinate {stray[0]!r}")
+    if len(order) != len(names):
+        raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: {len(order)} cores for {len(names)} "
+                            f"coordinates")
+    shapes, left = [], 1
+    for k, c in enumerate(order):
+        shape = found.datasets.get(f"{where}/cores/{c}", ((),))[0]
+        n = coords[names.index(c)].nodes
+        last = k == len(order) - 1
+        if len(shape) != 3 or shape[0] != left or shape[1] != n or (last and shape[2] != 1):
+            raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: core {c!r} has shape {shape}, "
+                                f"expected ({left}, {n}, {'1' if last else 'r'})")
+        shapes.append(shape)
+        left = shape[2]
+    cores = tuple(read_array(found, f"{where}/cores/{c}", shape, digests=digests) for c, shape in zip(order, shapes))
+    return FieldTT(cores, tuple(names.index(c) for c in order)), sum(8 * int(np.prod(s)) for s in shapes)
+
+
+def _report(found: Survey, digests: dict | None, *, arrays: bool) -> dict:
     """The solver report: its attributes, and its arrays unless only evaluation is wanted."""
-    if "report" not in f:
-        return {}
-    gr = f["report"]
+    p = found.source
     report = {}
-    for key in attribute_names(gr, p):
+    for key, value in found.attrs.get("report", {}).items():
         if identifier_problem(key):
             raise CodebookError(f"{p}: corrupt codebook: report key {printable_name(key)}")
-        report[key] = attr_value(read_attribute(gr, key, p))
+        report[key] = attr_value(value)
     for where in found.datasets:
         if where.startswith("report/"):
             key = where[len("report/"):]
             if identifier_problem(key):
                 raise CodebookError(f"{p}: corrupt codebook: report key {printable_name(key)}")
             if arrays:
-                report[key] = read_array(f, found, where, None, checked=checked, finite=False)
+                report[key] = read_array(found, where, None, digests=digests, finite=False)
     return report
 
 
