@@ -43,7 +43,7 @@ def info(codebook, fmt):
     if summary.get("rates"):
         console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
     for line in summary.get("separated_coefficients", []):
-        console.print(f"separated coefficient: {line}", markup=False)
+        console.print(f"separated coefficient: {line}")
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("accurate") is False:
