@@ -1,4 +1,4 @@
-"""Functions of the unknowns (issue 14): codebook builds beside solve_ivp and teneva's TT-cross, one run.
+"""Functions of the unknowns: codebook builds beside solve_ivp and teneva's TT-cross, in one run.
 
     pip install -e '.[benchmark]'                 # teneva, for the black-box TT-cross column
     python benchmarks/general_rhs.py              # every problem below (~5 min on 2 cores)
@@ -26,7 +26,7 @@ A second table builds a 3- and a 4-parameter problem three ways: general terms o
 polynomial monomials too) by the default path.
 
 The scipy runs use one BLAS thread, as the solver does. The machine is shared: every comparison is
-made within this run; benchmarks/README.md quotes the printed table.
+made within this run. The tables are printed and written to benchmarks/results/general_rhs.md.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ import pgdcli
 from pgdcli.checks.reference import solve_reference_vectorized
 from pgdcli.tensors.tt import TT, tt_sum
 
-from _machine import machine_facts
+from _machine import published
 from gate_build import RTOL, ATOL, grid_points, time_loop, time_vectorized
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -198,7 +198,6 @@ def evaluation_paths():
 
 
 def main(names):
-    print(f"machine: {machine_facts()}", file=sys.stderr)
     print("| problem | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
           "codebook's grid | one vectorized solve_ivp over it | teneva TT-cross over it, solve_ivp black box |")
     print("| --- | --- | --- | --- | --- |")
@@ -209,4 +208,5 @@ def main(names):
 
 
 if __name__ == "__main__":
-    main([a for a in sys.argv[1:] if not a.startswith("--")] or list(PROBLEMS))
+    with published(__file__, "Functions of the unknowns beside solve_ivp and teneva's TT-cross"):
+        main([a for a in sys.argv[1:] if not a.startswith("--")] or list(PROBLEMS))
