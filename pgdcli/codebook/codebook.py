@@ -300,7 +300,7 @@ class Codebook:
     def _tensor_train_point(self, coordinates: Mapping[str, object]) -> dict[str, np.ndarray] | None:
         """Every unknown at one point given as Python numbers, when all are in the tensor-train stack.
 
-        The one-point path without its bookkeeping (a few microseconds of a ~15 us
+        The one-point path without its bookkeeping (a sizeable share of a one-point
         query); None when the coordinates are anything else (the general path then
         decides, and raises what it raises).
         """
