@@ -179,15 +179,15 @@ class VerifyReport:
     def passed(self, max_error: float | None = None, max_rel_error: float | None = None) -> bool:
         """True when every reference integration succeeded and the gate holds.
 
+        Without either threshold, the gate is the codebook's own tolerance: every unknown's
+        ``tolerance_ratio`` at most 1.
+
         Parameters
         ----------
         max_error : float, optional
             Largest allowed absolute error of every unknown.
         max_rel_error : float, optional
             Largest allowed relative error (``max_abs_error / reference_scale``).
-
-        Without either threshold, the gate is the codebook's own tolerance: every unknown's
-        ``tolerance_ratio`` at most 1.
 
         Returns
         -------
