@@ -47,6 +47,11 @@ def _processor() -> str:
     return platform.processor() or platform.machine()
 
 
+def cell(value) -> str:
+    """A Markdown table cell: ``|`` inside a value (``max |error|``) would split the cell."""
+    return str(value).replace("|", "\\|")
+
+
 class _Tee(io.TextIOBase):
     """Writes to the real stdout and keeps a copy."""
 

@@ -84,7 +84,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _machine import published  # benchmarks/ is on sys.path when a script runs
+from _machine import cell, published  # benchmarks/ is on sys.path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 COUPLED = ROOT / "problems" / "coupled.yaml"
@@ -837,7 +837,7 @@ def bench_coupled_matched(rows: list, grid: np.ndarray, tnodes: np.ndarray) -> N
 # ----------------------------------------------------------------------------------------------
 def print_table(rows: list) -> None:
     header = ("problem", "measure", "pgdcli", "beside", "ratio", "target", "met")
-    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else str(v))
+    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else cell(v))
                               for v in row) for row in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
     line = lambda r: "| " + " | ".join(v.ljust(w) for v, w in zip(r, widths)) + " |"

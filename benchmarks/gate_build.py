@@ -1,7 +1,7 @@
 """Codebooks at a checked tolerance on problems written without node counts, beside solve_ivp, in one run.
 
-    python benchmarks/gate_build.py                 # every problem in tests/user_problems (~5-10 min)
-    python benchmarks/gate_build.py sir damped4     # some of them
+    python benchmarks/gate_build.py                 # the problems of DEFAULT below
+    python benchmarks/gate_build.py sir damped4     # any of tests/user_problems, by name
 
 For each problem (``tests/user_problems/<name>.yaml``: no node counts, tolerance 1e-6 or 1e-8), the
 build of the codebook, ``pgdcli.solve`` (automatic resolution and the error gate included), beside
@@ -84,6 +84,9 @@ def time_vectorized(problem, points, times):
 
 #: As in tests/solve/test_user_problems.py: Van der Pol is refused either way, sooner with this cap.
 SETTINGS = {"vanderpol": "  max_nodes: 65\n"}
+# linear and polynomial ODE systems, a linear PDE; the other families have their own benchmarks
+# (nonseparable.py, general_rhs.py, nonlinear_pde.py)
+DEFAULT = ("damped4", "sir", "pendulum_sc", "forced_aux", "vanderpol", "advection_diffusion")
 
 
 def measure(problem) -> dict:
@@ -141,4 +144,4 @@ def main(names):
 
 if __name__ == "__main__":
     with published(__file__, "Codebooks at a checked tolerance beside solve_ivp over the same grid"):
-        main(sys.argv[1:] or sorted(p.stem for p in PROBLEMS.glob("*.yaml")))
+        main(sys.argv[1:] or DEFAULT)

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _machine import published  # benchmarks/ is on sys.path when a script runs
+from _machine import cell, published  # benchmarks/ is on sys.path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {"spring": ROOT / "problems" / "spring.yaml", "relaxation": ROOT / "problems" / "relaxation.yaml"}
@@ -290,7 +290,7 @@ def measure_cli(name: str, path: Path, rows: list, quick: bool, workdir: Path) -
 # ----------------------------------------------------------------------------------------------
 def print_table(rows: list) -> None:
     header = ("codebook", "measure", "pgdcli", "reference, same run", "ratio", "target", "met")
-    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else str(v))
+    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else cell(v))
                               for v in row) for row in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
     line = lambda r: "| " + " | ".join(v.ljust(w) for v, w in zip(r, widths)) + " |"
@@ -358,7 +358,7 @@ def main(argv=None) -> None:
           "pgd query = its wall time / that of python -c 'import numpy, h5py'.")
     missed = [r for r in rows if r[6] is False]
     print(f"\n{len([r for r in rows if r[6] is True])} targets met, {len(missed)} missed"
-          + "".join(f"\n  missed: {r[0]}: {r[1]}: {r[2]} (target {r[5]})" for r in missed))
+          + "".join(f"\n\n- missed: {r[0]}: {r[1]}: {r[2]} (target {r[5]})" for r in missed))
 
 
 if __name__ == "__main__":

@@ -304,7 +304,9 @@ def main() -> int:
             rows.append((label, "  (same grid)", f"{m / on_grid:.3g} pts/s",
                          f"RGI linear, same points: {m / ref_grid:.3g} pts/s", f"{ref_grid / on_grid:.0f}x", "", None))
     header = ("codebook", "measure", "pgdcli", "reference, same run", "ratio", "target", "met")
-    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else str(v))
+    from _machine import cell
+
+    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else cell(v))
                               for v in r) for r in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
     for i, r in enumerate(cells):
