@@ -2,8 +2,8 @@
 Jacobian, or sparse LU for steady problems) on the collocation grid of :mod:`.collocation`;
 the interpolation to the points asked is in :mod:`.reference_pde_points`.
 
-A little over 400 lines: the integration (transient, steady, chunked over workers) and its failure
-isolation per sample are one path that reads best in one file.
+The integration (transient, steady, chunked over workers) and its failure isolation per sample
+are one path, kept in one module.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ _PDE_CHUNK_STATES = 1024
 _PDE_MAX_CHUNK = 8
 # The exact Jacobian goes to solve_ivp as a dense array up to this many unknowns per call, as a sparse
 # matrix beyond. Collocation couples every node of a grid line, so the LU of a 2D operator fills in
-# almost completely: LAPACK's dense LU was measured 4x faster than SuperLU's at 38 x 38 interior nodes
-# (0.04 s vs 0.17 s per factorization; 1.9 s vs 6.3 s per sample of the 2D heat example).
+# almost completely: LAPACK's dense LU is several times faster than SuperLU's on the 2-D heat example's
+# 38 x 38 interior nodes, per factorization and per sample.
 _DENSE_JACOBIAN_LIMIT = 4096
 def _solve_steady_pde(model: PdeModel, params, S, times):
     """Sparse LU solves of ``A y + b = 0``, one per sample, as :func:`_integrate_pde` returns them.
@@ -164,7 +164,7 @@ def _one_blas_thread():
     """BLAS limited to one thread while the method of lines runs (its LU factorizations).
 
     Threaded LAPACK spins when another process holds a core: on 2 busy cores the LU of the
-    2D heat example (1444 unknowns) took 0.27 s with 2 threads, 0.056 s with one.
+    2-D heat example (1444 unknowns) is several times slower with 2 threads than with one.
     """
     try:
         from threadpoolctl import threadpool_limits

@@ -46,8 +46,10 @@ def plot_command(codebook, kind, output, field, count, at, over, fix, reference,
       pgd plot codebooks/spring.h5 --kind error --over k,c --fix t=4
     """
     from ..plot import files as plotting
+    from ..plot.options import require_matplotlib
     from .outputs import prepare_output
 
+    require_matplotlib("pgd plot")  # before any file or folder is made
     target = Path(output) if output is not None else plotting.default_output(codebook, kind)
     prepare_output(target, "--output", suffixes=(".png", ".svg"))  # before the plot is computed
     try:

@@ -46,18 +46,27 @@ class InaccurateCodebookWarning(UserWarning):
 class Codebook:
     """A separated solution that evaluates anywhere in its domain.
 
+    Usually made by :func:`pgdcli.solve` (``result.codebook``) or read by :meth:`load`; each
+    unknown is stored either as a sum of products of one-coordinate modes (CP, from the PGD
+    enrichment) or as a tensor train (from the time march).
+
     Parameters
     ----------
     coordinates : sequence of CoordinateInfo
-        In dimension order.
+        In dimension order: name, role (``time``, ``space`` or ``parameter``), domain, nodes and
+        discretization of each.
     fields : mapping
-        Unknown name -> :class:`FieldModes`, in output order.
+        Unknown name -> :class:`FieldModes` (CP) or :class:`FieldTT` (tensor train), in output
+        order.
     name : str
+        The problem's name.
     spec_text : str
-        The YAML spec the codebook was solved from.
+        The YAML spec the codebook was solved from (``pgd info --spec`` prints it).
     report : dict
-        Solver report (see ``docs/codebook-format.md``).
+        Solver report: convergence, the measured error, tolerance, nodes chosen (see the
+        codebook file format in the user guide).
     description : str
+        The spec's description.
     created : str, optional
         ISO 8601 time of the solve (default: now).
     partial : bool
@@ -65,6 +74,18 @@ class Codebook:
         the report's arrays were not read, and :meth:`save` refuses it.
     format_version : str, optional
         The format of the file it was loaded from (``"1.0"`` files carry no checksums).
+
+    Raises
+    ------
+    CodebookError
+        No coordinate or no unknown, or a field whose shapes do not match the coordinates.
+
+    Attributes
+    ----------
+    coordinates : tuple of CoordinateInfo
+    fields : dict of str to FieldModes or FieldTT
+    name, spec_text, description, created : str
+    report : dict
 
     Examples
     --------
@@ -102,13 +123,31 @@ class Codebook:
     # ------------------------------------------------------------------ introspection
     @property
     def coordinate_names(self) -> list[str]:
+        """The coordinates' names, in dimension order."""
         return [c.name for c in self.coordinates]
 
     @property
     def unknown_names(self) -> list[str]:
+        """The unknowns' names, in output order (second-order unknowns' rates last)."""
         return list(self.fields)
 
     def coordinate(self, name: str) -> CoordinateInfo:
+        """The coordinate called ``name``.
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        CoordinateInfo
+            Its role, domain, nodes and discretization; ``.basis()`` gives its 1-D basis.
+
+        Raises
+        ------
+        QueryError
+            No coordinate has that name.
+        """
         for c in self.coordinates:
             if c.name == name:
                 return c
@@ -121,7 +160,16 @@ class Codebook:
 
     # ------------------------------------------------------------------ evaluation
     def __call__(self, **coordinates) -> dict[str, np.ndarray]:
-        """Evaluate every unknown; see :meth:`evaluate`."""
+        """Evaluate every unknown at points given as keyword arguments, like ``OdeSolution.__call__``.
+
+        ``cb(t=0.5, k=2.0)`` is ``cb.evaluate({"t": 0.5, "k": 2.0})``: the same returns and
+        errors as :meth:`evaluate`.
+
+        Parameters
+        ----------
+        **coordinates : scalar or array_like
+            Every coordinate name -> value(s), broadcast together with numpy rules.
+        """
         return self.evaluate(coordinates)
 
     def evaluate(self, coordinates: Mapping[str, object], fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:
@@ -137,13 +185,19 @@ class Codebook:
 
         Returns
         -------
-        dict
-            Unknown name -> ndarray of the broadcast shape (0-d for scalars).
+        dict of str to ndarray
+            Unknown name -> values of the broadcast shape (0-d for scalars).
 
         Raises
         ------
         QueryError
             Missing, unknown or out-of-domain coordinates, unknown fields.
+
+        Notes
+        -----
+        A point given as Python numbers takes the one-point path, the one ``pgd query`` uses
+        (the same digits whichever way the point is asked); arrays take the batch path, whose
+        last bits can differ with the shape of the batch.
         """
         if fields is None and self._tt_all is not None:
             values = self._tensor_train_point(coordinates)
@@ -188,8 +242,8 @@ class Codebook:
 
         Returns
         -------
-        dict
-            Unknown name -> ndarray of shape ``(len(axes[c_1]), ..., len(axes[c_d]))``, the
+        dict of str to ndarray
+            Unknown name -> values of shape ``(len(axes[c_1]), ..., len(axes[c_d]))``, the
             coordinates in codebook order (``coordinate_names``), whatever the mapping's order.
 
         Raises
@@ -232,8 +286,8 @@ class Codebook:
 
         Returns
         -------
-        dict
-            Unknown name -> ndarray of shape (S, T).
+        dict of str to ndarray
+            Unknown name -> values of shape ``(S, T)``.
 
         Raises
         ------
@@ -283,10 +337,15 @@ class Codebook:
 
         Returns
         -------
-        dict
+        dict of str to dict of str to ndarray
             ``out[u][c]``: d u / d c, shaped like :meth:`evaluate`'s (or :meth:`evaluate_grid`'s) values.
             Where the interpolant has a kink (a slab breakpoint, a linear element's node) the derivative
             is the one from the right (at the upper end: from the left). See :mod:`pgdcli.codebook.gradient`.
+
+        Raises
+        ------
+        QueryError
+            Missing, unknown or out-of-domain coordinates, an unknown name in ``wrt`` or ``fields``.
         """
         from .gradient import gradient_grid, gradient_points
 
@@ -310,7 +369,7 @@ class Codebook:
     def _tensor_train_point(self, coordinates: Mapping[str, object]) -> dict[str, np.ndarray] | None:
         """Every unknown at one point given as Python numbers, when all are in the tensor-train stack.
 
-        The one-point path without its bookkeeping (a few microseconds of a ~15 us
+        The one-point path without its bookkeeping (a sizeable share of a one-point
         query); None when the coordinates are anything else (the general path then
         decides, and raises what it raises).
         """
@@ -366,7 +425,23 @@ class Codebook:
         return np.clip(x, low, high)
 
     def nodal_values(self, field_name: str) -> np.ndarray:
-        """The unknown on the full tensor grid of nodes (small codebooks only: tests and plots)."""
+        """An unknown on the full tensor grid of nodes (small codebooks only: tests and plots).
+
+        Parameters
+        ----------
+        field_name : str
+            The unknown.
+
+        Returns
+        -------
+        ndarray, shape (n_1, ..., n_d)
+            Its values at every node, coordinates in dimension order (``n_k`` nodes of the k-th).
+
+        Raises
+        ------
+        QueryError
+            No unknown has that name.
+        """
         return nodal_tensor(self.fields[self._select([field_name])[0]])
 
     @property
@@ -376,13 +451,31 @@ class Codebook:
         return codebook_summary.accurate(self.report)
 
     def nodes_chosen(self) -> dict | None:
-        """The automatic resolution's solves: ``{"automatic": [names], "reason": str, "rounds": [{"nodes":
-        {coordinate: nodes}, "ratio": measured error / tolerance}]}``; None for a codebook without it."""
+        """The automatic resolution's solves.
+
+        Returns
+        -------
+        dict or None
+            ``{"automatic": [names], "reason": str, "rounds": [{"nodes": {coordinate: nodes},
+            "ratio": measured error / tolerance}]}``; None for a codebook without it.
+        """
         return codebook_summary.nodes_chosen(self.report, self.coordinate_names)
 
     # ------------------------------------------------------------------ summary
     def info(self, path: str | os.PathLike | None = None) -> dict:
-        """Summary as plain Python data (what ``pgd info`` prints).
+        """Summary as plain Python data (what ``pgd info --format json`` prints).
+
+        Parameters
+        ----------
+        path : path-like, optional
+            The codebook's file, for its size (``size_bytes``).
+
+        Returns
+        -------
+        dict
+            Name, description, format, coordinates, unknowns (representation, modes or ranks),
+            method, convergence, the measured error (``check``), tolerance, nodes chosen, solve
+            time, and more: JSON-ready values only.
 
         Raises
         ------
@@ -401,6 +494,16 @@ class Codebook:
 
         A crash or error while writing leaves any previous file at ``path``
         untouched and no partial file behind.
+
+        Parameters
+        ----------
+        path : path-like
+            The HDF5 file to write (its folder must exist).
+
+        Returns
+        -------
+        path-like
+            The path written.
         """
         return codebook_io.save(self, path)
 
@@ -410,13 +513,19 @@ class Codebook:
 
         The file must be self-contained (no links to other files, no external storage), its
         arrays of the sizes its metadata implies and within ``PGD_MAX_CODEBOOK_BYTES``, and (format
-        1.1) match their checksums and digests.
+        1.1) match their checksums and digests. A codebook written with ``pgd solve
+        --keep-inaccurate`` loads with an :class:`InaccurateCodebookWarning`.
 
         Parameters
         ----------
-        path : str or path
+        path : path-like
+            An HDF5 file written by :meth:`save` (or ``pgd solve``).
         evaluation_only : bool
             Skip what evaluation does not need (the stored spec, the report's arrays).
+
+        Returns
+        -------
+        Codebook
 
         Raises
         ------

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .modes import convergence_data, modes_data
-from .options import DEFAULT_COUNT, DEFAULT_DPI, point_label
+from .options import DEFAULT_COUNT, DEFAULT_DPI, point_label, require_matplotlib
 from .solution import error_data, solution_data
 
 __all__ = ["draw_modes", "draw_convergence", "draw_solution", "draw_error", "plot_modes", "plot_convergence", "plot_solution", "plot_error"]
@@ -34,6 +34,7 @@ def _style(i: int) -> dict:
 def _new_figure(fig, figsize):
     if fig is not None:
         return fig
+    require_matplotlib()
     from matplotlib.figure import Figure
 
     return Figure(figsize=figsize, dpi=DEFAULT_DPI, layout="constrained")

@@ -9,7 +9,7 @@ import os
 from ..errors import PgdError, QueryError
 from .draw import draw_convergence, draw_error, draw_modes, draw_solution
 from .modes import convergence_data, modes_data
-from .options import DEFAULT_COUNT, DEFAULT_DPI, FORMATS, KINDS, parse_size
+from .options import DEFAULT_COUNT, DEFAULT_DPI, FORMATS, KINDS, parse_size, require_matplotlib
 from .solution import error_data, reference_solver, solution_data
 
 __all__ = ["default_output", "save_figure", "render"]
@@ -101,6 +101,7 @@ def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | 
     """
     from ..codebook.codebook import Codebook
 
+    require_matplotlib("pgd plot")
     if kind not in KINDS:
         raise QueryError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
     target = Path(output) if output is not None else default_output(codebook_path, kind)
