@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
@@ -121,6 +122,12 @@ def parse_density(text: str, name: str | None = None) -> Density:
     raise QueryError(f"{option}{text}: expected uniform, uniform:LOW,HIGH or normal:MEAN,SD")
 
 
+@lru_cache(maxsize=64)
+def _gauss_legendre(points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre points and weights on [-1, 1] (numpy finds them by an eigenvalue problem: kept)."""
+    return np.polynomial.legendre.leggauss(points)
+
+
 def _pieces(basis) -> np.ndarray:
     """The boundaries of the pieces on which the basis's functions are polynomials, and their nodes a piece."""
     if basis.kind == "linear":
@@ -171,7 +178,7 @@ def quadrature(name: str, basis, density: Density | None = None) -> tuple[np.nda
             raise QueryError(f"--density {name}={density.describe()}: its length scale {scale:g} is too small for "
                              f"the domain [{low:g}, {high:g}] (over {MAX_PIECES} quadrature pieces)")
         cuts = np.concatenate([np.linspace(a, b, k + 1)[:-1] for a, b, k in zip(cuts[:-1], cuts[1:], split)] + [[hi]])
-    unit_x, unit_w = np.polynomial.legendre.leggauss(points)
+    unit_x, unit_w = _gauss_legendre(points)
     a, b = cuts[:-1, None], cuts[1:, None]
     x = (a + (b - a) * (unit_x + 1.0) / 2.0).reshape(-1)
     w = ((b - a) / 2.0 * unit_w).reshape(-1) * density.pdf(x)

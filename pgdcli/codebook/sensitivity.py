@@ -25,6 +25,7 @@ from ..errors import QueryError
 from .densities import Density, parse_density, quadrature
 from .evaluate import shared_basis
 from .fields import FieldTT
+from .threads import BLAS_LIMIT_MIN_POINTS, one_blas_thread
 from .sobol import Patterns, cp_patterns, cp_terms, tt_patterns, tt_terms
 
 __all__ = ["SensitivityResult", "sensitivity", "DEFAULT_TIMES", "ROUNDING_STD"]
@@ -158,17 +159,38 @@ def _inputs(cb, fixed: dict, tc, densities: Mapping | None) -> list:
     return inputs
 
 
-def _rms(fm, random: dict, rows: dict, time_nodes) -> float:
+def _rms(fm, random: dict, rows: dict, time_nodes, cache: dict) -> float:
     """The unknown's RMS over the inputs and over time (its nodes, with the basis's quadrature weights):
     the scale at which its variances are rounding."""
     inputs = dict(random)
     if time_nodes is not None:
         inputs[len(inputs)] = time_nodes
     if isinstance(fm, FieldTT):
-        value, _ = tt_patterns(fm, inputs, rows, None)
+        value, _ = tt_patterns(fm, inputs, rows, None, cache)
     else:
-        value, _ = cp_patterns(fm.alphas, fm.modes, inputs, rows, None)
+        value, _ = cp_patterns(fm.alphas, fm.modes, inputs, rows, None, cache)
     return float(np.sqrt(max(float(value("P" * len(inputs))[0]), 0.0)))
+
+
+def _unknown(fm, u: str, random: dict, rows: dict, batch, patterns: Patterns, time_nodes, second_order: bool,
+             out: dict) -> None:
+    """One unknown's terms, divided by its variance, into ``out``."""
+    cache: dict = {}  # the inputs' kernels, shared by the terms and the scale
+    if isinstance(fm, FieldTT):
+        terms = tt_terms(fm, random, rows, batch, patterns, cache)
+    else:
+        terms = cp_terms(fm.alphas, fm.modes, random, rows, batch, patterns, cache)
+    # sums of nonnegative quadratic forms: a negative value is rounding of a zero
+    variance = np.maximum(terms["variance"], 0.0)
+    rms = _rms(fm, random, rows, time_nodes, cache)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(np.sqrt(variance) > ROUNDING_STD * rms, variance, np.nan)[:, None]
+        out["first"][u] = np.maximum(terms["first"], 0.0) / scale
+        out["total"][u] = np.maximum(terms["total"], 0.0) / scale
+        if second_order:
+            out["second"][u] = np.maximum(terms["second"], 0.0) / scale[:, :, None]
+    out["mean"][u] = terms["mean"]
+    out["variance"][u] = variance
 
 
 def sensitivity(cb, *, times=None, at: Mapping[str, float] | None = None,
@@ -222,22 +244,9 @@ def sensitivity(cb, *, times=None, at: Mapping[str, float] | None = None,
     # time at its nodes (rows None: the identity), weighted by the basis's quadrature: for the scale only
     time_nodes = None if tc is None else (index[tc.name], None, bases[tc.name].weights / bases[tc.name].weights.sum())
     out = {"mean": {}, "variance": {}, "first": {}, "total": {}, "second": {} if second_order else None}
-    for u in selected:
-        fm = cb.fields[u]
-        if isinstance(fm, FieldTT):
-            terms = tt_terms(fm, random, rows, batch, patterns)
-        else:
-            terms = cp_terms(fm.alphas, fm.modes, random, rows, batch, patterns)
-        variance = np.maximum(terms["variance"], 0.0)
-        rms = _rms(fm, random, rows, time_nodes)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            scale = np.where(np.sqrt(variance) > ROUNDING_STD * rms, variance, np.nan)[:, None]
-            out["first"][u] = terms["first"] / scale
-            out["total"][u] = terms["total"] / scale
-            if second_order:
-                out["second"][u] = terms["second"] / scale[:, :, None]
-        out["mean"][u] = terms["mean"]
-        out["variance"][u] = variance
+    with one_blas_thread(BLAS_LIMIT_MIN_POINTS):  # small products: a second BLAS thread only costs (10-40x)
+        for u in selected:
+            _unknown(cb.fields[u], u, random, rows, batch, patterns, time_nodes, second_order, out)
     return SensitivityResult(inputs=[c.name for c in inputs], time=None if tc is None else tc.name, times=times_,
                              at=fixed, densities=described, second=out["second"],
                              seconds=_time.perf_counter() - start, unknowns=selected,

@@ -87,7 +87,7 @@ def _results(patterns: Patterns, value, mean) -> dict:
 # CP: Hadamard products of rank x rank kernels
 # ----------------------------------------------------------------------------------------------
 def cp_terms(alphas: np.ndarray, modes: Sequence[np.ndarray], random: dict, rows: dict, batch: tuple | None,
-             patterns: Patterns) -> dict:
+             patterns: Patterns, cache: dict | None = None) -> dict:
     """ANOVA terms of a CP field.
 
     Parameters
@@ -110,13 +110,15 @@ def cp_terms(alphas: np.ndarray, modes: Sequence[np.ndarray], random: dict, rows
         ``mean`` and ``variance`` (T,), ``first`` and ``total`` (T, d), ``second`` (T, d, d) if asked:
         the terms' variances (not yet divided by the variance).
     """
-    value, mean = cp_patterns(alphas, modes, random, rows, batch)
+    value, mean = cp_patterns(alphas, modes, random, rows, batch, cache)
     return _results(patterns, value, mean)
 
 
-def cp_patterns(alphas, modes, random: dict, rows: dict, batch: tuple | None):
+def cp_patterns(alphas, modes, random: dict, rows: dict, batch: tuple | None, cache: dict | None = None):
     """``(value, mean)``: ``value(letters) -> (T,)`` the quadratic form of a kernel pattern (one letter
-    per input), and the mean (T,), of a CP field (arguments as :func:`cp_terms`)."""
+    per input), and the mean (T,), of a CP field (arguments as :func:`cp_terms`). ``cache``: the
+    kernels of an input, kept between calls on the same modes and quadrature."""
+    cache = {} if cache is None else cache
     scale = np.array(alphas, dtype=float)
     for j, row in rows.items():
         scale = scale * (row @ modes[j])
@@ -125,12 +127,16 @@ def cp_patterns(alphas, modes, random: dict, rows: dict, batch: tuple | None):
     mean_product = np.ones_like(scale)
     for i in range(len(random)):
         j, b, w = random[i]
-        values = modes[j] if b is None else b @ modes[j]  # (Q, r): the modes at the quadrature points
-        mu = w @ values
-        centered = (values - mu) * np.sqrt(w)[:, None]
-        cov = centered.T @ centered
-        outer = np.outer(mu, mu)
-        kernels.append({"Q": outer, "C": cov, "P": outer + cov})
+        key = (id(modes[j]), id(b), id(w))
+        if key not in cache:
+            values = modes[j] if b is None else b @ modes[j]  # (Q, r): the modes at the quadrature points
+            mu = w @ values
+            centered = (values - mu) * np.sqrt(w)[:, None]
+            cov = centered.T @ centered
+            outer = np.outer(mu, mu)
+            cache[key] = ({"Q": outer, "C": cov, "P": outer + cov}, mu)
+        kernel, mu = cache[key]
+        kernels.append(kernel)
         mean_product = mean_product * mu
 
     def value(letters: str) -> np.ndarray:
@@ -158,7 +164,9 @@ class _Core:
             b, w = data
             slices = np.moveaxis(core, 1, 0) if b is None else np.tensordot(b, core, axes=(1, 1))  # (Q, r0, r1)
             self.matrix = np.tensordot(w, slices, axes=(0, 0))  # the mean core
-            self.centered = (slices - self.matrix) * np.sqrt(w)[:, None, None]
+            self.centered = (slices - self.matrix) * np.sqrt(w)[:, None, None]  # (Q, r0, r1)
+            # the same, (r0, Q r1): the right transfer as two matrix products
+            self.by_row = np.ascontiguousarray(self.centered.transpose(1, 0, 2)).reshape(core.shape[0], -1)
         else:
             self.batch = np.tensordot(data, core, axes=(1, 1))  # (T, r0, r1)
 
@@ -181,26 +189,31 @@ class _Core:
             mean = a @ psi @ a.T
             if self.kind == "fixed" or letter == "Q":
                 return mean
-        h = self.centered
-        k = np.matmul(h, psi)  # (Q, r0, r1)
-        cov = np.einsum("qab,qcb->ac", k, h)
+        h = self.by_row  # (r0, Q r1)
+        k = (h.reshape(-1, psi.shape[0]) @ psi).reshape(h.shape)
+        cov = k @ h.T
         return mean + cov if letter == "P" else cov
 
 
-def tt_terms(fm: FieldTT, random: dict, rows: dict, batch: tuple | None, patterns: Patterns) -> dict:
+def tt_terms(fm: FieldTT, random: dict, rows: dict, batch: tuple | None, patterns: Patterns,
+             cache: dict | None = None) -> dict:
     """ANOVA terms of a tensor-train field (arguments and result as :func:`cp_terms`)."""
-    value, mean = tt_patterns(fm, random, rows, batch)
+    value, mean = tt_patterns(fm, random, rows, batch, cache)
     return _results(patterns, value, mean)
 
 
-def tt_patterns(fm: FieldTT, random: dict, rows: dict, batch: tuple | None):
+def tt_patterns(fm: FieldTT, random: dict, rows: dict, batch: tuple | None, cache: dict | None = None):
     """:func:`cp_patterns` of a tensor-train field."""
+    cache = {} if cache is None else cache
     slot = {j: i for i, (j, _, _) in random.items()}  # coordinate -> input index
     cores, kinds = [], []
     for core, j in zip(fm.cores, fm.mode_order):
         if j in slot:
             _, b, w = random[slot[j]]
-            cores.append(_Core(core, "random", (b, w)))
+            key = (id(core), id(b), id(w))
+            if key not in cache:
+                cache[key] = _Core(core, "random", (b, w))
+            cores.append(cache[key])
         elif batch is not None and j == batch[0]:
             cores.append(_Core(core, "batch", batch[1]))
         else:

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
-from pgdcli.codebook.densities import TruncatedNormal, Uniform, parse_density, quadrature
+from pgdcli.codebook.densities import TruncatedNormal, parse_density, quadrature
 from pgdcli.errors import QueryError
 
 LINEAR_GROWTH = """
