@@ -21,7 +21,7 @@ from pathlib import Path
 from ..errors import PgdError
 from .payload import PAGE_LIMIT, payload
 
-__all__ = ["page_html", "write_page", "script_json", "UPLOT_VERSION"]
+__all__ = ["page_html", "write_page", "script_json", "explore", "Explorer", "UPLOT_VERSION"]
 
 STATIC = Path(__file__).resolve().parent / "static"
 UPLOT_VERSION = "1.6.32"
@@ -123,3 +123,45 @@ def write_page(cb, path: str | os.PathLike, **options) -> Path:
             pass
         raise
     return path
+
+
+class Explorer:
+    """The page of a codebook inside a notebook: displayed as a sandboxed ``<iframe>`` holding it.
+
+    Attributes
+    ----------
+    html : str
+        The page (:func:`page_html`).
+    height : int
+        The frame's height in pixels.
+    """
+
+    def __init__(self, html_text: str, height: int = 900):
+        self.html = html_text
+        self.height = int(height)
+
+    def _repr_html_(self) -> str:
+        # the page as the frame's document (escaped as an attribute value); scripts allowed, nothing else:
+        # no access to the notebook, no navigation, no network (the page's own policy too)
+        return (f'<iframe srcdoc="{html.escape(self.html, quote=True)}" sandbox="allow-scripts" '
+                f'style="width: 100%; height: {self.height}px; border: 1px solid #d8dde3; border-radius: 6px">'
+                f"</iframe>")
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the page to ``path`` (as ``pgd view -o`` does)."""
+        path = Path(path)
+        path.write_text(self.html, encoding="utf-8")
+        return path
+
+
+def explore(cb, *, height: int = 900, **options) -> Explorer:
+    """The ``pgd view`` page of ``cb`` to display in a notebook (the last expression of a cell).
+
+    ``options`` as for :func:`page_html` (``data``, ``limit``, ``force``).
+
+    Examples
+    --------
+    >>> from pgdcli.view import explore                 # doctest: +SKIP
+    >>> explore(pgdcli.Codebook.load("codebooks/drag.h5"))   # doctest: +SKIP
+    """
+    return Explorer(page_html(cb, **options), height)

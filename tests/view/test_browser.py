@@ -253,6 +253,24 @@ def test_play_moves_time_and_keeps_the_values_right(browser, pages):
     assert_close_to_query(cb, path, point, shown_values(browser, cb))
 
 
+def test_a_zoom_survives_slider_moves(browser, pages):
+    cb, _, page = pages("spring")
+    open_page(browser, page)
+    browser.execute_script("window.pgdView.charts[0].setScale('x', {min: 1, max: 2})")  # as a drag across it does
+    j = cb.coordinate_names.index("k")
+    browser.find_element(By.ID, f"coord-{j}-slider").send_keys(*([Keys.ARROW_LEFT] * 20))
+    settle(browser)
+    scale = browser.execute_script("const s = window.pgdView.charts[0].scales.x; return [s.min, s.max]")
+    assert scale == [1, 2]
+    point = shown_point(browser, cb)
+    drawn = browser.execute_script("return window.pgdView.charts[0].data[1]")
+    np.testing.assert_allclose(drawn, cb.evaluate({**point, "t": np.linspace(0, 4, 400)})["x"], rtol=0, atol=1e-12)
+    browser.execute_script("window.pgdView.charts[0].setScale('x', {min: 0, max: 4})")  # double-click: all
+    browser.find_element(By.ID, f"coord-{j}-slider").send_keys(Keys.ARROW_RIGHT)
+    settle(browser)
+    assert browser.execute_script("const s = window.pgdView.charts[0].scales.x; return [s.min, s.max]") == [0, 4]
+
+
 def test_invalid_number_is_refused_with_a_note(browser, pages):
     cb, _, page = pages("spring")
     open_page(browser, page)
@@ -335,3 +353,24 @@ def test_the_page_asks_for_nothing_over_the_network(browser, pages):
     policy = browser.execute_script(
         "return document.querySelector('meta[http-equiv=Content-Security-Policy]').content")
     assert "default-src 'none'" in policy and json.dumps(policy).count("sha256-") == 2
+
+
+def test_the_notebook_explorer_runs_the_page_in_a_sandboxed_frame(browser, pages, tmp_path):
+    from pgdcli.view import explore
+
+    cb, path, _ = pages("coupled")
+    frame_html = explore(cb, height=700)._repr_html_()
+    assert frame_html.startswith("<iframe srcdoc=") and 'sandbox="allow-scripts"' in frame_html
+    notebook = tmp_path / "notebook.html"
+    notebook.write_text(f"<!DOCTYPE html><html><body><h1>cell output</h1>{frame_html}</body></html>")
+    browser.get(notebook.resolve().as_uri())
+    browser.switch_to.frame(browser.find_element(By.TAG_NAME, "iframe"))
+    try:
+        from selenium.webdriver.support.ui import WebDriverWait
+
+        WebDriverWait(browser, 30).until(lambda d: d.execute_script("return window.pgdView && window.pgdView.ready"))
+        settle(browser)
+        assert_close_to_query(cb, path, shown_point(browser, cb), shown_values(browser, cb))
+        assert browser.execute_script("return window.pgdView.errors") == []
+    finally:
+        browser.switch_to.default_content()

@@ -68,7 +68,7 @@
   const controls = [];
   const charts = [];
   const readout = [];
-  let fieldPanel = null, scheduled = false, command = null, timingText = null, mapMs = 0, mapQueued = false;
+  let fieldPanel = null, scheduled = false, command = null, timingText = null, mapMs = 0, mapQueued = false, lastCurvesMs = 0;
 
   // ------------------------------------------------------------------ controls
   function coordinateRow(j) {
@@ -160,9 +160,17 @@
       axes: [{label: opts.xLabel}, {label: opts.yLabel, size: 64}],
       series: series,
       cursor: {drag: {x: true, y: false}},
-      hooks: {draw: [cursorLine(opts.marker)]},
+      hooks: {draw: [cursorLine(opts.marker)],
+              // a zoom (drag across the chart; double-click: all) outlives the curves' updates
+              setScale: [(u, key) => {
+                const x = u.data[0];
+                if (key !== "x" || u.restoring || !x.length) return;
+                const s = u.scales.x, full = s.min <= x[0] && s.max >= x[x.length - 1];
+                u.zoom = full ? null : [s.min, s.max];
+              }]},
     }, [[], []], target);
     u.hasData = false;
+    u.zoom = null;
     return u;
   }
 
@@ -176,11 +184,10 @@
       u.delSeries(2);
       u.hasData = false;
     }
-    if (!points) {
-      u.setData([x, y]);
-      return;
-    }
-    u.setData(uPlot.join([[x, y], [points.x, points.y]]));
+    u.restoring = true;
+    u.setData(points ? uPlot.join([[x, y], [points.x, points.y]]) : [x, y]);
+    if (u.zoom) u.setScale("x", {min: u.zoom[0], max: u.zoom[1]});
+    u.restoring = false;
   }
 
   function heatChart(target, opts) {
@@ -329,7 +336,7 @@
           let [lo, hi] = range(values);
           if (!withTime && timeIndex >= 0) {
             // a colour scale fixed over time, so that an animation compares like with like
-            if (!state.colorRange) state.colorRange = colorRangeOverTime(sx, second, mapX, mapY);
+            if (!state.colorRange) state.colorRange = colorRangeOverTime(sx, second);
             [lo, hi] = state.colorRange;
           }
           heat.paint(values, MAP_X, MAP_Y, lo, hi);
@@ -345,12 +352,15 @@
     return view;
   }
 
-  function colorRangeOverTime(sx, sy, mapX, mapY) {
+  function colorRangeOverTime(sx, sy) {
+    /* the field's range over space at 9 times, on a grid a quarter as fine as the image's (a scale, not a value) */
     const saved = xs[timeIndex], c = coords[timeIndex];
+    const gx = linspace(coords[sx].low, coords[sx].high, MAP_X / 4 + 1), gy = linspace(coords[sy].low, coords[sy].high,
+                                                                                        MAP_Y / 4 + 1);
     let lo = Infinity, hi = -Infinity;
     for (const t of linspace(c.low, c.high, 9)) {
       xs[timeIndex] = t;
-      const [a, b] = range(cb.map(state.field, xs, sy, sx, mapY, mapX));
+      const [a, b] = range(cb.map(state.field, xs, sy, sx, gy, gx));
       lo = Math.min(lo, a);
       hi = Math.max(hi, b);
     }
@@ -586,9 +596,10 @@
       state.map = false;
     }
     const total = performance.now() - start;
+    if (curvesMs !== null) lastCurvesMs = curvesMs;
     api.timings = {curves: curvesMs, update: total, map: mapMs};
-    timingText.textContent = (curvesMs !== null ? "Curves of " + CURVE_SAMPLES + " samples recomputed in " +
-                              curvesMs.toFixed(2) + " ms; " : "") + "page updated in " + total.toFixed(1) + " ms.";
+    timingText.textContent = "Curves of " + CURVE_SAMPLES + " samples recomputed in " + lastCurvesMs.toFixed(2) +
+                             " ms after the last parameter move; page updated in " + total.toFixed(1) + " ms.";
   }
 
   function play(button) {
@@ -662,6 +673,7 @@
 
   // ------------------------------------------------------------------ for tests and benchmarks
   api.codebook = cb;
+  api.charts = charts;
   api.point = () => Object.fromEntries(coords.map((c, j) => [c.name, xs[j]]));
   api.evaluate = (point) => {
     const values = cb.point(coords.map((c) => {
