@@ -75,7 +75,15 @@ def front_codebook() -> Codebook:
     return Codebook(coords, _trains(coords, {"u": (0, 1, 2)}, (1, 6, 4, 1), rng), name="front", report={})
 
 
-BUILT = {"mixed": mixed_codebook, "steady": steady_codebook, "front": front_codebook}
+def single_codebook() -> Codebook:
+    """Time alone: no parameter, nothing but the curves and the values."""
+    rng = np.random.default_rng(34)
+    t = CoordinateInfo("t", (0.0, 5.0), 12, "chebyshev", "time")
+    return Codebook([t], {"u": FieldModes(rng.standard_normal(2), (rng.standard_normal((12, 2)),))}, name="single",
+                    report={})
+
+
+BUILT = {"mixed": mixed_codebook, "steady": steady_codebook, "front": front_codebook, "single": single_codebook}
 
 
 @pytest.fixture(scope="module")
@@ -161,7 +169,7 @@ def settle(driver):
 # ----------------------------------------------------------------------------------------------
 # tests
 # ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", ["spring", "coupled", "relaxation", "mixed", "steady", "front"])
+@pytest.mark.parametrize("name", ["spring", "coupled", "relaxation", "mixed", "steady", "front", "single"])
 def test_moved_sliders_and_typed_numbers_show_pgd_query_values(browser, pages, name):
     cb, path, page = pages(name)
     logs = open_page(browser, page)
@@ -222,7 +230,7 @@ def test_curves_and_maps_drawn_equal_the_codebook(browser, pages, name):
 
 
 @pytest.mark.parametrize("name", ["parametric", "spring", "relaxation", "coupled", "logistic", "drag", "pendulum",
-                                  "forced", "heat1d", "rigid_body", "mixed", "steady", "front"])
+                                  "forced", "heat1d", "rigid_body", "mixed", "steady", "front", "single"])
 def test_pages_load_without_console_errors(browser, pages, name):
     cb, _, page = pages(name)
     logs = open_page(browser, page)

@@ -65,11 +65,23 @@ var PgdEval = (function () {
       return {lo: lo, w: w};
     }
 
+    /* the windows of samples, kept for the next call with the same array (a curve's samples do not move) */
+    windowsOf(xs) {
+      this.kept = this.kept || new WeakMap();
+      let wins = this.kept.get(xs);
+      if (!wins) {
+        wins = Array.from(xs, (x) => this.window(this.clamp(x)));
+        this.kept.set(xs, wins);
+      }
+      return wins;
+    }
+
     /* nodal values (n) at the samples xs */
     interpolate(values, xs, out) {
+      const wins = this.windowsOf(xs);
       out = out || new Float64Array(xs.length);
       for (let p = 0; p < xs.length; p++) {
-        const win = this.window(this.clamp(xs[p])), w = win.w, lo = win.lo;
+        const w = wins[p].w, lo = wins[p].lo;
         let s = 0;
         for (let i = 0; i < w.length; i++) s += w[i] * values[lo + i];
         out[p] = s;
@@ -309,8 +321,7 @@ var PgdEval = (function () {
       const wins = this.windows(xs), f = this.fields[field];
       const cj = this.coordinates[j], ck = this.coordinates[k];
       const nodal = f.nodal2(wins, j, k), nj = cj.n, nk = ck.n, pk = samplesK.length, pj = samplesJ.length;
-      const winJ = Array.from(samplesJ, (x) => cj.window(cj.clamp(x)));
-      const winK = Array.from(samplesK, (y) => ck.window(ck.clamp(y)));
+      const winJ = cj.windowsOf(samplesJ), winK = ck.windowsOf(samplesK);
       const width = (wins) => wins.reduce((s, w) => s + w.w.length, 0);
       const out = new Float64Array(pj * pk);
       // interpolate along the coordinate whose windows cost less over all the other's nodes first
