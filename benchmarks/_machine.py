@@ -102,3 +102,46 @@ def published(script: str, title: str, variant: str | None = None):
     target = RESULTS / f"{Path(script).stem}{'-' + variant if variant else ''}.md"
     target.write_text(tee.copy.getvalue())
     print(f"table written to {target.relative_to(RESULTS.parents[0])}", file=sys.stderr)
+
+
+def median_seconds(func, repeats: int) -> float:
+    """Median wall time of ``func()`` over ``repeats`` runs, after one warm-up (seconds)."""
+    import statistics
+    import time
+
+    func()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        func()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def markdown_table(rows, header) -> str:
+    """Rows (tuples of cells) under a header, as an aligned Markdown table."""
+    widths = [max(len(str(r[k])) for r in list(rows) + [header]) for k in range(len(header))]
+
+    def line(r):
+        return "| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths)) + " |"
+
+    return "\n".join([line(header), "|" + "|".join("-" * (w + 2) for w in widths) + "|"] + [line(r) for r in rows])
+
+
+def report(script: str, table: str, extra: str = "", output=None) -> str:
+    """A run's report: when and how it ran (date, command, machine), then the table; printed, and
+    written to ``output`` (a path) when given. ``extra``: what else to say of the machine."""
+    import datetime
+    import sys
+
+    facts = machine_facts()
+    text = "\n".join([
+        f"Run {datetime.datetime.now().isoformat(timespec='minutes')}: "
+        f"`{' '.join(['python', f'benchmarks/{script}'] + sys.argv[1:])}`",
+        f"Machine: {facts['processor']}, {facts['cpus']} CPUs (load average {facts['load']}); "
+        + (f"{extra}; " if extra else "") + f"Python {facts['python']}, numpy {facts['numpy']}, scipy {facts['scipy']}, "
+        f"BLAS {facts['blas']}", "", table, ""])
+    print(text)
+    if output is not None:
+        output.write_text(text)
+    return text

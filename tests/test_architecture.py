@@ -27,8 +27,9 @@ LOWER = {
     "adapt": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks"},
     "plot": {"problem", "discretization", "tensors", "codebook", "checks"},
     "inference": {"problem", "discretization", "tensors", "codebook", "checks", "plot"},
+    "view": {"discretization", "tensors", "codebook", "inference"},  # a page of a codebook (and data)
     "cli": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks", "driver", "adapt",
-            "plot", "inference"},
+            "plot", "inference", "view"},
 }
 
 

@@ -158,19 +158,48 @@ class Codebook:
         ranks = ", ".join(f"{u}: {fm.rank}" for u, fm in self.fields.items())
         return f"<Codebook {self.name!r} coordinates ({coords}) modes ({ranks})>"
 
-    # ------------------------------------------------------------------ evaluation
-    def __call__(self, **coordinates) -> dict[str, np.ndarray]:
-        """Evaluate every unknown at points given as keyword arguments, like ``OdeSolution.__call__``.
+    def _repr_html_(self) -> str:
+        """A summary card in notebooks (:func:`pgdcli.codebook.notebook.summary_html`)."""
+        from .notebook import summary_html
 
-        ``cb(t=0.5, k=2.0)`` is ``cb.evaluate({"t": 0.5, "k": 2.0})``: the same returns and
-        errors as :meth:`evaluate`.
+        return summary_html(self)
+
+    # ------------------------------------------------------------------ evaluation
+    def __call__(self, points=None, /, **coordinates):
+        """Evaluate every unknown: ``cb(t=..., k=...)`` as :meth:`evaluate`, or ``cb(points)``.
 
         Parameters
         ----------
-        **coordinates : scalar or array_like
-            Every coordinate name -> value(s), broadcast together with numpy rules.
+        points : array_like, shape (..., d), optional
+            Points as rows of their coordinates in codebook order (``coordinate_names``), as
+            ``scipy.interpolate.RegularGridInterpolator`` takes them.
+        **coordinates
+            Or every coordinate name -> scalar or array_like (broadcast together).
+
+        Returns
+        -------
+        ndarray, shape (..., n_unknowns)
+            For ``points``: the unknowns in declared order (``unknown_names``) along the last axis.
+        dict
+            For keyword coordinates: unknown name -> ndarray of the broadcast shape (0-d for scalars).
+
+        Axes: ``points`` and keyword arrays are points, not grids (no coordinate adds or drops an
+        axis); :meth:`evaluate_grid` gives grids, with an axis for every coordinate, and
+        :meth:`to_xarray` grids without the axes of coordinates given as scalars.
         """
-        return self.evaluate(coordinates)
+        if points is None:
+            return self.evaluate(coordinates)
+        if coordinates:
+            raise QueryError(f"give points as one (N, {len(self._names)}) array or coordinates as NAME=VALUE, not both")
+        array = np.asarray(points, dtype=float)
+        if array.ndim == 0 or array.shape[-1] != len(self._names):
+            raise QueryError(f"points: expected an array of shape (..., {len(self._names)}) with the coordinates "
+                             f"{', '.join(self._names)} in its last axis, got shape {array.shape}")
+        values = self.evaluate({n: array[..., j] for j, n in enumerate(self._names)})
+        out = np.empty(array.shape[:-1] + (len(values),))
+        for k, v in enumerate(values.values()):
+            out[..., k] = v
+        return out
 
     def evaluate(self, coordinates: Mapping[str, object], fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """Evaluate unknowns at points given per coordinate.
@@ -460,6 +489,52 @@ class Codebook:
             "ratio": measured error / tolerance}]}``; None for a codebook without it.
         """
         return codebook_summary.nodes_chosen(self.report, self.coordinate_names)
+
+    # ------------------------------------------------------------------ analysis
+    def sensitivity(self, *, times=None, at: Mapping[str, float] | None = None, densities: Mapping | None = None,
+                    second_order: bool = False, fields: Sequence[str] | None = None):
+        """Means, variances and Sobol indices over the parameters (``pgd sensitivity``).
+
+        Every coordinate that is neither time nor in ``at`` is an independent random input,
+        uniform over its domain unless ``densities`` says otherwise (``{"k": "normal:2,0.3"}``).
+        Exact for the codebook's function: one-dimensional quadratures contracted through the
+        modes or cores, no sampling. See :func:`pgdcli.codebook.sensitivity.sensitivity`.
+
+        Returns
+        -------
+        SensitivityResult
+            ``mean[u]``, ``variance[u]`` (T,), ``first[u]``, ``total[u]`` (T, inputs), ``second[u]``
+            (T, inputs, inputs) when asked, ``inputs``, ``times``.
+        """
+        from .sensitivity import sensitivity
+
+        return sensitivity(self, times=times, at=at, densities=densities, second_order=second_order, fields=fields)
+
+    def to_xarray(self, axes: Mapping[str, object] | None = None, /, *, fields: Sequence[str] | None = None,
+                  **coordinates):
+        """The unknowns on a grid as a labelled ``xarray.Dataset`` (xarray: ``pip install 'pgdcli[xarray]'``).
+
+        Parameters
+        ----------
+        axes : mapping, optional
+            Coordinate name -> values (or give them as keywords: ``cb.to_xarray(t=ts, k=[1, 2], c=0.3)``).
+            Every coordinate is needed. A sequence (even of one value) is a dimension; a scalar holds
+            the coordinate there and is a scalar coordinate of the Dataset, not a dimension.
+        fields : sequence of str, optional
+            Unknowns (default all): the Dataset's variables.
+
+        Returns
+        -------
+        xarray.Dataset
+            Variables: the unknowns over the dimensions (codebook order). Coordinates carry their
+            role, domain, nodes and discretization as attributes; the Dataset carries the name,
+            description, tolerance, relative_tolerance, measured_error (max abs against the
+            independent reference), measured_points and accurate (1 within tolerance, 0 written
+            with --keep-inaccurate, -1 not measured).
+        """
+        from .notebook import to_xarray
+
+        return to_xarray(self, {**dict(axes or {}), **coordinates}, fields=fields)
 
     # ------------------------------------------------------------------ summary
     def info(self, path: str | os.PathLike | None = None) -> dict:

@@ -7,10 +7,12 @@ import math
 
 from ..errors import PgdError, QueryError
 
-__all__ = ["KINDS", "FORMATS", "DEFAULT_DPI", "parse_point", "parse_over", "parse_size", "require_matplotlib"]
+__all__ = ["KINDS", "DEFAULT_KIND", "FORMATS", "DEFAULT_DPI", "parse_point", "parse_over", "parse_size",
+           "require_matplotlib"]
 
 
-KINDS = ("modes", "convergence", "solution", "error")
+KINDS = ("solution", "modes", "convergence", "error", "phase", "sensitivity")
+DEFAULT_KIND = "solution"
 FORMATS = ("png", "svg")
 DEFAULT_DPI = 150
 DEFAULT_COUNT = 6
