@@ -27,8 +27,9 @@ LOWER = {
     "adapt": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks"},
     "plot": {"problem", "discretization", "tensors", "codebook", "checks"},
     "inference": {"problem", "discretization", "tensors", "codebook", "checks", "plot"},
+    "family": {"problem", "driver"},  # several specs, one task each
     "cli": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks", "driver", "adapt",
-            "plot", "inference"},
+            "plot", "inference", "family"},
 }
 
 
@@ -38,6 +39,7 @@ LEAVES = {
     "pages": (),  # arrays in memory pages of a chosen size
     "names": (),  # what a name may be; text safe for a terminal
     "limits": ("pgdcli.errors",),  # the documented limits and their environment overrides
+    "executors": ("pgdcli.errors",),  # where independent tasks run: here, a pool, a Dask cluster
 }
 
 
