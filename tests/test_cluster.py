@@ -169,6 +169,28 @@ def test_verify_on_the_cluster_is_verify_here_bit_for_bit(cluster, cross_here):
     assert here.passed() and there.passed()
 
 
+@pytest.mark.slow
+def test_a_worker_killed_mid_verify_gives_the_same_report(cluster, cross_here):
+    here = verify(cross_here.codebook, samples=2000, max_corners=0, times=2, jobs=1)
+    executor = executors.as_executor(cluster)
+    killed = []
+
+    def kill_one():
+        while executor.finished < 3:
+            time.sleep(0.01)
+        os.kill(_worker_pids(cluster)[-1], signal.SIGKILL)
+        killed.append(executor.finished)
+
+    thread = threading.Thread(target=kill_one, daemon=True)
+    thread.start()
+    there = verify(cross_here.codebook, samples=2000, max_corners=0, times=2, executor=executor)
+    thread.join(timeout=60)
+    assert killed and killed[0] < 16 == executor.finished  # 16 chunks of 125 points, killed mid-way
+    for u in here.reference:
+        assert np.array_equal(here.reference[u], there.reference[u])
+    cluster.wait_for_workers(2, timeout=60)
+
+
 def test_a_family_on_the_cluster_is_the_family_here(cluster):
     texts = {"spring": (PROBLEMS / "spring.yaml").read_text(), "relaxation": (PROBLEMS / "relaxation.yaml").read_text(),
              "parametric": (PROBLEMS / "parametric.yaml").read_text()}

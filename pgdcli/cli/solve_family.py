@@ -66,7 +66,8 @@ def solve_family(specs: list[Path], output, tolerance, relative_tolerance, max_m
         else:
             _with_progress(console, outcomes, rows, todo, keep_inaccurate)
     if console is not None:
-        console.print(_family_table(rows))
+        for renderable in _family_table(rows):
+            console.print(renderable)
     if fmt == "json":
         click.echo(json.dumps(rows, indent=2))
     failed = [row for row in rows if row["status"] != "written"]
@@ -159,25 +160,27 @@ def _finite_or_none(value) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def _family_table(rows: list[dict]):
+def _family_table(rows: list[dict]) -> list:
+    """The table of the family (one row a spec), then why each spec without a codebook has none."""
     from rich.markup import escape
     from rich.table import Table
 
     from .text import human_size
 
     table = Table(title=f"pgd solve: {len(rows)} specs", title_justify="left")
-    for column in ("spec", "status", "max error / tolerance", "time", "codebook"):
-        table.add_column(column)
+    for column, justify in (("spec", "left"), ("status", "left"), ("error / tolerance", "right"),
+                            ("time", "right"), ("codebook", "left")):
+        table.add_column(column, justify=justify, overflow="fold")
     colours = {"written": "green", "invalid": "red", "failed": "red"}
+    reasons = []
     for row in rows:
         ratio = row.get("check_ratio")
-        size = f" ({human_size(row['size_bytes'])})" if "size_bytes" in row else ""
         status = f"[{colours.get(row['status'], 'yellow')}]{escape(row['status'])}[/]"
-        if "error" in row:
-            status += f": {escape(row['error'])}"
-        elif row["status"] != "written":
-            status += f": {escape(row.get('message', ''))}"
+        codebook = f"{escape(row['output'])} ({human_size(row['size_bytes'])})" if "size_bytes" in row else ""
         table.add_row(escape(row["spec"]), status, "" if ratio is None else f"{ratio:.2f}",
-                      f"{row['wall_time']:.1f} s" if "wall_time" in row else "",
-                      escape(row["output"]) + size if "size_bytes" in row else "")
-    return table
+                      f"{row['wall_time']:.1f} s" if "wall_time" in row else "", codebook)
+        if row["status"] != "written":
+            reason = row.get("error") or row.get("message", "")
+            prefix = f"{row['spec']}: "  # a spec's own errors name it already
+            reasons.append(f"{escape(row['spec'])}: {escape(reason.removeprefix(prefix))}")
+    return [table, *reasons]
