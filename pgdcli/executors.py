@@ -127,14 +127,15 @@ class Executor:
         if self.progress is not None:
             self.progress(self.finished)
 
-    def close(self) -> None:
-        """Release the workers this executor started (none here)."""
+    def close(self, wait: bool = True) -> None:
+        """Release the workers this executor started (none here); ``wait`` for tasks running (not after an
+        error or an interrupt: they are abandoned)."""
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        self.close(wait=exc_type is None)
 
 
 class SerialExecutor(Executor):
@@ -191,9 +192,9 @@ class ProcessExecutor(Executor):
             self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=pool_context())
         return self._pool.submit(_one_blas_thread, fn, *args)
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool.shutdown(wait=wait, cancel_futures=True)
             self._pool = None
 
 
@@ -328,7 +329,7 @@ class DaskExecutor(Executor):
             for future in index:
                 future.release()
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
         self._shared.clear()
         if self._owns_client:
             try:

@@ -229,6 +229,60 @@ def test_codebook_evaluate_on_dask_arrays_on_the_cluster(cluster, cross_here):
 
 
 # ----------------------------------------------------------------------------------------------
+# the 15-coordinate chain of problems/chain15.yaml
+# ----------------------------------------------------------------------------------------------
+def chain_rhs(k, m2, c, beta, amplitude):
+    """Three bodies between two walls on four springs (force k e + beta e^3 at extension e), damped, the
+    first driven by amplitude * cos(2 t); masses 1, m2, 1. Written from the physics, not the spec."""
+    masses = np.array([1.0, m2, 1.0])
+
+    def rhs(t, y):
+        x, v = y[:3], y[3:]
+        extension = np.array([x[0], x[1] - x[0], x[2] - x[1], -x[2]])
+        force = k * extension + beta * extension ** 3
+        drive = np.array([amplitude * np.cos(2.0 * t), 0.0, 0.0])
+        return np.concatenate([v, (force[1:] - force[:-1] - c * v + drive) / masses])
+
+    return rhs
+
+
+def cheap_chain() -> str:
+    """The shipped chain at 5 nodes a coordinate, tolerance 1e-5 and a smaller box of initial states
+    (its full build: benchmarks/cluster_scaling.py --chain)."""
+    text = (PROBLEMS / "chain15.yaml").read_text()
+    for full, cheap in (("nodes: 6}", "nodes: 5}"), ("tolerance: 1e-6", "tolerance: 1e-5"),
+                        ("[-0.15, 0.15]", "[-0.1, 0.1]"), ("[-0.3, 0.3]", "[-0.2, 0.2]")):
+        assert full in text
+        text = text.replace(full, cheap)
+    return text
+
+
+@pytest.mark.slow
+def test_the_15_coordinate_chain_on_the_cluster_against_solve_ivp(cluster):
+    from scipy.integrate import solve_ivp
+
+    problem = parse_spec(cheap_chain(), source="chain15.yaml")
+    assert len(problem.coordinates) == 15
+    result = pgdcli.solve(problem, executor=cluster)
+    assert result.converged, result.message
+    assert result.codebook.report["march"] == "cross"
+    cb, rng = result.codebook, np.random.default_rng(15)
+    times = np.linspace(0.0, 1.0, 11)
+    names = ["k1", "k2", "k3", "k4", "m2", "c", "beta", "A", "x10", "x20", "x30", "v10", "v20", "v30"]
+    worst = 0.0
+    for _ in range(30):  # random points of the box, off the nodes
+        p = {n: rng.uniform(*cb.coordinate(n).domain) for n in names}
+        k = np.array([p["k1"], p["k2"], p["k3"], p["k4"]])
+        y0 = [p[n] for n in ("x10", "x20", "x30", "v10", "v20", "v30")]
+        ref = solve_ivp(chain_rhs(k, p["m2"], p["c"], p["beta"], p["A"]), (0.0, 1.0), y0, method="DOP853",
+                        rtol=1e-12, atol=1e-12, t_eval=times)
+        got = cb.evaluate({"t": times, **p})
+        for i, u in enumerate(("x1", "x2", "x3", "v1", "v2", "v3")):
+            worst = max(worst, float(np.max(np.abs(got[u] - ref.y[i]))))
+    assert worst <= 1e-5
+
+
+# ----------------------------------------------------------------------------------------------
 # the command line on the cluster (by its address)
 # ----------------------------------------------------------------------------------------------
 def test_pgd_query_into_a_file_on_the_cluster_equals_the_file_here(cluster, cross_here, tmp_path):
