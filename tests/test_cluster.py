@@ -191,6 +191,26 @@ def test_a_worker_killed_mid_verify_gives_the_same_report(cluster, cross_here):
     cluster.wait_for_workers(2, timeout=60)
 
 
+def test_verify_on_the_cluster_stops_at_its_time_budget(cluster, cross_here, tmp_path):
+    import json
+
+    from pgdcli.codebook import io as codebook_io
+
+    cb = cross_here.codebook
+    stiff = cb.spec_text.replace('"der(y) = 0.5*x*y - 0.7*y"', '"der(y) = 0.5*x*y - 1e8*y"')  # hours of DOP853
+    assert stiff != cb.spec_text
+    path = tmp_path / "stiff.h5"
+    path.write_bytes(codebook_io.to_bytes(Codebook(cb.coordinates, cb.fields, name=cb.name, spec_text=stiff,
+                                                   report=cb.report)))
+    started = time.monotonic()
+    result = CliRunner().invoke(cli, ["verify", str(path), "--samples", "500", "--max-seconds", "3", "--scheduler",
+                                      cluster.scheduler.address, "--format", "json", "-q"])
+    assert result.exit_code == 1, result.output
+    report = json.loads(result.stdout)
+    assert report["complete"] is False and report["settings"]["not_checked"] > 0
+    assert time.monotonic() - started < 120  # the workers stopped too
+
+
 def test_a_family_on_the_cluster_is_the_family_here(cluster):
     texts = {"spring": (PROBLEMS / "spring.yaml").read_text(), "relaxation": (PROBLEMS / "relaxation.yaml").read_text(),
              "parametric": (PROBLEMS / "parametric.yaml").read_text()}
