@@ -28,8 +28,9 @@ LOWER = {
     "plot": {"problem", "discretization", "tensors", "codebook", "checks"},
     "inference": {"problem", "discretization", "tensors", "codebook", "checks", "plot"},
     "view": {"discretization", "tensors", "codebook", "inference"},  # a page of a codebook (and data)
+    "family": {"problem", "driver"},  # several specs, one task each
     "cli": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks", "driver", "adapt",
-            "plot", "inference", "view"},
+            "plot", "inference", "view", "family"},
 }
 
 
@@ -39,6 +40,8 @@ LEAVES = {
     "pages": (),  # arrays in memory pages of a chosen size
     "names": (),  # what a name may be; text safe for a terminal
     "limits": ("pgdcli.errors",),  # the documented limits and their environment overrides
+    "executors": ("pgdcli.errors",),  # where independent tasks run: here, a pool, a Dask cluster
+    "cluster": ("pgdcli.errors", "pgdcli.executors"),  # opening a Dask cluster
 }
 
 

@@ -48,8 +48,9 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from .. import executors
 from ..errors import CodebookError, VerifyError
-from .reference_base import TIME_UP, time_budget
+from .reference_base import TIME_UP, chunk_executor, time_budget
 from .compare import UnknownErrors, codebook_at_samples, codebook_on_space_grid, error_statistics
 from .sampling import (DEFAULT_RANDOM_SPACE_POINTS, MAX_CORNERS, SAMPLINGS, check_times, default_samples, parameter_points,
                        sampled_coordinates, space_coordinates, space_points_grid)
@@ -289,6 +290,7 @@ def verify(
     space_points: int = DEFAULT_RANDOM_SPACE_POINTS,
     space_nodes: int | Mapping[str, int] | None = None,
     max_seconds: float | None = None,
+    executor=None,
 ) -> VerifyReport:
     """Compare a codebook with an independent ``solve_ivp`` reference of its own problem.
 
@@ -318,7 +320,7 @@ def verify(
         ``solve_ivp`` tolerances (default 1e-12 and 1e-12; with space
         coordinates 1e-10 and 1e-12).
     jobs : int, optional
-        Worker processes (default: ``os.cpu_count()``; 1: no pool).
+        Worker processes (default: ``os.cpu_count()``; 1: no pool, or the executor in effect).
     max_error, max_rel_error : float, optional
         The gate recorded in the report (see :meth:`VerifyReport.passed`); without either, the
         gate is the codebook's own tolerance.
@@ -338,6 +340,9 @@ def verify(
     max_seconds : float, optional
         Time budget of the reference integrations (default: none). When it runs out, the points
         not integrated yet are reported as not checked and the report does not pass.
+    executor : optional
+        Where the reference's chunks run instead of ``jobs`` processes: a ``distributed.Client`` or a
+        :class:`pgdcli.executors.Executor` (:mod:`pgdcli.executors`). The report does not depend on it.
 
     Returns
     -------
@@ -372,16 +377,18 @@ def verify(
 
     report_progress(0)
     settings["max_seconds"] = max_seconds = _check_tolerance("max_seconds", max_seconds)
-    with time_budget(max_seconds):
+    with time_budget(max_seconds), chunk_executor(opts["jobs"], executor) as runner:
+        if isinstance(runner, executors.DaskExecutor):
+            settings.update(jobs=runner.workers, cluster=runner.address)
         result, approx, space_grid = _reference_and_codebook(cb, problem, sample_points, S, all_times, opts,
                                                              settings, method, rtol, atol, space_nodes,
-                                                             report_progress)
+                                                             report_progress, runner)
     return _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,
                    _time.perf_counter() - started)
 
 
 def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, settings, method, rtol, atol,
-                            space_nodes, report_progress) -> tuple:
+                            space_nodes, report_progress, executor) -> tuple:
     """The reference and the codebook at the sample points and times (on the space grid, with space
     coordinates): ``(reference result, {unknown: codebook values}, space grid)``; records the space
     settings in ``settings``."""
@@ -397,7 +404,7 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
         nonlinear = is_nonlinear_pde(problem)  # its own method of lines (Radau, grids refined until they agree)
         reference = solve_reference_nonlinear_grid if nonlinear else solve_reference_pde
         result = reference(problem, sample_points, space_grid, None if time is None else all_times,
-                           grid=True, method=method, rtol=rtol, atol=atol, jobs=opts["jobs"],
+                           grid=True, method=method, rtol=rtol, atol=atol, jobs=1, executor=executor,
                            progress=report_progress, space_nodes=nodes)
         if nonlinear:
             settings.update(method=f"{result.method}, nonlinear method of lines", rtol=result.rtol, atol=result.atol)
@@ -409,7 +416,7 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
     else:
         space_grid = {}
         result = solve_reference(problem, sample_points, all_times, method=method, rtol=rtol, atol=atol,
-                                 jobs=opts["jobs"], progress=report_progress)
+                                 executor=executor, progress=report_progress)
         approx = codebook_at_samples(cb, sample_points, time, all_times, unknowns)
     return result, approx, space_grid
 

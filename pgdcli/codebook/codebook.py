@@ -120,6 +120,12 @@ class Codebook:
         self._bases, self._stacked, self._slices = ev.bases, ev.stacked, ev.slices
         self._tt_stack, self._tt_all = ev.tt_stack, ev.tt_all
 
+    def __reduce__(self):
+        """Pickled as its parts: the evaluator's tables, most of the bytes, are built again where it is
+        unpickled (a Dask worker)."""
+        attributes = ("name", "spec_text", "report", "description", "created", "partial", "format_version")
+        return _from_parts, (self.coordinates, self.fields, {a: getattr(self, a) for a in attributes})
+
     # ------------------------------------------------------------------ introspection
     @property
     def coordinate_names(self) -> list[str]:
@@ -215,7 +221,8 @@ class Codebook:
         Returns
         -------
         dict of str to ndarray
-            Unknown name -> values of the broadcast shape (0-d for scalars).
+            Unknown name -> values of the broadcast shape (0-d for scalars); a dask array when a
+            coordinate is one (evaluated block by block when computed, :mod:`pgdcli.codebook.blockwise`).
 
         Raises
         ------
@@ -238,6 +245,10 @@ class Codebook:
         selected = self._select(fields)
         raw = [coordinates[n] for n in names]
         scalars = all(type(v) in _SCALAR_TYPES for v in raw)
+        if not scalars and any(hasattr(v, "__dask_graph__") for v in raw):  # a dask array: lazily, blockwise
+            from .blockwise import evaluate_blockwise
+
+            return evaluate_blockwise(self, dict(zip(names, raw)), selected)
         if not scalars and any(isinstance(self.fields[u], FieldTT) for u in selected):
             return self._evaluate_mixed(coordinates, selected)
         if scalars:
@@ -615,3 +626,8 @@ class Codebook:
             warnings.warn(f"{path}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was "
                           f"written with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
         return cb
+
+
+def _from_parts(coordinates, fields, attributes: dict) -> Codebook:
+    """The codebook :meth:`Codebook.__reduce__` pickled."""
+    return Codebook(coordinates, fields, **attributes)
