@@ -171,7 +171,7 @@ def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixe
     theta = (chebyshev_unit_nodes(slab_nodes) + 1.0) / 2.0 if slab_nodes else None  # nodes on [0, 1]
     state_delta = ROUND_FRACTION * tolerance * root  # the stored states' rounding (dense: their TT-SVD)
     out_times, states = ([t0], [ops.states(w, state_delta)]) if slab_nodes else ([], [])
-    steps, rejected, max_rank, sizes = 0, 0, ops.rank(w), []
+    steps, rejected, max_rank, sizes, anchor = 0, 0, ops.rank(w), [], None
     for target in targets:
         while t < target - 1e-14 * T:
             if steps + rejected > max_steps:
@@ -187,6 +187,9 @@ def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixe
             diff = ops.combine([half, whole], [1.0, -1.0], 0.0)
             err = ops.norm(diff) / 15.0 / root
             allowed = LOCAL_FRACTION * tolerance * h / T
+            anchor, noise = _noise_limited(anchor, h, err / allowed)
+            if noise and ops.tighten():
+                continue  # the roundings' noise, not the step, set the estimate: the same step, rounded tighter
             if err <= allowed or fixed_step:
                 if slab_nodes:
                     for th in theta[1:-1]:
@@ -217,6 +220,23 @@ def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixe
     breakpoints = np.concatenate([[t0], np.cumsum(sizes) + t0]) if slab_nodes else None
     return PdeMarchResult(np.asarray(out_times), states, steps, rejected, max_rank, breakpoints, sizes,
                           ops.evaluations)
+
+
+def _noise_limited(anchor, h: float, ratio: float) -> tuple:
+    """``(new anchor, noise)``: did the error estimate fall with the step since the anchor ``(h, err / allowed)``?
+
+    The step-doubling estimate of a step's error falls like ``h^5`` and what is allowed like ``h``: a
+    step 30% shorter than the anchor's should cut their ratio 4-fold. When it falls less than half as
+    much while still a tenth of the allowed or more, it is the noise of the roundings (trains only: the
+    whole grid is not rounded), which falls with ``h`` as fast as the allowed error. The anchor moves to
+    each attempt 30% shorter than it, or longer.
+    """
+    if anchor is None or h > anchor[0]:
+        return (h, ratio), False
+    if h >= 0.7 * anchor[0]:
+        return anchor, False
+    h0, ratio0 = anchor
+    return (h, ratio), ratio >= 0.1 and ratio > 2.0 * ratio0 * (h / h0) ** 4
 
 
 def _watch(ops, system, w, t: float, tolerance: float, watched: list) -> None:

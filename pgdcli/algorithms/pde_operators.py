@@ -114,6 +114,10 @@ class DenseOperators:
     def rank(w) -> int:
         return 0
 
+    @staticmethod
+    def tighten() -> bool:
+        return False  # nothing is rounded
+
     def states(self, w: np.ndarray, delta: float) -> list:
         """``u_s`` per species as tensor trains over the full nodes, each within ``delta`` (Frobenius)."""
         return [tt_from_full(np.ascontiguousarray(u), delta) for u in self.full(w)]

@@ -177,3 +177,30 @@ equations:
     for j, c in enumerate(bases["c"].nodes):
         got = _at(result.states[0][0], bases, system.modes, {"x": x, "c": np.full(x.size, c)})
         assert np.abs(got - (x - x ** 2 / 2 + np.exp(-1.0) * np.cos(np.pi * x))).max() < 1e-8
+
+
+def test_an_error_estimate_that_does_not_fall_with_the_step_is_the_roundings_noise():
+    from pgdcli.algorithms.pde_march import _noise_limited
+
+    anchor, noise = _noise_limited(None, 1.0, 4.0)
+    assert anchor == (1.0, 4.0) and not noise
+    assert _noise_limited(anchor, 0.8, 4.0) == (anchor, False)  # not 30% shorter yet: no verdict
+    # a truncation error: err/allowed falls like h^4, 0.5^4 = 1/16
+    assert _noise_limited(anchor, 0.5, 4.0 / 16) == ((0.5, 0.25), False)
+    # the same ratio at half the step: noise
+    assert _noise_limited(anchor, 0.5, 3.0) == ((0.5, 3.0), True)
+    # far below what is allowed: the step is accepted anyway, never called noise
+    assert _noise_limited((1.0, 0.09), 0.5, 0.09)[1] is False
+    assert _noise_limited(anchor, 2.0, 9.0) == ((2.0, 9.0), False)  # a longer step moves the anchor
+
+
+def test_train_roundings_tighten_tenfold_at_most_three_times():
+    from pgdcli.algorithms.pde_train import MAX_TIGHTENINGS, OPERATION_SHARE, TrainOperators
+
+    problem = parse_spec(manufactured_rd.PLANE, source="plane.yaml")
+    bases = {"x": make_basis("chebyshev", (0, 1), 9), "y": make_basis("chebyshev", (0, 1), 9),
+             "c": make_basis("chebyshev", (0.05, 0.1), 3)}
+    ops = TrainOperators(compile_pde_system(problem, bases))
+    assert ops.share == OPERATION_SHARE
+    assert [ops.tighten() for _ in range(MAX_TIGHTENINGS + 1)] == [True] * MAX_TIGHTENINGS + [False]
+    assert ops.share == pytest.approx(OPERATION_SHARE * 0.1 ** MAX_TIGHTENINGS)
