@@ -110,6 +110,16 @@ def test_verify_measures_a_2d_codebook_against_the_nonlinear_reference(allen_cah
     assert report.passed(problem.solver.tolerance) and not report.failures
 
 
+@pytest.mark.slow
+def test_predator_prey_with_a_saturating_term_within_tolerance():
+    """A system written as a user would (tests/user_problems/predator_prey.yaml): Holling type II predation
+    u*v/(u + 0.3), a function of both unknowns, zero flux, the efficiency b as a coordinate."""
+    problem, result = solved("tests/user_problems/predator_prey.yaml")
+    assert result.accurate, result.message
+    errors = worst_errors(problem, result.codebook)
+    assert set(errors) == {"u", "v"} and max(errors.values()) <= problem.solver.tolerance, errors
+
+
 def _pgd_solve(spec: Path, out: Path):
     return subprocess.run([sys.executable, "-c", "from pgdcli.cli.entry import main; main()", "solve", str(spec),
                            "-o", str(out), "-q"], capture_output=True, text=True)
