@@ -296,8 +296,9 @@ def _refusal(problem, check, march: bool, report) -> str:
     stopped = report.get("enrichment_stopped") if check.node_ratio > 1.0 else None
     refine, stuck = _to_refine(problem, check, march, report.get("discretization_limited", 0))
     names = refine + stuck
+    solver = "tensor-train solver" if report.get("method") == "amen" else "enrichment"
     if stopped and not any(_lacks_nodes(check, n) for n in names):
-        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the enrichment could not "
+        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the {solver} could not "
                 f"lower its residual further: {stopped}")
     if names:
         def share(n):
@@ -327,7 +328,7 @@ def _refusal(problem, check, march: bool, report) -> str:
                 "reference of problems with space coordinates is itself accurate to about 1e-9, so a tighter "
                 "tolerance cannot be checked (--keep-inaccurate keeps the codebook)")
     if check.node_ratio > 1.0:
-        what = "march" if march else "enrichment"
+        what = "march" if march else solver
         return f"the {what} did not reach the tolerance at the nodes ({check.node_ratio:.2g} x the tolerance)"
     return "the error between the nodes exceeds the tolerance, in no one coordinate alone"
 

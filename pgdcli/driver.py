@@ -1,7 +1,8 @@
 """The driver: :func:`solve` chooses the method, runs it under the error gate, builds the codebook.
 
 Linear problems go to the PGD enrichment (:mod:`pgdcli.algorithms.enrichment` on the system of
-:mod:`pgdcli.discretization.linear`), nonlinear ones to the tensor-train time march
+:mod:`pgdcli.discretization.linear`) or, when it stalls or ``solver.method: amen`` asks, to the
+tensor-train solver (:mod:`pgdcli.algorithms.amen_solve`), nonlinear ones to the tensor-train time march
 (:mod:`pgdcli.algorithms.march`; a nonlinear PDE in one space coordinate to the exponential PDE
 march, :mod:`pgdcli.algorithms.pde_solve`); either way the codebook is measured against the independent
 reference (:mod:`pgdcli.checks.check`) and, where the spec leaves the nodes to the solver, refined
@@ -17,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from . import executors
-from .algorithms.enrichment import run_enrichment
+from .algorithms.enrichment import predicted_modes, run_enrichment
 from .algorithms.result import SolveResult
 from .checks.budget import check_budget
 from .codebook.codebook import Codebook, FieldModes
@@ -90,8 +91,8 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     if march:
         once = partial(_checked_march, tolerance=tol, relative_tolerance=rtol, callback=callback, learned=learned)
     else:
-        once = partial(_checked_enrichment, tolerance=tol, relative_tolerance=rtol, max_modes=nmax,
-                       callback=callback, learned=learned)
+        once = partial(_checked_linear, tolerance=tol, relative_tolerance=rtol, max_modes=nmax, callback=callback,
+                       learned=learned)
     with _blas_single_thread(), executors.using(executor):
         result = solve_to_tolerance(problem, once, march=march)
     rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
@@ -139,12 +140,17 @@ def _enrich(problem, residual_tolerance: float, nmax: int, callback, tolerance: 
     residual = history[-1]
     if converged:
         message = f"converged: relative residual {residual:.3g} with {state.rank} modes"
+    elif status == 1 and state.rank < nmax:  # stopped early: the cap is out of reach at this rate
+        needed = predicted_modes(history, tol)
+        message = (f"not converged: relative residual {residual:.3g} after {state.rank} modes, falling as if to need "
+                   f"{'more than 10 000' if needed > 1e4 else f'about {needed:.0f}'} modes to reach {tol:.3g} "
+                   f"(max_modes={nmax}); solver.method: amen (the tensor-train solver) may take it")
     elif status == 1:
         message = (f"not converged: relative residual {residual:.3g} > {tol:.3g} after max_modes={nmax} modes "
-                   f"(raise solver.max_modes)")
+                   f"(raise solver.max_modes, or solver.method: amen)")
     else:
         message = (f"not converged: relative residual stagnated at {residual:.3g} (asked {tol:.3g}) "
-                   f"after {state.rank} modes")
+                   f"after {state.rank} modes; solver.method: amen (the tensor-train solver) may take it")
 
     report = {
         "converged": converged,
@@ -222,6 +228,146 @@ def _checked_enrichment(problem, *, tolerance: float, relative_tolerance: float,
     rep["enrichment_attempts"] = np.array(attempts, dtype=float)  # (solves, 2): residual asked, node ratio
     rep["solver_message"] = (f"relative residual {kept.residual:.3g} with {kept.n_modes} modes"
                              + (f", {len(attempts)} enrichments" if len(attempts) > 1 else ""))
+    return _with_resolution(kept, tolerance)
+
+
+# ----------------------------------------------------------------------------------------------
+# linear problems: the enrichment and the tensor-train solver, one falling back on the other
+# ----------------------------------------------------------------------------------------------
+# AMEn's target is the 2-norm over the nodes of the integrated equations' residual (absolute, in the
+# unknowns' units), which bounds the largest nodal error up to the operator's smallest singular value:
+# the first solve asks AMEN_FIRST x the tolerance. A repeated solve, at the same nodes or more, starts
+# from the last solution (interpolated); a tighter target is at most AMEN_TIGHTEN x tighter.
+AMEN_FIRST = 0.5
+AMEN_TIGHTEN = 10.0
+# An error at the nodes this many times the residual reached is not the solver's: a tighter solve that
+# stalls then blames the discretization (more nodes), not itself
+AMEN_NODE_MARGIN = 10.0
+
+
+def linear_methods(problem) -> tuple[tuple[str, ...], str]:
+    """The linear solvers to try, in order, and why: ``solver.method`` names one, ``auto`` both."""
+    method = getattr(problem.solver, "method", "auto")
+    if method in ("pgd", "amen"):
+        return (method,), f"solver.method: {method}"
+    return ("pgd", "amen"), "a linear problem: the enrichment first, the tensor-train solver if it stalls"
+
+
+def _checked_linear(problem, *, tolerance: float, relative_tolerance: float, max_modes: int, callback=None,
+                    learned: dict | None = None) -> SolveResult:
+    """Solve a linear problem by the first method of :func:`linear_methods`, the next when it stalls.
+
+    A method stalls when it stops short of its own target (the enrichment at ``max_modes``, or
+    predicting it would, or stagnating; AMEn at ``solver.max_rank`` or stagnating) before a codebook
+    met the tolerance at the nodes, or when the enrichment cannot take a coefficient's expansion.
+    The method that ran, and why, go into the report (``method``, ``method_reason``); ``learned``
+    keeps the methods abandoned for the next rounds.
+    """
+    from .discretization.coefficients import CanonicalTermsError
+
+    learned = {} if learned is None else learned
+    methods, why = linear_methods(problem)
+    abandoned = learned.setdefault("abandoned", [])  # methods that stalled in an earlier round
+    notes = list(learned.get("notes", []))
+    methods = tuple(m for m in methods if m not in abandoned) or methods[-1:]
+    for i, method in enumerate(methods):
+        try:
+            if method == "pgd":
+                result = _checked_enrichment(problem, tolerance=tolerance, relative_tolerance=relative_tolerance,
+                                             max_modes=max_modes, callback=callback, learned=learned)
+            else:
+                result = _checked_amen(problem, tolerance=tolerance, relative_tolerance=relative_tolerance,
+                                       callback=callback, learned=learned)
+        except CanonicalTermsError as exc:
+            if i + 1 == len(methods):
+                raise
+            notes.append(f"the enrichment cannot take it ({exc})")
+            abandoned.append(method)
+            learned["notes"] = notes
+            continue
+        stopped = result.codebook.report.get("enrichment_stopped")
+        if not result.converged and result.check is None:
+            stopped = result.message.removeprefix("not converged: ")
+        elif not stopped or result.check.node_ratio <= 1.0:
+            stopped = None  # it met the tolerance at the nodes, or more nodes may help it
+        if stopped and i + 1 < len(methods):
+            notes.append(f"the {_method_name(method)} stopped: {stopped}")
+            abandoned.append(method)
+            learned["notes"] = notes
+            continue
+        reason = why if not notes else "; ".join(notes) + f"; the {_method_name(method)} ran instead"
+        result.codebook.report.update(method=method, method_reason=reason)
+        if notes:
+            result.warnings.append(f"{reason} (solver.method: auto)")
+        return result
+    raise AssertionError("no linear method was tried")  # pragma: no cover
+
+
+def _method_name(method: str) -> str:
+    return {"pgd": "enrichment", "amen": "tensor-train solver"}[method]
+
+
+def _checked_amen(problem, *, tolerance: float, relative_tolerance: float, callback=None,
+                  learned: dict | None = None) -> SolveResult:
+    """AMEn, the error measured against the reference, a tighter target (from the last solution) if the nodes need it.
+
+    A tighter solve that stops short of its target is measured too (its best iterate): when its
+    residual fell tenfold and the error at the nodes not by half, the error is the discretization's.
+    """
+    from .algorithms.amen_solve import solve_amen
+
+    learned = {} if learned is None else learned
+    target = learned.get("amen_target", AMEN_FIRST * tolerance)
+    start = learned.get("amen_solution")
+    kept = stopped = None
+    attempts = []
+    for _ in range(CHECK_ATTEMPTS):
+        result = solve_amen(problem, target, max_rank=problem.solver.max_rank, callback=callback,
+                            tolerance=tolerance, start=start)
+        if not result.converged and kept is None:
+            result.codebook.report["tolerance"] = float(tolerance)
+            return result
+        if not result.converged:  # short of the tighter target: its best iterate may still tell
+            stopped = result.message.removeprefix("not converged: ")
+            if kept.check.node_ratio * tolerance > AMEN_NODE_MARGIN * min(result.residual, kept.residual):
+                stopped = None  # the error at the nodes is far above any residual reached: more nodes
+            if result.residual < kept.residual:
+                result.check = _measure(problem, result, tolerance, relative_tolerance)
+                attempts.append((target, result.check.node_ratio))
+                if result.residual <= 0.1 * kept.residual and result.check.node_ratio > 0.5 * kept.check.node_ratio:
+                    stopped = None  # the residual fell and the error did not: more nodes
+                if result.check.node_ratio < kept.check.node_ratio:
+                    result.converged, result.status, kept = True, 0, result
+            break
+        result.check = _measure(problem, result, tolerance, relative_tolerance)
+        previous, kept = kept, result
+        ratio = result.check.node_ratio
+        attempts.append((target, ratio))
+        if not np.isfinite(ratio) or ratio <= 1.0 or target <= RESIDUAL_FLOOR * tolerance:
+            break
+        if previous is not None and ratio > 0.5 * attempts[-2][1]:
+            break  # a smaller residual did not help: discretization error
+        # at most AMEN_TIGHTEN at once: a large error at the nodes may be the discretization's, and a
+        # much smaller residual costs sweeps at higher ranks before the next measurement can tell
+        target = max(RESIDUAL_FLOOR * tolerance, min(target, result.residual) * max(1.0 / AMEN_TIGHTEN,
+                                                                                  CHECK_SAFETY / ratio))
+        start = result.solution
+    # the next round (more nodes) starts from this solution and from the target that met the tolerance
+    # at the nodes, or else from the one before a tighter solve that did not help (the discretization's)
+    passed = [t for t, r in attempts if r <= 1.0]
+    learned["amen_target"] = min(passed) if passed else attempts[max(0, len(attempts) - 2)][0]
+    learned["amen_solution"] = kept.solution
+    rep = kept.codebook.report
+    if kept.check.node_ratio > 1.0 and stopped is not None:
+        rep["enrichment_stopped"] = stopped
+    elif kept.check.node_ratio > 1.0:
+        rep["discretization_limited"] = 1
+    rep["tolerance"] = float(tolerance)
+    rep["amen_attempts"] = np.array(attempts, dtype=float)  # (solves, 2): residual asked, node ratio
+    ranks = max(max(f.ranks, default=1) for f in kept.codebook.fields.values())
+    rep["solver_message"] = (f"tensor-train solver: residual {kept.residual:.3g} (2-norm at the nodes), "
+                             f"{int(rep['sweeps'])} sweeps, largest rank {ranks}"
+                             + (f", {len(attempts)} solves" if len(attempts) > 1 else ""))
     return _with_resolution(kept, tolerance)
 
 
@@ -389,8 +535,8 @@ def _use_march(problem) -> bool:
     """``method: auto`` marches nonlinear problems and enriches linear ones."""
     nonlinear = any(eq.polynomial.degree >= 2 or has_general(eq.polynomial) for eq in problem.equations)
     method = getattr(problem.solver, "method", "auto")
-    if method == "pgd" and nonlinear:
-        raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "
+    if method in ("pgd", "amen") and nonlinear:
+        raise SolverError(f"{problem.source}: solver.method: '{method}' solves equations linear in the unknowns only; "
                           f"use 'march' or 'auto' for this problem")
     march = method == "march" or (method == "auto" and nonlinear)
     if march and problem.time is None:

@@ -60,6 +60,9 @@ def info(codebook, fmt, show_spec):
         console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
     for line in summary.get("separated_coefficients", []):
         console.print(f"separated coefficient: {line}")
+    if summary.get("method_reason"):  # escaped for rich by _shown, as every string of the summary
+        name = "tensor-train solver (amen)" if summary["method"] == "amen" else "enrichment (pgd)"
+        console.print(f"method: {name}: {summary['method_reason']}")
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("accurate") is False:

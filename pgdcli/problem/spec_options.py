@@ -21,7 +21,7 @@ __all__ = ["FORMULATIONS", "METHODS", "MARCHES", "default_name", "parse_problem_
            "parse_output"]
 
 FORMULATIONS = ("minres", "galerkin")
-METHODS = ("auto", "pgd", "march")
+METHODS = ("auto", "pgd", "amen", "march")
 MARCHES = ("auto", "grid", "cross", "train")
 
 
