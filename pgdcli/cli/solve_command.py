@@ -130,6 +130,12 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
                                 status=f"cross sweep {info['cross']}: {info['trajectories']:,} trajectories, "
                                        f"difference {r:.2e} (target {info['target']:.0e}), max rank {max(info['ranks'])}")
                 return
+            if "sweep" in info:  # the tensor-train solver: an absolute residual against its own target
+                done = span * min(1.0, math.log10(max(r, 1e-300)) / math.log10(info["target"])) if r < 1 else 0.0
+                progress.update(task, completed=max(done, 0.0),
+                                status=f"tensor-train sweep {info['sweep']}: residual {r:.2e} (target "
+                                       f"{info['target']:.0e}), max rank {max(info['ranks'], default=1)}")
+                return
             done = min(span, -math.log10(r) if r > 0 else span)
             progress.update(task, completed=max(done, 0.0),
                             status=f"{info['mode']}/{nmax} modes  residual {r:.2e} (tolerance {tol:.0e})")

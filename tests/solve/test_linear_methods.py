@@ -95,6 +95,10 @@ def test_pgd_solve_and_info_say_which_solver_ran_and_why(tmp_path):
     assert result.exit_code == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["method"] == "amen" and "the enrichment stopped" in summary["method_reason"]
+    shown = runner.invoke(cli, ["solve", str(PROBLEMS / "heat1d.yaml"), "-o", str(tmp_path / "again.h5"),
+                                "--max-modes", "2"])  # with progress and the summary table
+    assert shown.exit_code == 0, shown.stderr
+    assert "tensor-train solver (amen)" in shown.stderr and "2-norm at the nodes" in shown.stderr
     info = runner.invoke(cli, ["info", str(out)])
     assert info.exit_code == 0, info.stderr
     assert "method: tensor-train solver (amen): the enrichment stopped" in info.stdout
