@@ -102,3 +102,30 @@ def test_pgd_solve_and_info_say_which_solver_ran_and_why(tmp_path):
     info = runner.invoke(cli, ["info", str(out)])
     assert info.exit_code == 0, info.stderr
     assert "method: tensor-train solver (amen): the enrichment stopped" in info.stdout
+
+
+def test_a_tighter_amen_solve_that_stalls_far_below_the_error_at_the_nodes_blames_the_nodes(monkeypatch):
+    """Error at the nodes 50 x the tolerance with residuals near 1e-9: the discretization's, so more nodes
+    (not a refusal naming the solver) even when the tighter solve stalls just short of its target."""
+    from types import SimpleNamespace
+
+    from pgdcli import driver
+    from pgdcli.algorithms import amen_solve
+
+    residuals = iter([1.2e-9, 1.1e-9])
+
+    def fake_solve(problem, target, **kwargs):
+        residual = next(residuals)
+        converged = residual <= target
+        codebook = SimpleNamespace(report={"sweeps": 3}, fields={"u": SimpleNamespace(ranks=(4, 2))})
+        return SimpleNamespace(converged=converged, status=0 if converged else 2, residual=residual, check=None,
+                               codebook=codebook, solution=None,
+                               message="converged" if converged else "not converged: the residual stopped falling")
+
+    monkeypatch.setattr(amen_solve, "solve_amen", fake_solve)
+    monkeypatch.setattr(driver, "_measure", lambda *a: SimpleNamespace(node_ratio=50.0))
+    monkeypatch.setattr(driver, "_with_resolution", lambda result, tolerance: result)
+    kept = driver._checked_amen(heat1d("amen"), tolerance=1e-6, relative_tolerance=0.0)
+    assert kept.residual == 1.2e-9
+    assert kept.codebook.report["discretization_limited"] == 1
+    assert "enrichment_stopped" not in kept.codebook.report
