@@ -129,3 +129,20 @@ def test_a_tighter_amen_solve_that_stalls_far_below_the_error_at_the_nodes_blame
     assert kept.residual == 1.2e-9
     assert kept.codebook.report["discretization_limited"] == 1
     assert "enrichment_stopped" not in kept.codebook.report
+
+
+def test_a_coefficient_too_large_for_the_enrichment_goes_to_amen(monkeypatch):
+    # forced.yaml's sin(w*t) separates into a few Kronecker terms; with the enrichment's cap at one term it
+    # is refused with the advice to use amen, and auto follows that advice itself
+    from pgdcli import driver
+    from pgdcli.discretization.linear import discretize
+
+    monkeypatch.setattr(driver, "discretize", lambda problem, **kw: discretize(problem, max_terms=1, **kw))
+    problem = pgdcli.load_spec(PROBLEMS / "forced.yaml")
+    enrichment = dataclasses.replace(problem, solver=dataclasses.replace(problem.solver, method="pgd"))
+    with pytest.raises(SolverError, match=r"solver.method: amen \(the tensor-train solver\) takes it"):
+        pgdcli.solve(enrichment)
+    result = pgdcli.solve(problem)
+    assert result.converged and result.accurate, result.message
+    report = result.codebook.report
+    assert report["method"] == "amen" and report["method_reason"].startswith("the enrichment cannot take it")
