@@ -541,7 +541,7 @@ def _use_march(problem) -> bool:
     march = method == "march" or (method == "auto" and nonlinear)
     if march and problem.time is None:
         raise SolverError(f"{problem.source}: equations: a steady problem (no time coordinate) needs equations linear "
-                          f"in the unknowns and solver.method 'auto' or 'pgd' (the march steps in time)")
+                          f"in the unknowns and solver.method 'auto', 'pgd' or 'amen' (the march steps in time)")
     if march and any(c.role == "space" for c in problem.coordinates):
         from .algorithms.pde_system import pde_refusal
 
