@@ -16,10 +16,13 @@ from __future__ import annotations
 
 from typing import Callable
 
+from ..algorithms.grid_march import check_forced_grid
 from ..algorithms.outcome import Status
 from ..algorithms.result import SolveResult
 from ..checks.budget import check_budget
 from ..errors import SolverError
+from ..problem.compatibility import check_coefficients_finite, check_initial_finite, check_initial_meets_boundary
+from ..problem.spec import Problem, load_spec
 from ..progress import PhaseStarted, ProgressEvent, emit
 from .method import Settings
 from .methods import choose_method
@@ -66,8 +69,6 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         with a warning); a codebook that misses its tolerance has ``status``
         :attr:`Status.INACCURATE` and a message saying where and why.
     """
-    from ..problem.spec import Problem, load_spec
-
     if not isinstance(problem, Problem):
         problem = load_spec(problem)
     opts = problem.solver
@@ -92,8 +93,6 @@ def check_solvable(problem, tolerance: float, relative_tolerance: float, max_mod
     the methods takes. Returns whether a time march (not the enrichment) solves it.
     The CLI calls it before showing progress, so a refusal is the only line on stderr.
     """
-    from ..problem.compatibility import check_coefficients_finite, check_initial_finite, check_initial_meets_boundary
-
     if not (0.0 < tolerance < 1.0):
         raise SolverError(f"tolerance must be in (0, 1), got {tolerance}")
     if not (0.0 <= relative_tolerance < 1.0):
@@ -106,7 +105,5 @@ def check_solvable(problem, tolerance: float, relative_tolerance: float, max_mod
     check_coefficients_finite(problem)
     check_initial_meets_boundary(problem, tolerance, relative_tolerance)
     if march:
-        from ..algorithms.grid_march import check_forced_grid
-
         check_forced_grid(problem)
     return march

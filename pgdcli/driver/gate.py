@@ -15,6 +15,7 @@ import numpy as np
 from ..algorithms.outcome import SolverOutcome, Status
 from ..algorithms.result import SolveResult
 from ..checks import check as checks
+from ..checks.resolution import resolution_tails
 from ..errors import PgdError
 from ..progress import PhaseStarted, emit
 from .method import Kept, Settings
@@ -68,8 +69,6 @@ def kept_result(kept: Kept, entries: dict, settings: Settings) -> SolveResult:
     (:mod:`pgdcli.adapt`); the tails are reported, and they give warnings only when the error
     could not be measured.
     """
-    from ..checks.resolution import resolution_tails
-
     attempt = kept.attempt
     outcome, check = attempt.outcome, attempt.check
     cb = outcome.codebook
@@ -91,9 +90,10 @@ def kept_result(kept: Kept, entries: dict, settings: Settings) -> SolveResult:
                        outcome.wall_time, warnings, check)
 
 
-def finish(result: SolveResult, resolution, verdict, started: float) -> SolveResult:
+def finish(result: SolveResult, solved: str, resolution, verdict, started: float) -> SolveResult:
     """The result with its verdict: the report's check and resolution entries, the message, the status.
 
+    ``solved`` is the solver's part of the message (:meth:`~pgdcli.driver.method.Method.summary`);
     ``resolution`` is the :class:`~pgdcli.adapt.Resolution` that gave ``verdict``.
     """
     check, cb = result.check, result.codebook
@@ -101,7 +101,7 @@ def finish(result: SolveResult, resolution, verdict, started: float) -> SolveRes
     rep.update(check.report_entries())
     rep["accurate"] = -1 if verdict.accurate is None else int(verdict.accurate)
     rep.update(resolution.report_entries(verdict.reason))
-    rep["wall_time"] = _time.perf_counter() - started
+    wall = rep["wall_time"] = _time.perf_counter() - started
     tol = _tolerance_text(check)
     if verdict.accurate is False:
         where = ", ".join(f"{k}={v:.6g}" for k, v in check.where.items())
@@ -109,18 +109,17 @@ def finish(result: SolveResult, resolution, verdict, started: float) -> SolveRes
                    f"{verdict.reason}")
         rep.update(converged=False, status=int(Status.INACCURATE), message=message)
         return dataclasses.replace(result, converged=False, status=Status.INACCURATE, message=message,
-                                   accurate=False, wall_time=rep["wall_time"])
+                                   accurate=False, wall_time=wall)
     if verdict.accurate is None:
         measured = f"not checked against scipy ({tol}; see the warnings)"
     else:
         measured = (f"max abs error {check.error:.3g} at {checks.points_text(check.points)} against scipy "
                     f"({check.ratio:.2g} x {tol})")
-    solved = rep["solver_message"]
     if len(resolution.rounds) > 1:
         solved += f", nodes chosen in {len(resolution.rounds)} solves"
     message = f"converged: {solved}, {measured}"
     rep["message"] = message
-    return dataclasses.replace(result, message=message, accurate=verdict.accurate, wall_time=rep["wall_time"])
+    return dataclasses.replace(result, message=message, accurate=verdict.accurate, wall_time=wall)
 
 
 def _tolerance_text(check) -> str:

@@ -16,10 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..algorithms.enrichment_solve import solve_enrichment
-from ..algorithms.outcome import Learned, SolverOutcome, Status
+from ..algorithms.march import solve_march
+from ..algorithms.outcome import SolverOutcome
+from ..algorithms.pde_solve import solve_pde_march
+from ..algorithms.pde_system import pde_refusal
 from ..errors import SolverError
 from ..problem.general import has_general
-from .method import Kept, Method, MethodChoice, Settings, Try
+from .method import Kept, Method, MethodChoice, Try
 
 __all__ = ["METHODS", "choose_method", "Enrichment", "OdeMarch", "PdeMarch", "CHECK_FIRST", "CHECK_SAFETY",
            "MARCH_SAFETY", "RESIDUAL_FLOOR"]
@@ -124,8 +127,6 @@ class OdeMarch(Method):
         return learned.target if learned.target is not None else CHECK_FIRST * settings.tolerance
 
     def solve(self, problem, target, settings, learned, callback) -> SolverOutcome:
-        from ..algorithms.march import solve_march
-
         return solve_march(problem, target, callback=callback, learned=learned)
 
     def solver_ratio(self, check, problem) -> float:
@@ -144,7 +145,7 @@ class OdeMarch(Method):
         ratio = self.solver_ratio(last.check, problem)
         if not np.isfinite(ratio) or ratio <= 1.0:
             return None
-        return last.target * MARCH_SAFETY / ratio
+        return last.target * (MARCH_SAFETY / ratio)
 
     def keep(self, tries) -> Kept | None:
         kept = super().keep(tries)
@@ -175,8 +176,6 @@ class PdeMarch(OdeMarch):
     name = "pde march"
 
     def solve(self, problem, target, settings, learned, callback) -> SolverOutcome:
-        from ..algorithms.pde_solve import solve_pde_march
-
         return solve_pde_march(problem, target, callback=callback, learned=learned)
 
 
@@ -204,8 +203,6 @@ def choose_method(problem) -> MethodChoice:
                           f"in the unknowns and solver.method 'auto' or 'pgd' (the march steps in time)")
     why = "solver.method: march" if asked == "march" else "equations nonlinear in the unknowns"
     if any(c.role == "space" for c in problem.coordinates):
-        from ..algorithms.pde_system import pde_refusal
-
         reason = pde_refusal(problem)  # a nonlinear PDE in one space coordinate goes to the PDE march
         if reason:
             raise SolverError(reason)

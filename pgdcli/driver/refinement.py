@@ -24,7 +24,7 @@ from ..algorithms.outcome import Learned
 from ..algorithms.result import SolveResult
 from ..progress import PhaseStarted, emit
 from . import gate
-from .method import Method, MethodChoice, Settings, Try
+from .method import Kept, Method, MethodChoice, Settings, Try
 
 __all__ = ["solve_rounds", "CHECK_ATTEMPTS"]
 
@@ -57,27 +57,19 @@ def solve_rounds(problem, choice: MethodChoice, settings: Settings, callback=Non
     """
     loop = _Loop(problem, choice, settings, callback, learned)
     while True:
-        attempt = loop.solve()
-        tighter = loop.method.next_target(loop.problem, loop.tries, settings) \
-            if len(loop.tries) < CHECK_ATTEMPTS else None
-        if tighter is not None:
-            loop.tighten(tighter)
+        attempt = loop.solve()  # solve and check
+        if loop.tighten():  # refine: a tighter target at the same nodes
             continue
         kept = loop.method.keep(loop.tries)
         if kept is None:  # the first solve at these nodes failed
             if loop.fall_back(attempt) or loop.more_nodes(attempt):
                 continue
-            failed = gate.failed_result(attempt.outcome, loop.entries(loop.method.failure_entries(attempt.target,
-                                                                                                  settings)))
-            return failed, loop.learned
-        loop.learn(kept)
-        result = gate.kept_result(kept, loop.entries(loop.method.round_entries(kept, loop.tries, settings)), settings)
-        before = loop.problem
-        verdict = loop.resolution.judge(result.check, result.codebook, kept.stopped, kept.limited)
-        if verdict is None:
-            loop.refined(before)
-            continue
-        return gate.finish(result, loop.resolution, verdict, loop.started), loop.learned
+            return loop.failed(attempt), loop.learned
+        result = loop.kept_result(kept)
+        verdict = loop.judge(result, kept)  # refine: more nodes (None), or the verdict
+        if verdict is not None:
+            solved = loop.method.summary(kept, loop.tries)
+            return gate.finish(result, solved, loop.resolution, verdict, loop.started), loop.learned
 
 
 class _Loop:
@@ -112,11 +104,39 @@ class _Loop:
         self.tries.append(attempt)
         return attempt
 
-    def tighten(self, target: float) -> None:
+    def tighten(self) -> bool:
+        """Another solve at these nodes to the method's tighter target, if it has one and the tries allow."""
+        if len(self.tries) >= CHECK_ATTEMPTS:
+            return False
+        target = self.method.next_target(self.problem, self.tries, self.settings)
+        if target is None:
+            return False
         ratio = self.method.solver_ratio(self.tries[-1].check, self.problem)
         emit(self.callback, PhaseStarted("refine", f"the error at the nodes is {ratio:.3g} x the tolerance: "
                                                    f"{self.method.target_name} {target:.2g}", self.solves))
         self.target = target
+        return True
+
+    def failed(self, attempt: Try) -> SolveResult:
+        """The result of a first solve that failed, its report completed by the method."""
+        return gate.failed_result(attempt.outcome,
+                                  self.entries(self.method.failure_entries(attempt.target, self.settings)))
+
+    def kept_result(self, kept: Kept) -> SolveResult:
+        """The result of the try kept at these nodes; what it met the tolerance with is learned."""
+        if self.method.solver_ratio(kept.attempt.check, self.problem) <= 1.0:
+            measured = [t for t in self.tries if t.check is not None]
+            self.learned = dataclasses.replace(self.learned, target=measured[-1].target)
+        return gate.kept_result(kept, self.entries(self.method.round_entries(kept, self.tries, self.settings)),
+                                self.settings)
+
+    def judge(self, result: SolveResult, kept: Kept):
+        """The resolution's verdict on ``result``, or None after it refined the nodes (solve again)."""
+        before = self.problem
+        verdict = self.resolution.judge(result.check, result.codebook, kept.stopped, kept.limited)
+        if verdict is None:
+            self.refined(before)
+        return verdict
 
     def restart(self) -> None:
         """Solves at new nodes (or by another method) start from what met the tolerance before."""
@@ -150,12 +170,6 @@ class _Loop:
                    for c in before.coordinates if total_nodes(c) != total_nodes(self.problem.coordinate(c.name))]
         emit(self.callback, PhaseStarted("refine", "more nodes: " + ", ".join(changed), self.solves))
         self.restart()
-
-    def learn(self, kept) -> None:
-        """The target that met the tolerance at the nodes, for the next solve."""
-        if self.method.solver_ratio(kept.attempt.check, self.problem) <= 1.0:
-            measured = [t for t in self.tries if t.check is not None]
-            self.learned = dataclasses.replace(self.learned, target=measured[-1].target)
 
     def entries(self, entries: dict) -> dict:
         """A round's report entries, with the methods that stalled before, if any."""
