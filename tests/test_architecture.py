@@ -27,8 +27,10 @@ LOWER = {
     "adapt": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks"},
     "plot": {"problem", "discretization", "tensors", "codebook", "checks"},
     "inference": {"problem", "discretization", "tensors", "codebook", "checks", "plot"},
+    "view": {"discretization", "tensors", "codebook", "inference"},  # a page of a codebook (and data)
+    "family": {"problem", "driver"},  # several specs, one task each
     "cli": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks", "driver", "adapt",
-            "plot", "inference"},
+            "plot", "inference", "view", "family"},
 }
 
 
@@ -39,6 +41,8 @@ LEAVES = {
     "names": (),  # what a name may be; text safe for a terminal
     "limits": ("pgdcli.errors",),  # the documented limits and their environment overrides
     "progress": (),  # the typed progress events of a solve
+    "executors": ("pgdcli.errors",),  # where independent tasks run: here, a pool, a Dask cluster
+    "cluster": ("pgdcli.errors", "pgdcli.executors"),  # opening a Dask cluster
 }
 
 

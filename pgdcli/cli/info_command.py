@@ -7,17 +7,33 @@ from pathlib import Path
 
 import click
 
+from ..errors import CodebookError
 from .group import cli
 from .text import human_size, nodes_chosen_text, short_where
 
+
 @cli.command()
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True)
-def info(codebook, fmt):
-    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time."""
+@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
+              help="text: a readable summary; json: every figure as JSON.")
+@click.option("--spec", "show_spec", is_flag=True,
+              help="Print the problem spec stored in CODEBOOK (YAML, as it was solved) instead.")
+def info(codebook, fmt, show_spec):
+    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time.
+
+    \b
+      pgd info codebooks/coupled.h5
+      pgd info codebooks/coupled.h5 --format json
+      pgd info codebooks/coupled.h5 --spec > coupled.yaml    # solve it again: pgd solve coupled.yaml
+    """
     from ..codebook.codebook import Codebook
 
     cb = Codebook.load(codebook)
+    if show_spec:
+        if not cb.spec_text.strip():
+            raise CodebookError(f"{codebook}: the codebook holds no problem spec")
+        click.echo(cb.spec_text, nl=not cb.spec_text.endswith("\n"))
+        return
     summary = cb.info(codebook)
     if fmt == "json":  # JSON escapes control characters itself
         click.echo(json.dumps(summary, indent=2))
@@ -43,7 +59,7 @@ def info(codebook, fmt):
     if summary.get("rates"):
         console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
     for line in summary.get("separated_coefficients", []):
-        console.print(f"separated coefficient: {line}", markup=False)
+        console.print(f"separated coefficient: {line}")
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("accurate") is False:

@@ -3,7 +3,8 @@
 Both read the typed events of :mod:`pgdcli.progress` only (their phase, fraction and description),
 so a new method or phase needs nothing here. Off a terminal (CI logs, ``2> log``, background runs)
 a live bar would print nothing until the end: every phase change is a line, and the other events
-are a line at most every :data:`PLAIN_EVERY` seconds.
+are a line at most every :data:`PLAIN_EVERY` seconds. On a cluster, :meth:`count_tasks` adds the
+count of the tasks it finished (a second bar, or a line at the same modest rate).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ class PlainProgress:
 
     def __init__(self, console, name: str, every: float = PLAIN_EVERY, clock=time.monotonic):
         self.console, self.name, self.every, self.clock = console, name, every, clock
-        self.started = self.last = clock()
+        self.started = self.last = self.tasks_last = clock()
         self.phase = ""
 
     def __enter__(self):
@@ -38,6 +39,19 @@ class PlainProgress:
 
     def __exit__(self, *exc) -> None:
         return None
+
+    def count_tasks(self, executor) -> None:
+        """Tell the tasks ``executor`` (a :class:`pgdcli.executors.Executor`) finishes, a line at most every
+        :attr:`every` seconds."""
+        executor.progress = self._tasks
+
+    def _tasks(self, done: int) -> None:
+        now = self.clock()
+        if now - self.tasks_last < self.every:
+            return
+        self.tasks_last = now
+        self.console.print(f"pgd solve {self.name}: cluster: {done:,} tasks finished [{now - self.started:.0f} s]",
+                           markup=False, highlight=False, soft_wrap=True)
 
     def __call__(self, event) -> None:
         now = self.clock()
@@ -72,6 +86,11 @@ class BarProgress:
 
     def __exit__(self, *exc) -> None:
         self.progress.__exit__(*exc)
+
+    def count_tasks(self, executor) -> None:
+        """Show the tasks ``executor`` (a :class:`pgdcli.executors.Executor`) finishes, on a bar of their own."""
+        tasks = self.progress.add_task("tasks on the cluster", total=None, status="")
+        executor.progress = lambda done: self.progress.update(tasks, status=f"{done:,} finished")
 
     def __call__(self, event) -> None:
         fields = {"status": event.describe()}

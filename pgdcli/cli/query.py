@@ -27,6 +27,7 @@ __all__ = ["run", "UsageProblem", "one_line_error"]
 
 FORMATS = ("plain", "csv", "json")
 _VALUE_OPTIONS = ("--format", "--field", "--points")
+_CLICK_ONLY = ("--output", "--scheduler", "--workers")  # a query into a file, on a cluster: the click command
 
 
 class UsageProblem(Exception):
@@ -248,7 +249,7 @@ def _split(args: list[str]):
     while i < len(args):
         arg = args[i]
         i += 1
-        if arg in ("--help", "--"):
+        if arg in ("--help", "--") or arg.partition("=")[0] in _CLICK_ONLY:
             return None
         if arg.startswith("--"):
             name, eq, value = arg.partition("=")

@@ -2,19 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+from functools import partial
 from pathlib import Path
 
 import click
 
+from .cluster_options import cluster_options, open_executor
 from .group import Failed, cli, run_command, stderr_console, warn
 from .text import human_size, nodes_chosen_text, short_where
 
 @cli.command()
-@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
-              help="Codebook path [default: the spec's output, else codebooks/<name>.h5].")
+@click.argument("specs", metavar="SPEC...", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path),
+              help="Codebook path [default: the spec's output, else codebooks/<name>.h5]; with several specs, "
+                   "the folder of their codebooks.")
 @click.option("--tolerance", type=float,
               help="Override solver.tolerance: the bound on the codebook's max abs error, measured.")
 @click.option("--relative-tolerance", type=float, help="Override solver.relative_tolerance (error <= "
@@ -26,7 +30,11 @@ from .text import human_size, nodes_chosen_text, short_where
 @click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
               help="text: summary table on stderr; json: the summary as JSON on stdout.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary on stderr.")
-def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
+@cluster_options("the cross march's batches of trajectories and the reference's chunks (several specs: one task "
+                 "each)")
+@click.pass_context
+def solve(ctx, specs, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet, scheduler,
+          workers):
     """Solve the problem in SPEC (YAML) and write its codebook.
 
     After the solve, the codebook's error is measured against an independent
@@ -35,11 +43,22 @@ def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurat
     at the target path and the exit status is 1, with one line saying how large
     the error is, where, and what lacks resolution (--keep-inaccurate writes a
     codebook that misses its tolerance anyway, marked in the file).
+
+    Several specs (or a folder of them) are a family: each is built on its own
+    (one task each on a cluster), a failure does not stop the others, and a
+    table sums them up.
     """
-    run_command(_solve, spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet)
+    from .solve_family import family_specs, solve_family
+
+    options = (tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet)
+    family = family_specs(specs)
+    cluster = partial(open_executor, ctx, scheduler, workers, quiet)  # opened once the specs are checked
+    run_command(_solve if family is None else solve_family, specs[0] if family is None else family, output,
+                *options, cluster=cluster)
 
 
-def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
+def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet,
+           cluster=contextlib.nullcontext):
     from .outputs import prepare_output
     from ..driver import check_solvable
     from ..driver import solve as solve_problem
@@ -61,10 +80,12 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
     rtol = problem.solver.relative_tolerance if relative_tolerance is None else relative_tolerance
     check_solvable(problem, tol, rtol, nmax)  # a refusal before the progress bar: one line on stderr
     prepare_output(target, "--output" if output is not None else f"{spec}: output")  # before the solve
-    if console is None:
-        result = solve_problem(problem, **overrides)
-    else:
-        result = _solve_with_progress(console, problem, solve_problem, overrides)
+    with cluster() as executor:
+        overrides["executor"] = executor
+        if console is None:
+            result = solve_problem(problem, **overrides)
+        else:
+            result = _solve_with_progress(console, problem, solve_problem, overrides)
     for warning in result.warnings:
         warn(warning)
     keep = result.converged or (keep_inaccurate and result.accurate is False)
@@ -87,8 +108,11 @@ def _solve_with_progress(console, problem, solve_problem, overrides):
     """The solve with its progress on stderr (:mod:`pgdcli.cli.progress_view`)."""
     from .progress_view import solve_progress
 
-    with solve_progress(console, problem.name) as callback:
-        return solve_problem(problem, callback=callback, **overrides)
+    with solve_progress(console, problem.name) as view:
+        executor = overrides.get("executor")
+        if executor is not None:  # the tasks the cluster finished
+            view.count_tasks(executor)
+        return solve_problem(problem, callback=view, **overrides)
 
 
 def _solve_summary(problem, result, target: Path | None) -> dict:

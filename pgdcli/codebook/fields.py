@@ -6,12 +6,12 @@ Tell them apart by type (``isinstance(fm, FieldTT)``). numpy only (the query pat
 
 Why ``FieldModes`` is not :class:`pgdcli.tensors.cp.CPTensor` (the same layout): ``tensors/cp.py``
 imports scipy at module level (LAPACK's geqrf for its orthogonal sweeps), and this module is on
-``pgd query``'s path, whose start-up must stay within 1.3x of ``python -c "import numpy, h5py"``
-(scipy.linalg alone is ~0.1-0.2 s). ``CPTensor`` also raises ValueError where a codebook file
-must give a CodebookError naming the unknown (:func:`validate_field`). One type would need the
-``CPTensor`` dataclass in a numpy-only module of ``tensors/`` (then ``FieldModes`` its subclass
-with ``alphas``/``modes`` as names of ``weights``/``factors``): left for when ``tensors/`` is not
-being edited concurrently (issue 13's note).
+``pgd query``'s path, whose start-up must stay close to that of ``python -c "import numpy, h5py"``
+(importing scipy.linalg would dominate it: ``benchmarks/query_speed.py``). ``CPTensor`` also
+raises ValueError where a codebook file must give a CodebookError naming the unknown
+(:func:`validate_field`). One type would need the ``CPTensor`` dataclass in a numpy-only module
+of ``tensors/`` (then ``FieldModes`` its subclass with ``alphas``/``modes`` as names of
+``weights``/``factors``).
 """
 
 from __future__ import annotations

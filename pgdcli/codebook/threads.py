@@ -1,8 +1,9 @@
 """The thread and BLAS policy of batch evaluation, and the chunks it hands out.
 
 Batches (CP and tensor-train) are cut into chunks of points, run in this thread or shared by
-a few threads of our own, with BLAS limited to one thread while they run. Measurements:
-benchmarks/README.md. numpy only at import (threadpoolctl on the first large batch).
+a few threads of our own, with BLAS limited to one thread while they run. The policy's
+measurements: ``benchmarks/query_speed.py`` (its thread configurations). numpy only at import
+(threadpoolctl on the first large batch).
 """
 
 from __future__ import annotations
@@ -17,27 +18,25 @@ __all__ = ["chunk_length", "chunk_bounds", "available_threads", "run_chunks", "o
 # Batches are evaluated in chunks of points whose working set (two (chunk, total rank) blocks and
 # two (chunk, nodes) blocks per coordinate) stays within a few MiB of cache. A batch of at most one
 # chunk makes exactly the numpy/BLAS calls of the unchunked algorithm, so its values are bitwise
-# those of pgdcli <= 0.1.0. Larger batches: chunk lengths are multiples of ROW_ALIGN, so every
+# those of that algorithm. Larger batches: chunk lengths are multiples of ROW_ALIGN, so every
 # row keeps its position in the row blocks of the BLAS kernels; the kernel a product takes still
 # depends on its shape (small-matrix kernels), so for some (nodes, rank) shapes a value can differ
 # in the last bit from the unchunked product over all points -- as that product's own values
-# depend on the number of points. One point takes a matrix-vector path (as before).
-# Measured (spring, 2 cores): one thread is as fast with 448-point chunks (1 MiB) as with 2000
-# (4 MiB), but two threads scale only with the larger ones (1.5e6 -> 2.2e6 points/s), which hold
-# the GIL for a smaller share of their time.
+# depend on the number of points. One point takes a matrix-vector path.
+# CHUNK_BYTES: one thread is as fast with smaller chunks, but two threads scale only with chunks
+# this large, which hold the GIL for a smaller share of their time (benchmarks/query_speed.py).
 ROW_ALIGN = 64
 CHUNK_BYTES = 1 << 22
 MAX_CHUNK = 4096
-# BLAS thread policy per call site (measured: benchmarks/README.md).
+# BLAS thread policy per call site (benchmarks/query_speed.py measures each configuration).
 # - One point, and batches under BLAS_LIMIT_MIN_POINTS: BLAS as is. A one-row product is far
 #   below OpenBLAS's threading threshold, small batches cost little either way, and `pgd query`
-#   on a few points is spared the threadpoolctl import (~10 ms).
-# - Larger batches: BLAS limited to one thread (threadpoolctl) while they run. Threaded BLAS is at
-#   best ~1.2x faster on these skinny products on idle cores, and many times slower when another
-#   process holds a core (its threads spin waiting for each other): 1000 points took 16 ms
-#   instead of 1 ms, 1e5 points ran at 0.06e6 points/s.
+#   on a few points is spared the threadpoolctl import.
+# - Larger batches: BLAS limited to one thread (threadpoolctl) while they run. Threaded BLAS gains
+#   little on these skinny products on idle cores, and is many times slower when another process
+#   holds a core (its threads spin waiting for each other).
 # - From PARALLEL_MIN_POINTS: chunks shared by up to MAX_THREADS threads of our own (numpy and
-#   BLAS release the GIL): ~1.7x on 2 idle cores; a few % slower when the cores are busy.
+#   BLAS release the GIL): close to linear on idle cores, a few % slower when the cores are busy.
 BLAS_LIMIT_MIN_POINTS = 512
 PARALLEL_MIN_POINTS = 16384
 MAX_THREADS = 8

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from typing import Callable
 
+from .. import executors
 from ..algorithms.grid_march import check_forced_grid
 from ..algorithms.outcome import Status
 from ..algorithms.result import SolveResult
@@ -43,7 +44,8 @@ def _blas_single_thread():
 
 
 def solve(problem, *, tolerance: float | None = None, relative_tolerance: float | None = None,
-          max_modes: int | None = None, callback: Callable[[ProgressEvent], None] | None = None) -> SolveResult:
+          max_modes: int | None = None, callback: Callable[[ProgressEvent], None] | None = None,
+          executor=None) -> SolveResult:
     """Compute the PGD codebook of a problem, its error measured against an independent reference.
 
     Parameters
@@ -60,6 +62,10 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
         (:class:`~pgdcli.progress.MarchStep`), each sweep of a cross
         (:class:`~pgdcli.progress.CrossSweep`), the error gate's reference
         (:class:`~pgdcli.progress.ReferenceProgress`).
+    executor : optional
+        Where the independent tasks of the solve run (the cross march's batches of trajectories, the
+        reference's chunks): a ``distributed.Client`` or a :class:`pgdcli.executors.Executor`; default
+        this process. The codebook is the same bit for bit.
 
     Returns
     -------
@@ -78,7 +84,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     check_solvable(problem, settings.tolerance, settings.relative_tolerance, settings.max_modes)
     choice = choose_method(problem)
     emit(callback, PhaseStarted("solve", f"method {choice.methods[0].name} ({choice.reason})", 1))
-    with _blas_single_thread():
+    with _blas_single_thread(), executors.using(executor):
         result, _ = solve_rounds(problem, choice, settings, callback)
     rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
     if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info

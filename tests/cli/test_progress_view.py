@@ -9,6 +9,7 @@ from conftest import PROBLEMS
 from rich.console import Console
 
 from pgdcli.cli.main import cli
+from pgdcli.executors import SerialExecutor
 from pgdcli.cli.progress_view import BarProgress, PlainProgress, solve_progress
 from pgdcli.progress import MarchStep, PhaseStarted, ReferenceProgress
 
@@ -37,6 +38,32 @@ def test_plain_lines_at_every_phase_and_at_most_every_few_seconds_between():
                      "pgd solve drag: solving: t = 0.4167/1, 5 steps (42%) [5 s]",
                      "pgd solve drag: solving: t = 0.8333/1, 10 steps (83%) [10 s]",
                      "pgd solve drag: checking: error gate against scipy's DOP853 [12 s]"]
+
+
+def test_plain_lines_count_the_tasks_a_cluster_finished_at_a_modest_rate():
+    out = io.StringIO()
+    clock = _Clock()
+    show = PlainProgress(Console(file=out, width=200), "chain", every=5.0, clock=clock)
+    executor = SerialExecutor()
+    show.count_tasks(executor)
+
+    def task(k):
+        clock.now = float(k)  # a task a second
+        return k
+
+    assert list(executor.map(task, range(1, 13))) == list(range(1, 13))
+    assert out.getvalue().splitlines() == ["pgd solve chain: cluster: 5 tasks finished [5 s]",
+                                           "pgd solve chain: cluster: 10 tasks finished [10 s]"]
+
+
+def test_a_bar_on_a_terminal_counts_the_tasks_a_cluster_finished():
+    out = io.StringIO()
+    console = Console(file=out, force_terminal=True, width=120)
+    executor = SerialExecutor()
+    with solve_progress(console, "chain") as show:
+        show.count_tasks(executor)
+        list(executor.map(abs, range(1234)))
+    assert "tasks on the cluster" in out.getvalue() and "1,234 finished" in out.getvalue()
 
 
 def test_a_bar_on_a_terminal():
