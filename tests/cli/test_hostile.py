@@ -113,7 +113,7 @@ def test_f1_messages_never_spell_a_huge_value():
     (["--t", "0:1:100000", "--k", "1:2:100000", "--c", "0.1:0.5:100000"], "1000000000000000"),
 ])
 def test_f2_huge_grid_is_refused_with_its_count(codebook_path, args, count):
-    path = codebook_path("spring")  # solved once per session, outside the bound
+    path = codebook_path("spring")  # solved once per test run, outside the bound
     started = time.process_time()
     result = invoke("query", path, *args)
     assert_one_error(result, 2, count, "limit", "PGD_QUERY_MAX_POINTS")
