@@ -40,6 +40,7 @@ LEAVES = {
     "pages": (),  # arrays in memory pages of a chosen size
     "names": (),  # what a name may be; text safe for a terminal
     "limits": ("pgdcli.errors",),  # the documented limits and their environment overrides
+    "progress": (),  # the typed progress events of a solve
     "executors": ("pgdcli.errors",),  # where independent tasks run: here, a pool, a Dask cluster
     "cluster": ("pgdcli.errors", "pgdcli.executors"),  # opening a Dask cluster
 }

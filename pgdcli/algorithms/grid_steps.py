@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import DOP853
 
+from ..progress import MarchStep, emit
 from ..tensors.cross import tt_point_function, tt_values_at
 from .blowup import BlowupWatch
 from .dop853_stepper import dense_weights
@@ -190,7 +191,7 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
         state first).
     max_steps : int
     callback : callable, optional
-        After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep` (ranks empty).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
     largest : callable, optional
@@ -239,8 +240,7 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
         y[:] = y_new  # buffer[0]
         t, f = t_new, K[DOP853.n_stages].copy()  # a copy: a rejected trial overwrites the stages
         h = control.accepted(h, ratio)
-        if callback is not None:
-            callback({"time": t, "end": t_final, "ranks": [], "steps": len(schedule.steps)})
+        emit(callback, MarchStep(t, t_final, len(schedule.steps), [], float(nodes[0])))
         if t < t_final:
             blowup = watch(t, schedule.step_sizes, y)
             if blowup is not None:

@@ -37,6 +37,7 @@ import numpy as np
 
 from ..discretization.basis import chebyshev_unit_nodes
 from ..errors import SolverError
+from ..progress import MarchStep, emit
 from .pde_operators import DenseOperators
 from .pde_system import PdeSystem, compile_pde_system
 
@@ -146,6 +147,8 @@ def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = No
     tail_limit : bool or list of str
         Stop with :class:`UnderResolved` once the Chebyshev tail of ``u`` along a space coordinate (those
         named, or all with True) exceeds :data:`TAIL_ABORT` x ``tolerance`` (whole-grid march only).
+    callback : callable, optional
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep`.
     """
     from threadpoolctl import threadpool_limits
 
@@ -204,8 +207,7 @@ def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixe
                 if slab_nodes:
                     states.append(ops.states(w, state_delta))
                     out_times.append(t)
-                if callback is not None:
-                    callback({"time": t, "end": t1, "steps": steps, "ranks": [[max_rank]] * len(system.species)})
+                emit(callback, MarchStep(t, t1, steps, [[max_rank]] * len(system.species), t0))  # ranks per unknown
             elif not np.isfinite(err):
                 rejected += 1
                 h *= 0.2
