@@ -24,14 +24,17 @@ error gate after the march (``pgdcli.driver``), as for every march.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from itertools import product
 
 import numpy as np
 
 from ..tensors.fiber_cross import vector_cross
 from ..tensors.tt import TT, tt_round_shared
-from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, Schedule, advance, initial_values, replay
+from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, advance, initial_values, replay_batch
+from .march_loop import Schedule
 from .polynomial_rhs import NonlinearSystem
+from .runge_kutta import ExplicitRungeKutta
 
 __all__ = ["CrossMarchResult", "march_by_cross", "PILOT_POINTS", "CROSS_SHARE"]
 
@@ -44,8 +47,8 @@ PILOT_CORNERS = 1024
 CROSS_SHARE = 0.1
 #: The cross's largest difference there, as a share of the tolerance.
 CROSS_LARGEST = 0.5
-#: Nodes marched together at most: their stages stay in the cache (8192-16384 nodes: 2x faster per node
-#: than 65536, benchmarks/README.md).
+#: Nodes marched together at most: their stages stay in the cache (per node, batches of this size were
+#: measured twice as fast as four times larger ones).
 REPLAY_POINTS = 16384
 #: Times the pilot is marched again with the nodes where its steps overflowed.
 RETRIES = 2
@@ -86,7 +89,7 @@ class CrossMarchResult:
 
 def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, max_rank: int = 400,
                    max_steps: int = 20000, callback=None, slab_nodes: int | None = None,
-                   budget: int | None = None) -> CrossMarchResult:
+                   budget: int | None = None, stepper: ExplicitRungeKutta | None = None) -> CrossMarchResult:
     """Pilot march, cross of the trajectories, split and round (module docstring).
 
     Parameters
@@ -105,6 +108,8 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
     budget : int, optional
         Trajectories the cross may ask for (``converged`` False beyond them).
+    stepper : ExplicitRungeKutta, optional
+        The pilot's (and so the trajectories') stepper; default DOP853.
 
     Raises
     ------
@@ -119,12 +124,12 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
         try:
             schedule = advance(system, GridRhs(system, pilot, functions), initial_values(system, pilot, functions),
                                tolerance, lambda values: None, max_steps=max_steps, callback=callback,
-                               slab_nodes=slab_nodes)
+                               slab_nodes=slab_nodes, stepper=stepper)
         except GridMarchFailure as failure:
             failure.indices = pilot
             raise
         try:
-            found = vector_cross(_trajectories(system, schedule, functions), len(system.unknowns) * len(schedule.times),
+            found = vector_cross(_trajectories(schedule, functions), len(system.unknowns) * len(schedule.times),
                                  system.shape, CROSS_SHARE * tolerance, largest=CROSS_LARGEST * tolerance, rng=rng,
                                  max_rank=max_rank, callback=_sweep_progress(callback, CROSS_SHARE * tolerance),
                                  max_evaluations=budget)
@@ -166,21 +171,21 @@ def _pilot_indices(shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarr
     return np.unique(np.vstack([corners, random]), axis=0)
 
 
-def _trajectories(system: NonlinearSystem, schedule: Schedule, functions: NodeFunctions):
-    """``F(indices)``: the stored states at grid multi-indices (P, d), as (times x unknowns, P)."""
+def _trajectories(schedule: Schedule, functions: NodeFunctions):
+    """``F(indices)``: the stored states at grid multi-indices (P, d), as (times x unknowns, P).
 
-    def replayed(chosen: np.ndarray) -> np.ndarray:  # (times, m, P), finite
-        values = replay(GridRhs(system, chosen, functions), initial_values(system, chosen, functions), schedule)
-        _refuse_overflow(chosen, values)
-        return values
+    The nodes are replayed in batches of at most :data:`REPLAY_POINTS`, each
+    :func:`pgdcli.algorithms.grid_steps.replay_batch` of (schedule, node functions, batch) alone.
+    """
 
     def function(indices: np.ndarray) -> np.ndarray:
-        if len(indices) <= REPLAY_POINTS:  # one replay: its array is the answer (no copy)
-            return replayed(indices).reshape(-1, len(indices))
-        out = np.empty((len(schedule.times), len(system.unknowns), len(indices)))
-        for start in range(0, len(indices), REPLAY_POINTS):
-            out[:, :, start:start + REPLAY_POINTS] = replayed(indices[start:start + REPLAY_POINTS])
-        return out.reshape(-1, len(indices))
+        batches = [indices[start:start + REPLAY_POINTS] for start in range(0, len(indices), REPLAY_POINTS)]
+        values = list(map(partial(replay_batch, schedule, functions), batches))  # (times, m, P) each
+        for batch, batch_values in zip(batches, values):
+            _refuse_overflow(batch, batch_values)
+        if len(values) == 1:  # one replay: its array is the answer (no copy)
+            return values[0].reshape(-1, len(indices))
+        return np.concatenate(values, axis=2).reshape(-1, len(indices))
 
     return function
 
