@@ -34,7 +34,7 @@ from ..tensors.tt import TT, tt_round_shared
 from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, advance, initial_values, replay_batch
 from .march_loop import Schedule
 from .polynomial_rhs import NonlinearSystem
-from .runge_kutta import ExplicitRungeKutta
+from .stepping import Stepper
 
 __all__ = ["CrossMarchResult", "march_by_cross", "PILOT_POINTS", "CROSS_SHARE"]
 
@@ -89,7 +89,7 @@ class CrossMarchResult:
 
 def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, max_rank: int = 400,
                    max_steps: int = 20000, callback=None, slab_nodes: int | None = None,
-                   budget: int | None = None, stepper: ExplicitRungeKutta | None = None) -> CrossMarchResult:
+                   budget: int | None = None, stepper: Stepper | None = None) -> CrossMarchResult:
     """Pilot march, cross of the trajectories, split and round (module docstring).
 
     Parameters
@@ -108,7 +108,7 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
     budget : int, optional
         Trajectories the cross may ask for (``converged`` False beyond them).
-    stepper : ExplicitRungeKutta, optional
+    stepper : Stepper, optional
         The pilot's (and so the trajectories') stepper; default DOP853.
 
     Raises

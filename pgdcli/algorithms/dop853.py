@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import DOP853
 
-from .runge_kutta import ExplicitRungeKutta, StateSpace
+from .runge_kutta import ExplicitRungeKutta
+from .stepping import StateSpace
 
 __all__ = ["Dop853", "dense_weights"]
 

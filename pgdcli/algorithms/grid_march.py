@@ -32,7 +32,7 @@ from ..tensors.tt_svd import tt_from_full_sketched
 from ..tensors.tt import TT
 from .grid_steps import GridMarchFailure, GridRhs, advance, initial_values
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem
-from .runge_kutta import ExplicitRungeKutta
+from .stepping import Stepper
 from .space_time import join_and_round
 
 __all__ = ["GRID_LIMIT", "GRID_MAX", "CHUNK_FLOATS", "fits_grid", "check_forced_grid", "GridRhs", "GridMarchResult", "march_on_grid",
@@ -138,7 +138,7 @@ class _Store:
 
 def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, max_steps: int = 20000,
                   callback=None, slab_nodes: int | None = None,
-                  stepper: ExplicitRungeKutta | None = None) -> GridMarchResult:
+                  stepper: Stepper | None = None) -> GridMarchResult:
     """March the whole grid array with a stepper to the end of the time domain; compress it to trains.
 
     Parameters
@@ -153,7 +153,7 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, ma
         After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
-    stepper : ExplicitRungeKutta, optional
+    stepper : Stepper, optional
         Default DOP853.
 
     Raises

@@ -18,7 +18,7 @@ import numpy as np
 from ..tensors.cross import tt_point_function, tt_values_at
 from .march_loop import Schedule, march_steps
 from .polynomial_rhs import NonlinearSystem
-from .runge_kutta import ExplicitRungeKutta, Trial
+from .stepping import Stepper, Trial
 from .step_control import LOCAL_FRACTION
 from .steppers import stepper as named_stepper
 
@@ -147,7 +147,7 @@ def initial_values(system: NonlinearSystem, indices: np.ndarray | None = None,
 
 class ArraySpace:
     """The array (unknowns, P) of nodal values as the state of a stepper
-    (:class:`pgdcli.algorithms.runge_kutta.StateSpace`), in one buffer ``[y, y_new, K_0 ...]``.
+    (:class:`pgdcli.algorithms.stepping.StateSpace`), in one buffer ``[y, y_new, K_0 ...]``.
 
     Nothing is rounded. The buffer holds the state between steps (``buffer[0]``), every trial's new
     state (``buffer[1]``, written by :meth:`state`) and the stages, so the dense output at a step's
@@ -156,6 +156,7 @@ class ArraySpace:
     """
 
     failure = GridMarchFailure
+    kind = "the grid's array of nodal values"
 
     def __init__(self, rhs: GridRhs, y: np.ndarray, slots: int):
         self.rhs, self.system, self.stats = rhs, rhs.system, rhs.stats
@@ -222,7 +223,7 @@ def _combination(weights: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: float, keep, *,
             max_steps: int = 20000, callback=None, slab_nodes: int | None = None,
-            stepper: ExplicitRungeKutta | None = None) -> Schedule:
+            stepper: Stepper | None = None) -> Schedule:
     """March ``y`` (unknowns, P) to the end of the time domain with a stepper and step control.
 
     Parameters
@@ -241,7 +242,7 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
         After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
-    stepper : ExplicitRungeKutta, optional
+    stepper : Stepper, optional
         Default DOP853.
 
     Raises

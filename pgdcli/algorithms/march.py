@@ -53,7 +53,7 @@ from .cross_march import march_by_cross
 from .grid_march import GridMarchFailure, check_forced_grid, fits_grid, grid_region, march_on_grid
 from .march_codebook import SPACE_TIME_FRACTION, converged_result, failed_result
 from .march_loop import march_steps
-from .runge_kutta import ExplicitRungeKutta
+from .stepping import Stepper
 from .step_control import LOCAL_FRACTION, STAGE_FRACTION, STATE_FRACTION
 from .steppers import stepper as named_stepper
 from .train_steps import MarchFailure, TrainSpace
@@ -90,7 +90,7 @@ class MarchResult:
 
 
 def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max_steps: int = 20000,
-          callback=None, slab_nodes: int | None = None, stepper: ExplicitRungeKutta | None = None) -> MarchResult:
+          callback=None, slab_nodes: int | None = None, stepper: Stepper | None = None) -> MarchResult:
     """Advance the separated state over the time domain with a stepper and its dense output.
 
     Steps are chosen by the embedded error estimate (not by the time nodes); the state at every
@@ -111,7 +111,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
         stored at its ``slab_nodes`` Chebyshev-Lobatto nodes (from 8 on, DOP853's
         dense output, a polynomial of degree 7, is reproduced exactly by the
         codebook's interpolation). Without it, the nodes of the time basis.
-    stepper : ExplicitRungeKutta, optional
+    stepper : Stepper, optional
         Default DOP853.
 
     Raises

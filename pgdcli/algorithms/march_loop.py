@@ -3,7 +3,7 @@
 :func:`march_steps` advances a state from the first to the last time node with a stepper
 (:data:`pgdcli.algorithms.steppers.METHODS`) and the step control of
 :mod:`pgdcli.algorithms.step_control`, and hands the state at every stored time to a ``store``
-callable; the state lives in a space (:class:`pgdcli.algorithms.runge_kutta.StateSpace`) that
+callable; the state lives in a space (:class:`pgdcli.algorithms.stepping.StateSpace`) that
 also provides what a march needs beyond a step:
 
 - ``system``, ``stats``: the compiled system and the counters its right-hand sides keep;
@@ -12,7 +12,8 @@ also provides what a march needs beyond a step:
 - ``rounding(h)``: the rounding error a step of length ``h`` adds (0 for exact arithmetic);
 - ``after_stage_noise(h) -> h``: what to do when the error estimate is the stages' noise;
 - ``check(trial, t, y)``: refuse an accepted step (a rank cap);
-- ``largest(y)``: the largest nodal value (the blow-up watch), ``ranks(y)``: for progress.
+- ``largest(y)``: the largest nodal value (the blow-up watch), ``ranks(y)``: for progress;
+- ``kind``: what the state is, for messages.
 
 The grid's array (:class:`pgdcli.algorithms.grid_steps.ArraySpace`) and the tensor trains
 (:class:`pgdcli.algorithms.train_steps.TrainSpace`) are the two spaces. The returned
@@ -26,10 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import SolverError
 from .blowup import BlowupWatch
 from .general_rhs import underflow_hint
-from .runge_kutta import ExplicitRungeKutta
-from .step_control import MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
+from .stepping import Stepper
+from .step_control import MAX_GROWTH_OF_NORM, MIN_STEP, StepControl, output_times, step_refusal
 
 __all__ = ["Schedule", "march_steps"]
 
@@ -39,7 +41,7 @@ class Schedule:
     """The accepted steps of a march: ``(t, h, t_new, outs)`` each (``outs``: the stored times in
     ``(t, t_new]``), the stepper that took them, and what the march did."""
 
-    stepper: ExplicitRungeKutta
+    stepper: Stepper
     steps: list = field(default_factory=list)
     times: list = field(default_factory=list)  # every stored time, the initial one first
     rejected: int = 0
@@ -60,7 +62,7 @@ class Schedule:
         return np.array([self.times[0]] + [t_new for _, _, t_new, _ in self.steps])
 
 
-def march_steps(space, stepper: ExplicitRungeKutta, y, nodes: np.ndarray, local_tol: float, store, *,
+def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float, store, *,
                 max_steps: int = 20000, callback=None, slab_nodes: int | None = None) -> Schedule:
     """March ``y`` from ``nodes[0]`` to ``nodes[-1]`` with ``stepper`` and step control.
 
@@ -68,7 +70,7 @@ def march_steps(space, stepper: ExplicitRungeKutta, y, nodes: np.ndarray, local_
     ----------
     space : StateSpace
         The state's arithmetic and what the march needs of it (module docstring).
-    stepper : ExplicitRungeKutta
+    stepper : Stepper
     y : state
         The initial state.
     nodes : ndarray
@@ -88,7 +90,10 @@ def march_steps(space, stepper: ExplicitRungeKutta, y, nodes: np.ndarray, local_
     ------
     space.failure
         Blow-up, step-size underflow, ``max_steps``, or what ``space.check`` refuses.
+    SolverError
+        The stepper needs what the space does not provide (``Stepper.requires``).
     """
+    _check_requires(space, stepper)
     t, t_final = float(nodes[0]), float(nodes[-1])
     span = t_final - t
     control = StepControl(span, local_tol, stepper.error_estimator_order)
@@ -100,9 +105,11 @@ def march_steps(space, stepper: ExplicitRungeKutta, y, nodes: np.ndarray, local_
     h = 0.1 * span
     watch = BlowupWatch(space.system, y, t_final, largest=space.largest)
     while t < t_final:
-        h = min(h, t_final - t)
+        # the last step takes what is left, also a remainder below the step-size floor
+        h = t_final - t if h > t_final - t - MIN_STEP * span else h
         refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
-                               lambda: underflow_hint(space.system.general, space.stats), stepper.title)
+                               lambda: underflow_hint(space.system.general, space.stats), stepper.title,
+                               stepper.order)
         if refusal:
             raise space.failure(refusal, t, y)
         trial = stepper.step(space, t, y, f, h)
@@ -128,6 +135,15 @@ def march_steps(space, stepper: ExplicitRungeKutta, y, nodes: np.ndarray, local_
             if blowup is not None:
                 raise space.failure("the solution blows up", t, y, blowup)
     return schedule
+
+
+def _check_requires(space, stepper: Stepper) -> None:
+    """Refuse a stepper that needs an optional method the space lacks (a Jacobian of tensor trains)."""
+    missing = [name for name in stepper.requires if not callable(getattr(space, name, None))]
+    if missing:
+        raise SolverError(f"solver.integrator: {stepper.name!r} needs the {' and '.join(missing)} of the right-hand "
+                          f"side, which the march on {space.kind} does not provide; use another integrator or "
+                          f"solver.march: grid or cross")
 
 
 def _record(schedule: Schedule, space, trial, t: float, h: float, t_new: float, outs: list[float]) -> None:

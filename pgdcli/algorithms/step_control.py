@@ -28,6 +28,8 @@ LOCAL_FRACTION, STATE_FRACTION, STAGE_FRACTION = 0.3, 0.02, 0.05
 # by MAX_GROWTH_OF_NORM, ends the march (near a finite-time singularity the steps
 # shrink geometrically, so waiting for a floating-point underflow costs hundreds of steps).
 MIN_STEP = 1e-7
+# Below this order an explicit pair's small steps may be its accuracy, not its stability (step_refusal).
+LOW_ORDER = 5
 MAX_GROWTH_OF_NORM = 1e6
 # Stiff problems: a rounding error dY of a stage value reaches the error estimate as J dY, which
 # no step size reduces; each time that is detected the stage rounding is made 10x tighter, at
@@ -103,12 +105,17 @@ def output_times(t: float, h: float, t_new: float, nodes: np.ndarray, last_store
 
 
 def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: float, hint,
-                 method: str = "DOP853") -> str | None:
+                 method: str = "DOP853", order: int = 8) -> str | None:
     """Why a march cannot try another step (the caps), or None; ``hint()`` adds to a step-size underflow,
-    ``method`` names the explicit method."""
+    ``method`` and ``order`` name the explicit method."""
     if steps + rejected >= max_steps:
         # an explicit method on a stiff problem steps at its stability limit, whatever the tolerance:
         # say so when the steps are that small, so the user knows what raising max_steps buys
+        if h * max_steps < span and order < LOW_ORDER:
+            return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain; "
+                    f"the {method} pair of order {order} needs steps this small for this tolerance, or on a "
+                    "stiff problem for its stability: use solver.integrator: dop853, loosen the tolerance or "
+                    "raise solver.max_steps)")
         if h * max_steps < span:
             return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain; "
                     f"steps this small on a smooth solution are the stability limit of the explicit {method} "

@@ -1,21 +1,21 @@
 """The registry of the time march's steppers: ``solver.integrator`` names one of :data:`METHODS`.
 
-A new method is one module (a subclass of
-:class:`~pgdcli.algorithms.runge_kutta.ExplicitRungeKutta` with its coefficients) and one entry
-here; its name must also be among the spec's choices (``pgdcli.problem.spec_options.INTEGRATORS``,
-which cannot import this layer; a test keeps the two equal).
+A new method is one module (a :class:`~pgdcli.algorithms.stepping.Stepper`: for an explicit pair a
+subclass of :class:`~pgdcli.algorithms.runge_kutta.ExplicitRungeKutta` with its coefficients) and
+one entry here; its name is also one of the spec's choices (``pgdcli.problem.spec_options.INTEGRATORS``,
+in a layer that does not import this one; a test keeps the two equal).
 """
 
 from __future__ import annotations
 
 from .bogacki_shampine import BogackiShampine32
 from .dop853 import Dop853
-from .runge_kutta import ExplicitRungeKutta
+from .stepping import Stepper
 
 __all__ = ["METHODS", "DEFAULT", "stepper"]
 
 #: ``solver.integrator`` -> the stepper's class.
-METHODS: dict[str, type[ExplicitRungeKutta]] = {
+METHODS: dict[str, type[Stepper]] = {
     "dop853": Dop853,
     "bs32": BogackiShampine32,
 }
@@ -23,7 +23,7 @@ METHODS: dict[str, type[ExplicitRungeKutta]] = {
 DEFAULT = "dop853"
 
 
-def stepper(name: str | None = None) -> ExplicitRungeKutta:
+def stepper(name: str | None = None) -> Stepper:
     """The stepper named ``name`` (default :data:`DEFAULT`); ``KeyError`` names the choices."""
     key = DEFAULT if name is None else name
     if key not in METHODS:

@@ -15,7 +15,7 @@ import numpy as np
 from ..tensors.tt import TT, tt_ones, tt_sum
 from .blowup import WATCH_POINTS, largest_value
 from .polynomial_rhs import NonlinearSystem, evaluate_rhs, round_terms
-from .runge_kutta import Trial
+from .stepping import Trial
 
 __all__ = ["TrainSpace", "MarchFailure", "frobenius_of_sums"]
 
@@ -69,7 +69,7 @@ def frobenius_of_sums(terms: list[TT], weight_vectors: list) -> list[float]:
 
 class TrainSpace:
     """A tensor train per unknown, rounded as the march's error budget says
-    (:class:`pgdcli.algorithms.runge_kutta.StateSpace`).
+    (:class:`pgdcli.algorithms.stepping.StateSpace`).
 
     Parameters
     ----------
@@ -89,6 +89,7 @@ class TrainSpace:
     """
 
     failure = MarchFailure
+    kind = "tensor trains"
 
     def __init__(self, system: NonlinearSystem, stage_delta: float, state_delta: float, span: float,
                  max_rank: int, rng, stats: dict):

@@ -15,7 +15,7 @@ import pgdcli
 from pgdcli import parse_spec
 from pgdcli.algorithms.grid_steps import ArraySpace, GridRhs, initial_values
 from pgdcli.algorithms.march import compile_system
-from pgdcli.algorithms.runge_kutta import ExplicitRungeKutta
+from pgdcli.algorithms.stepping import Stepper
 from pgdcli.algorithms.steppers import METHODS, stepper
 from pgdcli.errors import SpecError
 from pgdcli.problem.spec_options import INTEGRATORS
@@ -46,7 +46,7 @@ def predator_prey(a, b):
 def test_registry_names_are_the_spec_choices():
     assert tuple(METHODS) == INTEGRATORS
     for key, method in METHODS.items():
-        assert method.name == key and issubclass(method, ExplicitRungeKutta)
+        assert method.name == key and issubclass(method, Stepper)
     assert stepper().name == "dop853"
     with pytest.raises(KeyError, match="expected one of dop853, bs32"):
         stepper("rk4")
@@ -161,3 +161,29 @@ def test_unknown_integrator_is_a_one_line_spec_error():
     with pytest.raises(SpecError) as info:
         parse_spec(text, source="pp.yaml")
     assert str(info.value) == "pp.yaml: solver.integrator: expected one of dop853, bs32, got 'rk4'"
+
+
+def test_a_stepper_needing_a_jacobian_is_refused_on_tensor_trains():
+    """A linearly implicit stepper names the Jacobian in ``requires``; the train march has none to give."""
+    from pgdcli.algorithms.dop853 import Dop853
+    from pgdcli.algorithms.march import march
+    from pgdcli.errors import SolverError
+
+    class NeedsJacobian(Dop853):
+        name = "needs_jacobian"
+        requires = ("jacobian",)
+
+    text = PREDATOR_PREY.replace("t: {domain: [0, 2]}", "t: {domain: [0, 2], nodes: 8}").replace("]}", "], nodes: 5}")
+    system = compile_system(parse_spec(text, source="pp.yaml"), 1e-6)
+    with pytest.raises(SolverError, match="solver.integrator: 'needs_jacobian' needs the jacobian of the right-hand "
+                                          "side, which the march on tensor trains does not provide"):
+        march(system, 1e-6, stepper=NeedsJacobian())
+
+
+def test_a_low_order_pair_out_of_steps_says_what_limits_it():
+    text = PREDATOR_PREY.replace("t: {domain: [0, 2]}", "t: {domain: [0, 2], nodes: 8}").replace("]}", "], nodes: 5}")
+    text = text.replace("tolerance: 1e-5", "tolerance: 1e-9\n  integrator: bs32\n  max_steps: 40")
+    result = pgdcli.solve(parse_spec(text, source="pp.yaml"))
+    assert not result.converged
+    assert ("max_steps=40 reached (steps of" in result.message and "the Bogacki-Shampine 3(2) pair of order 3 needs "
+            "steps this small for this tolerance" in result.message and "solver.integrator: dop853" in result.message)
