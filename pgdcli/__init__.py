@@ -24,6 +24,7 @@ _LAZY = {
     "Problem": ("problem.spec", "Problem"),
     "solve": ("driver", "solve"),
     "SolveResult": ("driver", "SolveResult"),
+    "Status": ("algorithms.outcome", "Status"),
     "Codebook": ("codebook.codebook", "Codebook"),
     "verify": ("checks.verify", "verify"),
     "PgdError": ("errors", "PgdError"),

@@ -35,3 +35,11 @@ class SolverError(PgdError):
 
 class VerifyError(PgdError):
     """Invalid verification request (options, points file)."""
+
+
+class LimitError(PgdError):
+    """Work or input beyond a documented limit (:mod:`pgdcli.limits`), refused before it starts."""
+
+
+class TimeBudgetExceeded(PgdError):
+    """A check or picture stopped at its time budget (``--max-seconds``): exit status 1, not 2."""

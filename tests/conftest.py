@@ -203,3 +203,28 @@ def assert_solved(result) -> None:
     from pgdcli.adapt import INACCURATE
 
     assert result.converged or result.status == INACCURATE, result.message
+
+
+def reseal(path) -> None:
+    """Recompute the digests of a codebook file edited in place (``h5py.File(path, "r+")``).
+
+    A test that simulates an intact file with wrong numbers (a solver's bug, not a disk's)
+    edits the arrays and then reseals the file, so that only the numbers differ.
+    """
+    import json
+
+    import h5py
+
+    from pgdcli.codebook.file_checks import ARRAY_DIGESTS, CONTENT_DIGEST, array_digest, metadata_digest, survey
+
+    with h5py.File(path, "r+") as f:
+        digests = {}
+
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                value = obj[()]
+                digests[name] = array_digest(value.decode() if isinstance(value, bytes) else value)
+
+        f.visititems(visit)
+        f.attrs[ARRAY_DIGESTS] = json.dumps(digests, sort_keys=True, separators=(",", ":"))
+        f.attrs[CONTENT_DIGEST] = metadata_digest(survey(f, str(path)))

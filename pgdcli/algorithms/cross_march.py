@@ -29,6 +29,7 @@ from itertools import product
 
 import numpy as np
 
+from ..progress import CrossSweep
 from ..tensors.fiber_cross import vector_cross
 from ..tensors.tt import TT, tt_round_shared
 from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, advance, initial_values, replay_batch
@@ -102,8 +103,8 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
     max_rank : int
     max_steps : int
     callback : callable, optional
-        After every accepted pilot step (``{"time", "end", "ranks", "steps"}``) and every half sweep of
-        the cross (``{"cross", "residual", "target", "ranks", "trajectories"}``).
+        After every accepted pilot step (a :class:`~pgdcli.progress.MarchStep`) and every half sweep of
+        the cross (a :class:`~pgdcli.progress.CrossSweep`).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
     budget : int, optional
@@ -154,11 +155,11 @@ class _Overflow(Exception):
 
 
 def _sweep_progress(callback, target: float):
-    """The cross's half sweeps as progress: ``{"cross", "residual", "target", "ranks", "trajectories"}``."""
+    """The cross's half sweeps as progress: a :class:`~pgdcli.progress.CrossSweep` each."""
     if callback is None:
         return None
-    return lambda info: callback({"cross": info["sweep"], "residual": info["error"], "target": target,
-                                  "ranks": info["ranks"], "trajectories": info["evaluations"]})
+    return lambda info: callback(CrossSweep(info["sweep"], info["error"], target, info["evaluations"],
+                                            info["ranks"]))
 
 
 def _pilot_indices(shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:

@@ -16,7 +16,7 @@ is about that of one vectorized ``solve_ivp`` over the grid plus the TT-SVD
 The error control is the train march's: the embedded estimate of each unknown in the
 root-mean-square norm over the grid nodes may be ``LOCAL_FRACTION * tolerance * h / span``
 (the local errors add up to that share of the tolerance); the user's tolerance, a max abs
-error, is enforced by the error gate after the march (``pgdcli.driver._checked_march``).
+error, is enforced by the error gate after the march (:mod:`pgdcli.driver.refinement`).
 
 :data:`GRID_LIMIT` decides which march a problem gets (:func:`fits_grid`).
 """
@@ -150,7 +150,7 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, ma
         Frobenius bound of the compression of each unknown's space-time array.
     max_steps : int
     callback : callable, optional
-        After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep` (ranks empty).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
     stepper : Stepper, optional

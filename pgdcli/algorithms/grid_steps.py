@@ -239,7 +239,7 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
         state first).
     max_steps : int
     callback : callable, optional
-        After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep` (ranks empty).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
     stepper : Stepper, optional

@@ -29,7 +29,7 @@ does not include the growth of errors through the dynamics (the Lipschitz
 factor), and the worst point of the grid can be 5-20 times the RMS: the user's
 tolerance is a max abs error, measured against scipy after the march and
 enforced by repeating it with a tighter RMS target (:mod:`pgdcli.checks.check`,
-``pgdcli.driver._checked_march``).
+:mod:`pgdcli.driver.refinement`).
 
 The pieces: the compiled right-hand side (:mod:`.polynomial_rhs`), the arithmetic of trains
 (:mod:`.train_steps`), the steppers (:mod:`.steppers`), the march loop (:mod:`.march_loop`) with
@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..progress import MarchStep, emit
 from ..tensors.tt import TT, tt_round_many
 from .blowup import WATCH_AGREE, blowup_region
 from .general_rhs import report_entries
@@ -53,6 +54,7 @@ from .cross_march import march_by_cross
 from .grid_march import GridMarchFailure, check_forced_grid, fits_grid, grid_region, march_on_grid
 from .march_codebook import SPACE_TIME_FRACTION, converged_result, failed_result
 from .march_loop import march_steps
+from .outcome import Learned, SolverOutcome
 from .stepping import Stepper
 from .step_control import LOCAL_FRACTION, STAGE_FRACTION, STATE_FRACTION
 from .steppers import stepper as named_stepper
@@ -105,7 +107,7 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     max_rank, max_steps : int
         Caps; exceeding them raises :class:`MarchFailure`.
     callback : callable, optional
-        Called after every accepted step with ``{"time", "end", "ranks", "steps"}``.
+        Called after every accepted step with a :class:`~pgdcli.progress.MarchStep`.
     slab_nodes : int, optional
         Automatic time slabs: every accepted step is a slab and the state is
         stored at its ``slab_nodes`` Chebyshev-Lobatto nodes (from 8 on, DOP853's
@@ -141,129 +143,147 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
                        np.array(schedule.times), schedule.breakpoints() if slab_nodes else None, stats)
 
 
-def solve_march(problem, tolerance: float, callback=None, learned: dict | None = None):
+def solve_march(problem, tolerance: float, callback=None, learned: Learned = Learned()) -> SolverOutcome:
     """Solve a (nonlinear) problem by the separated time march; see :func:`pgdcli.driver.solve`.
 
-    ``learned`` (updated) carries what one solve of the automatic resolution learned to the next
-    on a finer grid: ``"cross_abandoned"``, the message of a cross march that ran past its budget
-    of trajectories. A finer grid asks the cross for more trajectories a node, not fewer (an unseen
-    Lotka-Volterra model: 3.6 a node at 65^3 nodes, 5.1 at 129 x 65^2), so from then on the grid
-    march takes any grid it can hold at once.
+    ``solver.march`` chooses the state: the grid's whole array (:mod:`.grid_march`), the cross of
+    trajectories (:mod:`.cross_march`) or a tensor train (:func:`march`); ``auto`` takes the grid
+    when it fits, the cross first on a large grid. ``learned.cross_abandoned``: a cross ran past
+    its budget of trajectories in an earlier solve; a finer grid asks it for more trajectories a
+    node, not fewer, so the grid march takes any grid it can hold at once.
 
     Returns
     -------
-    pgdcli.driver.SolveResult
-        ``converged`` is False, with a message naming the time (and the
-        region of the domain) where the march failed, when it could not reach
-        the end of the time domain.
+    SolverOutcome
+        Status ``FAILED``, with a message naming the time (and the region of the domain) where
+        the march failed, when it could not reach the end of the time domain;
+        ``cross_abandoned`` says why a cross was given up in this solve.
     """
     opts = problem.solver
     started = _time.perf_counter()
     separations: list = []
     system = compile_system(problem, tolerance, separations)
-    last: dict = {}
-
-    def progress(info):
-        last["state"] = info
-        if callback is not None:
-            callback(info)
-
-    auto = getattr(opts, "time_slabs", "auto") == "auto"
-    if auto and problem.time_coordinate.discretization != "chebyshev":
-        auto = False  # linear time elements: the nodes are the slabs already
-    slab_nodes = problem.time_coordinate.nodes if auto else None
+    run = _Run(problem, system, tolerance, separations, callback, started)
     march_state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
     check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
     nodes = int(np.prod(system.shape))
     fits, first = fits_grid(system), nodes * len(system.unknowns) >= CROSS_FIRST_VALUES
-    abandoned = (learned or {}).get("cross_abandoned")
-    if abandoned and fits and march_state == "auto":
-        last["cross_abandoned"] = f"in an earlier solve of the automatic resolution: {abandoned}"
+    abandoned = None
+    if learned.cross_abandoned and fits and march_state == "auto":
+        run.cross_note = f"in an earlier solve of the automatic resolution: {learned.cross_abandoned}"
     elif march_state == "cross" or (march_state == "auto" and CROSS_BY_DEFAULT and (first or not fits)):
         # auto on a grid the grid march could take: the cross gets a budget, and the grid march what it left
-        budget = CROSS_BUDGET * nodes if march_state == "auto" and fits else None
-        found = _solve_by_cross(problem, system, tolerance, separations, progress, slab_nodes, started, last, budget)
+        found = _solve_by_cross(run, CROSS_BUDGET * nodes if march_state == "auto" and fits else None)
         if found is not None:
             return found
-        if learned is not None:
-            learned["cross_abandoned"] = last["cross_abandoned"]
+        abandoned = run.cross_note
     if march_state == "grid" or (march_state == "auto" and fits):
-        return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started, last)
-    failure = None
+        outcome = _solve_on_grid(run)
+    else:
+        outcome = _solve_by_train(run)
+    outcome.cross_abandoned = abandoned
+    return outcome
+
+
+class _Run:
+    """One :func:`solve_march`: its problem, compiled system and settings, and what its marches tell.
+
+    Passes the marches' progress events on, and keeps the steps of the last march step for the report
+    of a march that fails (0 after a sweep of the cross).
+    """
+
+    def __init__(self, problem, system: NonlinearSystem, tolerance: float, separations: list, callback,
+                 started: float):
+        self.problem, self.system, self.tolerance, self.separations = problem, system, tolerance, separations
+        self.callback, self.started = callback, started
+        self.steps = 0
+        self.cross_note: str | None = None  # why the cross was given up (the grid march's report says it)
+        auto = getattr(problem.solver, "time_slabs", "auto") == "auto"
+        # linear time elements: the nodes are the slabs already
+        auto = auto and problem.time_coordinate.discretization == "chebyshev"
+        self.slab_nodes = problem.time_coordinate.nodes if auto else None
+        self.space_time_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+
+    def __call__(self, event) -> None:
+        self.steps = event.steps if isinstance(event, MarchStep) else 0
+        emit(self.callback, event)
+
+    def wall(self) -> float:
+        return _time.perf_counter() - self.started
+
+    def failed(self, failure, region: str, steps: int | None = None) -> SolverOutcome:
+        return failed_result(self.problem, self.system, failure, region, self.tolerance,
+                             self.steps if steps is None else steps, self.wall())
+
+    def converged(self, result, trains: list[TT], report: dict) -> SolverOutcome:
+        return converged_result(self.problem, self.system, result, trains, report, self.tolerance, self.separations,
+                                self.wall())
+
+
+def _solve_by_train(run: _Run) -> SolverOutcome:
+    """:func:`solve_march` with the state a tensor train: :func:`march`."""
+    opts, system = run.problem.solver, run.system
     try:
-        result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress,
-                       slab_nodes=slab_nodes, stepper=named_stepper(opts.integrator))
-    except MarchFailure as exc:
-        failure = exc
-    wall = _time.perf_counter() - started
-    if failure is not None:
-        state = failure.state
-        region = blowup_region(system, state) if state is not None else ""
-        return failed_result(problem, system, failure, region, tolerance,
-                              int(last.get("state", {}).get("steps", 0)), wall)
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+        result = march(system, run.tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=run,
+                       slab_nodes=run.slab_nodes, stepper=named_stepper(opts.integrator))
+    except MarchFailure as failure:
+        return run.failed(failure, blowup_region(system, failure.state) if failure.state is not None else "")
     # one unknown at a time: batching would give every unknown the largest ranks of all
-    trains = join_and_round([[st[i] for st in result.states] for i in range(len(system.unknowns))], st_delta,
-                            np.random.default_rng(7), batched=False, stats=result.roundings)
+    trains = join_and_round([[st[i] for st in result.states] for i in range(len(system.unknowns))],
+                            run.space_time_delta, np.random.default_rng(7), batched=False, stats=result.roundings)
     ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)
-    report = _march_report(result.roundings, ranks)
-    return converged_result(problem, system, result, trains, report, tolerance, separations, wall)
+    return run.converged(result, trains, _march_report(result.roundings, ranks))
 
 
-def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
-                   started: float, last: dict):
+def _solve_on_grid(run: _Run) -> SolverOutcome:
     """:func:`solve_march` on a small grid: :func:`pgdcli.algorithms.grid_march.march_on_grid`."""
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    system = run.system
     try:
-        result = march_on_grid(system, tolerance, st_delta, max_steps=problem.solver.max_steps, callback=progress,
-                               slab_nodes=slab_nodes, stepper=named_stepper(problem.solver.integrator))
+        result = march_on_grid(system, run.tolerance, run.space_time_delta, max_steps=run.problem.solver.max_steps,
+                               callback=run, slab_nodes=run.slab_nodes,
+                               stepper=named_stepper(run.problem.solver.integrator))
     except GridMarchFailure as failure:
-        return failed_result(problem, system, failure, grid_region(system, failure.values), tolerance,
-                              int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
+        return run.failed(failure, grid_region(system, failure.values))
     trains = result.trains
-    cap = problem.solver.max_rank
+    cap = run.problem.solver.max_rank
     if max(max(train.ranks[1:], default=0) for train in trains) >= cap:  # the train march's cap, on the codebook
         failure = GridMarchFailure(f"a tensor-train rank reached solver.max_rank={cap} (raise it, or loosen the "
                                    f"tolerance)", float(result.times[-1]), np.zeros((len(trains), 0)))
-        return failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+        return run.failed(failure, "", result.steps)
     # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
     bonds = [list(train.ranks[1:]) for train in trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "grid",
               "grid_chunks": int(result.chunks)}  # no roundings, crosses or products to count
-    if "cross_abandoned" in last:  # auto tried the cross march first
-        report["cross_abandoned"] = last["cross_abandoned"]
-    return converged_result(problem, system, result, trains, report, tolerance, separations,
-                             _time.perf_counter() - started)
+    if run.cross_note is not None:  # auto tried the cross march first
+        report["cross_abandoned"] = run.cross_note
+    return run.converged(result, trains, report)
 
 
-def _solve_by_cross(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
-                    started: float, last: dict, budget: int | None = None):
+def _solve_by_cross(run: _Run, budget: int | None = None) -> SolverOutcome | None:
     """:func:`solve_march` on a large grid: :func:`pgdcli.algorithms.cross_march.march_by_cross`.
 
     With a ``budget`` (trajectories; the grid march can take the grid), a cross that does not converge
-    within it returns None: the caller marches the whole grid instead.
+    within it returns None, with the reason in ``run.cross_note``: the caller marches the whole grid instead.
     """
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    system, opts = run.system, run.problem.solver
     try:
-        result = march_by_cross(system, tolerance, st_delta, max_rank=problem.solver.max_rank,
-                                max_steps=problem.solver.max_steps, callback=progress, slab_nodes=slab_nodes,
-                                budget=budget, stepper=named_stepper(problem.solver.integrator))
+        result = march_by_cross(system, run.tolerance, run.space_time_delta, max_rank=opts.max_rank,
+                                max_steps=opts.max_steps, callback=run, slab_nodes=run.slab_nodes, budget=budget,
+                                stepper=named_stepper(opts.integrator))
     except GridMarchFailure as failure:
-        return failed_result(problem, system, failure, grid_region(system, failure.values, failure.indices),
-                              tolerance, int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
+        return run.failed(failure, grid_region(system, failure.values, failure.indices))
     if not result.converged and budget is not None:
-        last["cross_abandoned"] = result.message  # for the grid march's report
+        run.cross_note = result.message
         return None
     if not result.converged:
         failure = GridMarchFailure(f"the cross of the trajectories did not converge: {result.message}",
                                    float(result.times[-1]), np.zeros((len(system.unknowns), 0)))
-        return failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+        return run.failed(failure, "", result.steps)
     bonds = [list(train.ranks[1:]) for train in result.trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "cross",
               "cross_trajectories": int(result.evaluations), "cross_sweeps": int(result.sweeps),
               "cross_error": float(result.cross_error), "pilot_points": int(result.pilot_points)}
-    return converged_result(problem, system, result, result.trains, report, tolerance, separations,
-                             _time.perf_counter() - started)
+    return run.converged(result, result.trains, report)
 
 
 def _march_report(stats: dict, node_ranks: np.ndarray) -> dict:

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import SolverError
+from ..progress import MarchStep, emit
 from .blowup import BlowupWatch
 from .general_rhs import underflow_hint
 from .stepping import Stepper
@@ -81,7 +82,7 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
         ``store(list of states)``: the states at the stored times, in order (the initial one first).
     max_steps : int
     callback : callable, optional
-        After every accepted step: ``{"time", "end", "ranks", "steps"}``.
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep` (ranks from ``space.ranks``).
     slab_nodes : int, optional
         Automatic slabs: every accepted step is a slab and the state is stored at its
         ``slab_nodes`` Chebyshev-Lobatto nodes; without it, at the time nodes.
@@ -128,8 +129,7 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
         _record(schedule, space, trial, t, h, t_new, outs)
         t, (y, f) = t_new, space.accept(trial)
         h = control.accepted(h, ratio)
-        if callback is not None:
-            callback({"time": t, "end": t_final, "ranks": space.ranks(y), "steps": len(schedule.steps)})
+        emit(callback, MarchStep(t, t_final, len(schedule.steps), space.ranks(y), float(nodes[0])))
         if t < t_final:
             blowup = watch(t, schedule.step_sizes, y)
             if blowup is not None:

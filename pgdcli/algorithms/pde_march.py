@@ -33,6 +33,7 @@ import numpy as np
 
 from ..discretization.basis import chebyshev_unit_nodes
 from ..errors import SolverError
+from ..progress import MarchStep, emit
 from ..tensors.cross import tt_from_full
 from ..tensors.tt import TT, tt_hadamard, tt_rank_one, tt_round, tt_sum
 from .pde_phi import Eigen
@@ -315,6 +316,8 @@ def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = No
     tail_limit : bool
         Stop with :class:`UnderResolved` once the Chebyshev tail of ``u`` along ``x`` exceeds
         :data:`TAIL_ABORT` x ``tolerance`` (whole-grid march only).
+    callback : callable, optional
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep`.
     """
     from threadpoolctl import threadpool_limits
 
@@ -375,8 +378,7 @@ def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixe
                 if slab_nodes:
                     states.append(split.state(w, state_delta))
                     out_times.append(t)
-                if callback is not None:
-                    callback({"time": t, "end": t1, "steps": steps, "ranks": [[max_rank]]})  # per unknown
+                emit(callback, MarchStep(t, t1, steps, [[max_rank]], t0))  # ranks per unknown
             else:
                 rejected += 1
             h = fixed_step or h * min(2.0, max(0.2, SAFETY * (allowed / max(err, 1e-300)) ** 0.2))

@@ -4,15 +4,21 @@ worker processes. Imports nothing of the solvers (see :mod:`pgdcli.checks.refere
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 import math
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 import numpy as np
 
 from ..errors import SolverError
 
-__all__ = ["METHODS", "PDE_METHODS", "ReferenceResult", "ReferenceBudgetExceeded", "DEFAULT_MAX_EVALUATIONS", "DEFAULT_SPACE_NODES"]
+__all__ = ["METHODS", "PDE_METHODS", "ReferenceResult", "ReferenceBudgetExceeded", "ReferenceTimeUp", "time_budget",
+           "check_deadline", "DEFAULT_MAX_EVALUATIONS", "DEFAULT_SPACE_NODES", "TIME_UP"]
+
+#: The message of a sample not integrated because the time budget ran out.
+TIME_UP = "not checked: the time budget ran out"
 
 
 #: Integration methods of ``scipy.integrate.solve_ivp`` that may be used.
@@ -65,6 +71,37 @@ class ReferenceBudgetExceeded(Exception):
     """Raised inside an integration that spent its evaluation budget."""
 
 
+class ReferenceTimeUp(Exception):
+    """Raised inside an integration when the check's time budget has run out (no retries follow)."""
+
+
+#: The monotonic time at which reference integrations stop (:func:`time_budget`); inf: never.
+_DEADLINE = [math.inf]
+
+
+def set_deadline(at: float) -> None:
+    """Stop reference integrations at monotonic time ``at`` (also a worker process's initializer)."""
+    _DEADLINE[0] = float(at)
+
+
+def check_deadline() -> None:
+    """Raise :class:`ReferenceTimeUp` once the deadline has passed (called from right-hand sides)."""
+    if time.monotonic() > _DEADLINE[0]:
+        raise ReferenceTimeUp
+
+
+@contextmanager
+def time_budget(seconds: float | None):
+    """Reference integrations inside stop after ``seconds`` (None: no budget), raising
+    :class:`ReferenceTimeUp`; samples not integrated by then are reported as not checked."""
+    saved = _DEADLINE[0]
+    _DEADLINE[0] = math.inf if seconds is None else min(saved, time.monotonic() + float(seconds))
+    try:
+        yield
+    finally:
+        _DEADLINE[0] = saved
+
+
 def sample_subset(params: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
     return {name: values[rows] for name, values in params.items()}
 
@@ -110,18 +147,31 @@ def run_in_chunks(n_samples: int, chunk_size: int, jobs: int, progress, values: 
         if progress is not None:
             progress(done)
 
+    def time_up(rows):
+        for i in rows:
+            messages[i] = TIME_UP
+
     workers = min(max(1, int(jobs)), len(chunks))
     if workers <= 1 or submit is None:
-        for rows in chunks:
-            store(rows, solve_here(rows))
+        for k, rows in enumerate(chunks):
+            try:
+                store(rows, solve_here(rows))
+            except ReferenceTimeUp:
+                for rest in chunks[k:]:
+                    time_up(rest)
+                return
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=pool_context()) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=pool_context(), initializer=set_deadline,
+                             initargs=(_DEADLINE[0],)) as pool:
         futures = {submit(pool, rows): rows for rows in chunks}
         try:
             for future in as_completed(futures):
-                store(futures[future], future.result())
+                try:
+                    store(futures[future], future.result())
+                except ReferenceTimeUp:
+                    time_up(futures[future])
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
             raise

@@ -30,6 +30,7 @@ import numpy as np
 from ..errors import SolverError
 from ..problem.general import evaluate as general_tree_values, has_general, is_general, tree_of
 from .collocation import barycentric_matrix, chebyshev_differentiation, chebyshev_points, chebyshev_weights
+from .reference_base import TIME_UP, ReferenceTimeUp, check_deadline
 from .reference_pde import PdeReferenceResult
 
 __all__ = ["NonlinearPdeReference", "solve_reference_nonlinear_pde", "solve_reference_nonlinear_grid",
@@ -145,6 +146,7 @@ class _Model:
         return U[self.index[atom.unknown]] if L is None else L @ U[self.index[atom.unknown]]
 
     def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
+        check_deadline()
         U = self.full(y)
         out = np.empty((self.q, self.n - 2))
         for r, rest in enumerate(self.rest):
@@ -294,6 +296,9 @@ def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], sp
     for i in range(S):
         try:
             ref = solve_reference_nonlinear_pde(problem, {k: v[i:i + 1] for k, v in arrays.items()}, times, points)
+        except ReferenceTimeUp:
+            messages[i:] = [TIME_UP] * (S - i)
+            break
         except SolverError as exc:
             messages[i] = " ".join(str(exc).split())
         else:

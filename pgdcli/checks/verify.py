@@ -48,6 +48,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import CodebookError, VerifyError
+from .reference_base import TIME_UP, time_budget
 from .compare import UnknownErrors, codebook_at_samples, codebook_on_space_grid, error_statistics
 from .sampling import (DEFAULT_RANDOM_SPACE_POINTS, MAX_CORNERS, SAMPLINGS, check_times, default_samples, parameter_points,
                        sampled_coordinates, space_coordinates, space_points_grid)
@@ -121,9 +122,18 @@ class VerifyReport:
         """Parameter points checked (including failed ones)."""
         return int(self.settings.get("parameter_points", 0))
 
+    @property
+    def not_checked(self) -> int:
+        """Parameter points the time budget left unchecked (0: the report is complete)."""
+        return int(self.settings.get("not_checked", 0))
+
     def violations(self, max_error: float | None = None, max_rel_error: float | None = None) -> list[str]:
         """Reasons the check fails (empty when it passes), one line each."""
         reasons = []
+        if self.not_checked:
+            reasons.append(f"stopped at the time budget of {self.settings.get('max_seconds', 0):g} s with "
+                           f"{self.not_checked} of {self.n_points} parameter point(s) not checked "
+                           f"(raise --max-seconds)")
         if self.failures:
             first = self.failures[0]
             reasons.append(
@@ -161,6 +171,7 @@ class VerifyReport:
             "settings": dict(self.settings),
             "unknowns": {name: stats.to_dict() for name, stats in self.unknowns.items()},
             "failures": {"count": len(self.failures), "points": [f.to_dict() for f in self.failures]},
+            "complete": self.not_checked == 0,
             "wall_time": float(self.wall_time),
         }
 
@@ -230,6 +241,7 @@ def verify(
     progress: Callable[[int, int], None] | None = None,
     space_points: int = DEFAULT_RANDOM_SPACE_POINTS,
     space_nodes: int | Mapping[str, int] | None = None,
+    max_seconds: float | None = None,
 ) -> VerifyReport:
     """Compare a codebook with an independent ``solve_ivp`` reference of its own problem.
 
@@ -275,6 +287,9 @@ def verify(
         With space coordinates: collocation nodes per space coordinate of the
         method-of-lines reference (default
         :data:`pgdcli.checks.reference.DEFAULT_SPACE_NODES`).
+    max_seconds : float, optional
+        Time budget of the reference integrations (default: none). When it runs out, the points
+        not integrated yet are reported as not checked and the report does not pass.
 
     Returns
     -------
@@ -308,8 +323,11 @@ def verify(
             progress(done, S)
 
     report_progress(0)
-    result, approx, space_grid = _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, settings,
-                                                         method, rtol, atol, space_nodes, report_progress)
+    settings["max_seconds"] = max_seconds = _check_tolerance("max_seconds", max_seconds)
+    with time_budget(max_seconds):
+        result, approx, space_grid = _reference_and_codebook(cb, problem, sample_points, S, all_times, opts,
+                                                             settings, method, rtol, atol, space_nodes,
+                                                             report_progress)
     return _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,
                    _time.perf_counter() - started)
 
@@ -357,7 +375,8 @@ def _report(cb, path, problem, opts, settings, sample_points, all_times, result,
                                  result.values[u], approx[u], space_grid)
              for u in problem.unknown_names}
     failures = [Failure({n: float(sample_points[n][i]) for n in names}, result.messages[i] or "integration failed")
-                for i in np.flatnonzero(~result.success)]
+                for i in np.flatnonzero(~result.success) if result.messages[i] != TIME_UP]
+    settings["not_checked"] = sum(m == TIME_UP for m in result.messages)
     reference = result.values
     if time is None:
         all_times = np.zeros(0)

@@ -16,7 +16,7 @@ __all__ = ["main"]
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    text = " ".join(str(message).split())
+    text = guard.one_line(message)
     try:
         sys.stderr.write(f"Warning: {text}\n")
     except OSError:
@@ -35,6 +35,9 @@ def main(argv=None) -> None:
     except KeyboardInterrupt:
         sys.stderr.write("Error: interrupted\n")
         sys.exit(guard.EXIT_INTERRUPTED)
+    except MemoryError:
+        one_line_error("out of memory while evaluating the codebook; see the limits in the documentation")
+        sys.exit(guard.EXIT_USAGE)
     except Exception as exc:  # noqa: BLE001 - the guard of the lean path (output had begun)
         if guard.debug_enabled():
             raise

@@ -83,16 +83,15 @@ def export_command(codebook, target, output, force, quiet):
     from ..codebook.codebook import Codebook
     from ..codebook.export import export
 
-    cb = Codebook.load(codebook)
+    cb = Codebook.load(codebook, evaluation_only=True)
     files, size = export(cb, target, force=force)
     ((name, text),) = files.items()
     if output is None:
         sys.stdout.write(text)
     else:
-        try:
-            output.write_text(text)
-        except OSError as exc:
-            raise click.BadParameter(f"cannot write {output} ({exc.strerror or exc})", param_hint="'-o'") from None
+        from ..codebook.io import write_atomic
+
+        write_atomic(output, text, what="the export")
     if not quiet:
         where = output if output is not None else f"stdout ({name})"
         click.echo(f"exported {cb.name} to {target}: {size // 8} numbers, {size / 2**20:.2f} MiB as float64; "

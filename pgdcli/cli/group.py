@@ -37,6 +37,17 @@ class PgdGroup(click.Group):
     command quietly (exit 0) and a full disk is one line (exit 2). Never a traceback.
     """
 
+    def resolve_command(self, ctx, args):
+        name, command, rest = super().resolve_command(ctx, args)
+        guard.set_activity(f"running 'pgd {name}'")
+        return name, command, rest
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            raise Interrupted() from None
+
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         try:
             code = super().main(args=args, prog_name=prog_name or "pgd", complete_var=complete_var,
@@ -55,12 +66,18 @@ class PgdGroup(click.Group):
         except click.ClickException as exc:
             error(exc.format_message())
             code = exc.exit_code
-        except click.Abort:
-            error("aborted")
-            code = EXIT_FAILED
-        except KeyboardInterrupt:
+        except (Interrupted, KeyboardInterrupt):
             error("interrupted")
             code = EXIT_INTERRUPTED
+        except click.Abort as exc:
+            interrupted = isinstance(exc.__context__, KeyboardInterrupt)
+            error("interrupted" if interrupted else "aborted")
+            code = EXIT_INTERRUPTED if interrupted else EXIT_FAILED
+        except MemoryError:
+            guard.silence_stdout()
+            error(f"out of memory while {guard.activity()}; see the limits in the documentation "
+                  f"(PGD_MAX_WORK_BYTES and others) or use a machine with more memory")
+            code = EXIT_USAGE
         except Failed as exc:
             code = _flushed(EXIT_FAILED)
             if code != EXIT_USAGE:  # a full disk was reported instead; a reader gone away is no excuse
@@ -77,6 +94,10 @@ class PgdGroup(click.Group):
         if standalone_mode:
             sys.exit(code)
         return code
+
+
+class Interrupted(Exception):
+    """Ctrl-C inside a command: carried past click, which would make it ``Abort`` (exit 1)."""
 
 
 def _flushed(code, broken: bool = False):
@@ -108,11 +129,11 @@ def _unexpected(exc: Exception) -> int:
 
 
 def warn(message: str) -> None:
-    click.echo(f"Warning: {' '.join(str(message).split())}", err=True)
+    click.echo(f"Warning: {guard.one_line(message)}", err=True)
 
 
 def error(message: str) -> None:
-    click.echo(f"Error: {' '.join(str(message).split())}", err=True)
+    click.echo(f"Error: {guard.one_line(message)}", err=True)
 
 
 class Failed(Exception):

@@ -14,8 +14,10 @@ import errno
 import os
 import sys
 
-__all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "debug_enabled",
-           "set_debug", "internal_error_message", "output_error_message", "is_output_error", "silence_stdout",
+from ..names import printable
+
+__all__ = ["one_line", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "debug_enabled",
+           "set_debug", "set_activity", "activity", "internal_error_message", "output_error_message", "is_output_error", "silence_stdout",
            "flush_stdout"]
 
 EXIT_OK = 0
@@ -31,6 +33,19 @@ _OUTPUT_ERRNOS = frozenset(getattr(errno, name) for name in ("ENOSPC", "EDQUOT",
 _debug = False
 
 
+_activity = ["running pgd"]
+
+
+def set_activity(text: str) -> None:
+    """Say what the command is doing, for a one-line report of running out of memory."""
+    _activity[0] = text
+
+
+def activity() -> str:
+    """What the command said it is doing (``solving problems/x.yaml``)."""
+    return _activity[0]
+
+
 def set_debug(on: bool = True) -> None:
     """Show tracebacks of internal errors (``pgd --debug``)."""
     global _debug
@@ -40,6 +55,11 @@ def set_debug(on: bool = True) -> None:
 def debug_enabled() -> bool:
     """``pgd --debug`` was given or ``PGD_DEBUG`` is set to something other than ``""``/``0``."""
     return _debug or os.environ.get("PGD_DEBUG", "") not in ("", "0")
+
+
+def one_line(message) -> str:
+    """A message on one line, safe for a terminal: whitespace runs joined, control characters escaped."""
+    return printable(" ".join(str(message).split()), 2000)
 
 
 def _first_line(text: str, limit: int = 300) -> str:

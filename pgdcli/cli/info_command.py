@@ -19,12 +19,13 @@ def info(codebook, fmt):
 
     cb = Codebook.load(codebook)
     summary = cb.info(codebook)
-    if fmt == "json":
+    if fmt == "json":  # JSON escapes control characters itself
         click.echo(json.dumps(summary, indent=2))
         return
     from rich.console import Console
     from rich.table import Table
 
+    summary = _shown(summary)
     from ..checks.check import points_text
 
     console = Console(highlight=False, soft_wrap=True)
@@ -81,3 +82,19 @@ def info(codebook, fmt):
     console.print(f"solve time: {summary['solve_time']:.3f} s")
     console.print(f"size: {human_size(summary['size_bytes'])} ({summary['size_bytes']} bytes)")
     console.print(f"format: {summary['format']}, written by pgdcli {summary['pgdcli_version']}, {summary['created']}")
+    console.print(f"integrity: {summary['integrity']}")
+
+
+def _shown(value):
+    """Every string of a summary safe for a terminal: control characters escaped, rich markup inert."""
+    from rich.markup import escape
+
+    from ..names import printable
+
+    if isinstance(value, str):
+        return escape(printable(value, 2000))
+    if isinstance(value, dict):
+        return {_shown(k): _shown(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_shown(v) for v in value]
+    return value

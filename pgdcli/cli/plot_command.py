@@ -6,7 +6,9 @@ from pathlib import Path
 
 import click
 
-from .group import cli
+from ..errors import TimeBudgetExceeded
+from ..limits import DEFAULT_CHECK_SECONDS
+from .group import Failed, cli
 
 @cli.command("plot")
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
@@ -27,7 +29,11 @@ from .group import cli
 @click.option("--points", type=int, metavar="N", help="Samples per curve [201] or per map axis [81].")
 @click.option("--dpi", type=int, default=150, show_default=True, metavar="N", help="PNG resolution (dots per inch).")
 @click.option("--size", metavar="WxH", help="Figure size in inches, e.g. 8x5 [default: per kind].")
-def plot_command(codebook, kind, output, field, count, at, over, fix, reference, points, dpi, size):
+@click.option("--max-seconds", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_CHECK_SECONDS,
+              show_default=True, metavar="S",
+              help="Time budget of the reference integrations (--reference, --kind error): past it nothing is "
+                   "written and the exit status is 1.")
+def plot_command(codebook, kind, output, field, count, at, over, fix, reference, points, dpi, size, max_seconds):
     """Draw CODEBOOK's modes, convergence, solution or error as a PNG or SVG.
 
     Prints the path of the written image on stdout.
@@ -44,7 +50,10 @@ def plot_command(codebook, kind, output, field, count, at, over, fix, reference,
 
     target = Path(output) if output is not None else plotting.default_output(codebook, kind)
     prepare_output(target, "--output", suffixes=(".png", ".svg"))  # before the plot is computed
-    path = plotting.render(codebook, kind, target, field=field, count=count, at=at, over=over, fix=fix,
-                           reference=reference, points=points, dpi=dpi, size=size,
-                           warn=lambda message: click.echo(f"Warning: {message}", err=True))
+    try:
+        path = plotting.render(codebook, kind, target, field=field, count=count, at=at, over=over, fix=fix,
+                               reference=reference, points=points, dpi=dpi, size=size, max_seconds=max_seconds,
+                               warn=lambda message: click.echo(f"Warning: {message}", err=True))
+    except TimeBudgetExceeded as exc:
+        raise Failed(str(exc)) from None
     click.echo(str(path))

@@ -199,7 +199,9 @@ def point_chunks(cb, points: str | None, rest: list[str], stdin=None):
 
 
 def one_line_error(message: str) -> None:
-    sys.stderr.write(f"Error: {' '.join(str(message).split())}\n")
+    from .guard import one_line
+
+    sys.stderr.write(f"Error: {one_line(message)}\n")
 
 
 def _stream_rest(writer, chunks, text: str) -> int:
@@ -293,7 +295,7 @@ def run(argv: list[str]) -> int | None:
 
         if os.path.isdir(codebook):
             return None
-        cb = Codebook.load(codebook)
+        cb = Codebook.load(codebook, evaluation_only=True)
         selected = list(fields) if fields else cb.unknown_names
         if any(f not in cb.fields for f in selected) or (points is not None and rest):
             return None

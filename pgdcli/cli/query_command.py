@@ -39,7 +39,7 @@ def query(ctx, codebook, fmt, fields, points):
     from ..codebook.codebook import Codebook
     from .stream import Writer
 
-    cb = Codebook.load(codebook)
+    cb = Codebook.load(codebook, evaluation_only=True)
     selected = list(fields) if fields else cb.unknown_names
     for f in selected:
         if f not in cb.fields:

@@ -64,7 +64,7 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
     if console is None:
         result = solve_problem(problem, **overrides)
     else:
-        result = _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides)
+        result = _solve_with_progress(console, problem, solve_problem, overrides)
     for warning in result.warnings:
         warn(warning)
     keep = result.converged or (keep_inaccurate and result.accurate is False)
@@ -83,40 +83,16 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
         raise Failed(f"{spec}: {result.message}; {written}")
 
 
-def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
-    """Enrichment: residual decades reached / decades asked; march: time reached / time domain."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+def _solve_with_progress(console, problem, solve_problem, overrides):
+    """The solve with its progress on stderr (:mod:`pgdcli.cli.progress_view`)."""
+    from .progress_view import solve_progress
 
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[status]}"),
-               TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=False) as progress:
-        span = -math.log10(tol)
-        task = progress.add_task(f"solving {problem.name}", total=span, status="starting")
-
-        def callback(info):
-            if "time" in info:  # separated time march
-                t0 = problem.time_coordinate.domain[0]
-                frac = (info["time"] - t0) / (info["end"] - t0)
-                # the grid march has no trains while it marches (ranks: empty)
-                rank = f"  max rank {max(max(r) for r in info['ranks'] if r)}" if any(info["ranks"]) else ""
-                progress.update(task, completed=span * frac,
-                                status=f"t = {info['time']:.4g}/{info['end']:.4g}  {info['steps']} steps{rank}")
-                return
-            r = info["residual"]
-            if "cross" in info:  # the cross march's half sweeps, after its pilot march
-                done = span * min(1.0, math.log10(max(r, 1e-300)) / math.log10(info["target"]))
-                progress.update(task, completed=max(done, 0.0),
-                                status=f"cross sweep {info['cross']}: {info['trajectories']:,} trajectories, "
-                                       f"difference {r:.2e} (target {info['target']:.0e}), max rank {max(info['ranks'])}")
-                return
-            done = min(span, -math.log10(r) if r > 0 else span)
-            progress.update(task, completed=max(done, 0.0),
-                            status=f"{info['mode']}/{nmax} modes  residual {r:.2e} (tolerance {tol:.0e})")
-
+    with solve_progress(console, problem.name) as callback:
         return solve_problem(problem, callback=callback, **overrides)
 
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
+    from ..algorithms.outcome import Status
     from ..codebook.fields import FieldTT
     from ..codebook.summary import coordinate_ratios
 
@@ -125,7 +101,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
     march = rep.get("method") == "march"
     pde_march = str(rep.get("method", "")).startswith("pde march")  # its step control has no residual
     # a march that failed holds no solution: its fields are placeholders, not ranks to report
-    placeholder = (march or pde_march) and result.status == 3
+    placeholder = (march or pde_march) and result.status == Status.FAILED
     return {
         "problem": problem.name,
         "method": "march" if march else "pde march" if pde_march else "pgd",

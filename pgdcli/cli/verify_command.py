@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from ..limits import DEFAULT_CHECK_SECONDS
 from .group import Failed, cli, run_command, stderr_console
 
 
@@ -49,11 +50,15 @@ VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.re
               help="Exit 1 when the max absolute error of an unknown exceeds TOL.")
 @click.option("--max-rel-error", type=click.FloatRange(min=0), metavar="TOL",
               help="Exit 1 when the max relative error (max abs error / max |reference|) of an unknown exceeds TOL.")
+@click.option("--max-seconds", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_CHECK_SECONDS,
+              show_default=True, metavar="S",
+              help="Time budget of the reference integrations: at S seconds the check stops, the points not "
+                   "integrated yet are reported as not checked, and the exit status is 1.")
 @click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
               help="text: table on stderr; json: the report as JSON on stdout (keys in docs/verify.md).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or table on stderr.")
 def verify_command(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error,
-                   max_rel_error, fmt, quiet):
+                   max_rel_error, max_seconds, fmt, quiet):
     """Check CODEBOOK against an independent reference of its own problem.
 
     The problem stored in the codebook is integrated again with scipy's
@@ -61,8 +66,9 @@ def verify_command(codebook, samples, sampling, seed, points, n_times, method, r
     every corner), and the codebook is compared with it at every time node
     and at random times. A table of the errors per unknown goes to stderr.
 
-    Exit status: 0 passed; 1 a reference integration failed or an error
-    exceeds --max-error / --max-rel-error (the CI gate); 2 invalid input.
+    Exit status: 0 passed; 1 a reference integration failed, an error
+    exceeds --max-error / --max-rel-error (the CI gate), or the time budget
+    (--max-seconds) ran out first; 2 invalid input.
 
     \b
       pgd verify codebooks/spring.h5
@@ -70,11 +76,11 @@ def verify_command(codebook, samples, sampling, seed, points, n_times, method, r
       pgd verify codebooks/spring.h5 --points points.csv --times 100 --method Radau
     """
     run_command(_verify, codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error,
-         max_rel_error, fmt, quiet)
+                max_rel_error, max_seconds, fmt, quiet)
 
 
 def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error, max_rel_error,
-            fmt, quiet):
+            max_seconds, fmt, quiet):
     from ..checks.verify import verify as verify_codebook
 
     for hint, value in (("'--max-error'", max_error), ("'--max-rel-error'", max_rel_error)):
@@ -82,7 +88,8 @@ def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, at
             raise click.BadParameter(f"expected a finite number >= 0, got {value}", param_hint=hint)
     method = next(m for m in VERIFY_METHODS if m.lower() == method.lower())
     options = dict(samples=samples, sampling=sampling, seed=seed, points=points, times=n_times, method=method,
-                   rtol=rtol, atol=atol, jobs=jobs, max_error=max_error, max_rel_error=max_rel_error)
+                   rtol=rtol, atol=atol, jobs=jobs, max_error=max_error, max_rel_error=max_rel_error,
+                   max_seconds=max_seconds)
     console = None if quiet else stderr_console()
     if console is None:
         report = verify_codebook(codebook, **options)
@@ -151,6 +158,9 @@ def _verify_tables(report, max_error, max_rel_error) -> list:
         table.add_row(name, number(stats.max_abs_error), number(stats.max_rel_error), number(stats.rms_error),
                       number(stats.reference_scale), at)
     out: list = [table]
+    if report.not_checked:
+        out.append(f"[bold red]stopped at the time budget of {s['max_seconds']:g} s[/]: {report.not_checked} of "
+                   f"{s['parameter_points']} parameter points not checked (raise --max-seconds)")
     if report.failures:
         failed = Table(title=f"reference failed at {len(report.failures)} of {s['parameter_points']} parameter points",
                        title_justify="left", title_style="bold red")

@@ -58,6 +58,13 @@ class Codebook:
     report : dict
         Solver report (see ``docs/codebook-format.md``).
     description : str
+    created : str, optional
+        ISO 8601 time of the solve (default: now).
+    partial : bool
+        Loaded for evaluation only (``Codebook.load(path, evaluation_only=True)``): the spec and
+        the report's arrays were not read, and :meth:`save` refuses it.
+    format_version : str, optional
+        The format of the file it was loaded from (``"1.0"`` files carry no checksums).
 
     Examples
     --------
@@ -68,7 +75,8 @@ class Codebook:
 
     def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping[str, FieldModes], *,
                  name: str = "codebook", spec_text: str = "", report: Mapping | None = None,
-                 description: str = "", created: str | None = None):
+                 description: str = "", created: str | None = None, partial: bool = False,
+                 format_version: str | None = None):
         self.coordinates = tuple(coordinates)
         if not self.coordinates:
             raise CodebookError("a codebook needs at least one coordinate")
@@ -81,6 +89,8 @@ class Codebook:
         self.spec_text = spec_text
         self.description = description
         self.report = dict(report or {})
+        self.partial = bool(partial)  # loaded for evaluation only: no spec, no report arrays
+        self.format_version = format_version  # of the file it was loaded from (None: built in memory)
         self.created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         self._names = tuple(c.name for c in self.coordinates)
         self._name_set = frozenset(self._names)
@@ -372,8 +382,18 @@ class Codebook:
 
     # ------------------------------------------------------------------ summary
     def info(self, path: str | os.PathLike | None = None) -> dict:
-        """Summary as plain Python data (what ``pgd info`` prints)."""
-        return codebook_summary.summary(self, path)
+        """Summary as plain Python data (what ``pgd info`` prints).
+
+        Raises
+        ------
+        CodebookError
+            A report entry of the wrong type (a file not written by pgdcli).
+        """
+        try:
+            return codebook_summary.summary(self, path)
+        except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+            where = f"{path}: " if path is not None else ""
+            raise CodebookError(f"{where}corrupt codebook: its report cannot be read ({exc})") from None
 
     # ------------------------------------------------------------------ I/O (pgdcli.codebook.io)
     def save(self, path: str | os.PathLike) -> "os.PathLike":
@@ -385,20 +405,29 @@ class Codebook:
         return codebook_io.save(self, path)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Codebook":
-        """Read a codebook file.
+    def load(cls, path: str | os.PathLike, *, evaluation_only: bool = False) -> "Codebook":
+        """Read a codebook file, checked before its data is read (``docs/codebook-format.md``).
+
+        The file must be self-contained (no links to other files, no external storage), its
+        arrays of the sizes its metadata implies and within ``PGD_MAX_CODEBOOK_BYTES``, and (format
+        1.1) match their checksums and digests.
+
+        Parameters
+        ----------
+        path : str or path
+        evaluation_only : bool
+            Skip what evaluation does not need (the stored spec, the report's arrays).
 
         Raises
         ------
         CodebookError
-            The file is missing, not HDF5, truncated, not a codebook, of an
-            unknown major version, or inconsistent.
+            The file is missing, not a regular file, not HDF5, truncated, not a codebook, of an
+            unknown major version, not self-contained, too large, inconsistent or corrupted.
         """
-        cb = cls(**codebook_io.load_parts(path, shared_basis))
+        cb = cls(**codebook_io.load_parts(path, shared_basis, evaluation_only=evaluation_only))
         if cb.accurate is False:
             import warnings
 
             warnings.warn(f"{path}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was "
                           f"written with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
         return cb
-

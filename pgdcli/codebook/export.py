@@ -36,7 +36,10 @@ from __future__ import annotations
 import json
 import re
 
+import numpy as np
+
 from ..errors import PgdError
+from ..names import identifier_problem, printable, problem_name_problem
 from .fields import FieldTT
 
 __all__ = ["ExportError", "TARGETS", "DEFAULT_LIMIT", "layout", "export", "size_of"]
@@ -91,6 +94,30 @@ def size_of(lay: dict) -> int:
     return 8 * count
 
 
+def _check_names(cb) -> None:
+    """Names reach generated code only as checked identifiers (whatever built the codebook)."""
+    why = problem_name_problem(cb.name)
+    if why:
+        raise ExportError(f"problem name {printable(cb.name, 60)!r}: {why}")
+    for what, names in (("coordinate", cb.coordinate_names), ("unknown", cb.unknown_names)):
+        for name in names:
+            why = identifier_problem(name)
+            if why:
+                raise ExportError(f"{what} name {printable(name, 60)!r}: {why}")
+
+
+def _check_float32(cb, target: str) -> None:
+    """Numbers a float32 cannot spell (C's float variant, GLSL) refuse the export, naming the unknown."""
+    from .export_c import FLOAT32_MAX
+
+    for u, fm in cb.fields.items():
+        arrays = fm.cores if isinstance(fm, FieldTT) else (fm.alphas, *fm.modes)
+        largest = max((float(np.abs(a).max()) for a in arrays if a.size), default=0.0)
+        if not largest <= FLOAT32_MAX:
+            raise ExportError(f"unknown {u!r} holds numbers up to {largest:.3g}, beyond float32's range "
+                              f"({FLOAT32_MAX:.3g}) that the {target} export needs; export --to json instead")
+
+
 def export(cb, target: str, *, force: bool = False, limit: int = DEFAULT_LIMIT) -> tuple[dict, int]:
     """Export ``cb`` to ``target``.
 
@@ -108,12 +135,15 @@ def export(cb, target: str, *, force: bool = False, limit: int = DEFAULT_LIMIT) 
     """
     if target not in TARGETS:
         raise ExportError(f"unknown export target {target!r}; expected one of {', '.join(TARGETS)}")
+    _check_names(cb)
     lay = layout(cb)
     size = size_of(lay)
     if size > limit and not force:
         raise ExportError(f"the codebook's numbers take {size / 2**20:.1f} MiB, over the export limit of "
                           f"{limit / 2**20:.0f} MiB; use --force to export anyway")
     ident = c_name(cb.name)
+    if target != "json":
+        _check_float32(cb, target)
     if target == "json":
         return {f"{cb.name}.json": json.dumps(lay, separators=(",", ":")) + "\n"}, size
     from .export_c import c_header, glsl_source

@@ -12,7 +12,17 @@ import numpy as np
 from .fields import FieldTT
 from .io import FORMAT_NAME, FORMAT_VERSION
 
-__all__ = ["accurate", "coordinate_ratios", "nodes_chosen", "summary"]
+__all__ = ["accurate", "coordinate_ratios", "integrity", "nodes_chosen", "summary"]
+
+
+def integrity(version: str | None) -> str:
+    """What protects a codebook's numbers: checksums and digests from format 1.1 on."""
+    if version is None:
+        return "not written to a file yet"
+    major, _, minor = version.partition(".")
+    if (int(major), int(minor or 0)) >= (1, 1):
+        return "checked (Fletcher-32 and SHA-256 of every array, SHA-256 of the metadata)"
+    return "unchecked (format 1.0 files carry no checksums)"
 
 
 def accurate(report) -> bool | None:
@@ -48,7 +58,8 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
     out = {
         "name": cb.name,
         "description": cb.description,
-        "format": f"{FORMAT_NAME} {FORMAT_VERSION}",
+        "format": f"{FORMAT_NAME} {cb.format_version or FORMAT_VERSION}",
+        "integrity": integrity(cb.format_version),
         "created": cb.created,
         "coordinates": [
             {"name": c.name, "role": c.role, "domain": [c.domain[0], c.domain[1]], "nodes": c.nodes,

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import csv
-import io
-from pathlib import Path
+import math
+from array import array
 from typing import Mapping
 
 import numpy as np
 
 from ..errors import PgdError
+from ..limits import MAX_LINE_BYTES, limit
 
 __all__ = ["FitError", "read_data", "check_finite", "split_columns", "fixed_values"]
 
@@ -19,7 +20,11 @@ class FitError(PgdError):
 
 
 def read_data(source, label: str | None = None) -> dict[str, np.ndarray]:
-    """Read a CSV with a header row into column name -> float array.
+    """Read a CSV with a header row into column name -> float array, streaming.
+
+    The input is read line by line with the query path's limits: a line of at most
+    :data:`~pgdcli.limits.MAX_LINE_BYTES` bytes, at most ``PGD_QUERY_MAX_POINTS`` lines (blank ones
+    included), so a gigabyte on stdin is refused after its first bounded chunk, not read whole.
 
     Parameters
     ----------
@@ -32,37 +37,84 @@ def read_data(source, label: str | None = None) -> dict[str, np.ndarray]:
     ------
     FitError
         Empty file, no data rows, a duplicate or empty column name, a row of the wrong
-        length, a value that is not a number, or a NaN.
+        length, a value that is not a number, or a NaN; a line or a file over the limits.
     """
     if hasattr(source, "read"):
-        label = label or getattr(source, "name", "DATA")
-        text = source.read()
-    else:
-        label = label or str(source)
+        return _read_rows(source, label or getattr(source, "name", "DATA"))
+    label = label or str(source)
+    try:
+        with open(source, "rb") as handle:
+            return _read_rows(handle, label)
+    except OSError as exc:
+        raise FitError(f"{label}: cannot read ({exc.strerror or exc})") from None
+
+
+def _lines(handle, label: str):
+    """``(line number, text)`` of every line, each bounded, their count bounded."""
+    most = limit("query_points") + 1
+    number = 0
+    while True:
         try:
-            text = Path(source).read_text()
-        except OSError as exc:
-            raise FitError(f"{label}: cannot read ({exc.strerror or exc})") from None
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(x.strip() for x in r)]
-    if not rows:
+            raw = handle.readline(MAX_LINE_BYTES + 1)
+        except UnicodeDecodeError:
+            raise FitError(f"{label}: line {number + 1}: not UTF-8 text (a CSV file of numbers is expected)") from None
+        if not raw:
+            return
+        number += 1
+        if len(raw) > MAX_LINE_BYTES:
+            raise FitError(f"{label}: line {number}: longer than {MAX_LINE_BYTES} bytes")
+        if number > most:
+            raise FitError(f"{label}: more than {most - 1} lines (PGD_QUERY_MAX_POINTS)")
+        if isinstance(raw, bytes):
+            try:
+                raw = raw.decode("utf-8-sig" if number == 1 else "utf-8")
+            except UnicodeDecodeError:
+                raise FitError(f"{label}: line {number}: not UTF-8 text (a CSV file of numbers is expected)") from None
+        yield number, raw
+
+
+def _row(text: str, label: str, number: int) -> list[str]:
+    try:
+        return next(csv.reader([text]), [])
+    except csv.Error as exc:
+        raise FitError(f"{label}: line {number}: not a CSV row ({exc})") from None
+
+
+def _rows(handle, label: str):
+    """``(line number, cells)`` of the rows that hold something (blank lines and lone commas skipped)."""
+    for number, text in _lines(handle, label):
+        cells = _row(text, label, number)
+        if any(x.strip() for x in cells):
+            yield number, cells
+
+
+def _read_rows(handle, label: str) -> dict[str, np.ndarray]:
+    rows = _rows(handle, label)
+    first = next(rows, None)
+    if first is None:
         raise FitError(f"{label}: empty file (expected a CSV header naming the columns)")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in first[1]]
     if any(not h for h in header) or len(set(header)) != len(header):
-        raise FitError(f"{label}: the header must name every column once, got {','.join(header)}")
-    if len(rows) == 1:
-        raise FitError(f"{label}: no data rows after the header")
-    values = np.empty((len(rows) - 1, len(header)))
-    for i, row in enumerate(rows[1:], start=2):
+        shown = ",".join(header)
+        raise FitError(f"{label}: the header must name every column once, got "
+                       f"{shown if len(shown) <= 200 else shown[:197] + '...'}")
+    columns = [array("d") for _ in header]
+    for number, row in rows:
         if len(row) != len(header):
-            raise FitError(f"{label}: line {i} has {len(row)} values for {len(header)} columns")
+            raise FitError(f"{label}: line {number} has {len(row)} values for {len(header)} columns")
         for j, x in enumerate(row):
             try:
-                values[i - 2, j] = float(x)
+                value = float(x)
             except ValueError:
-                raise FitError(f"{label}: line {i}, column {header[j]!r}: {x.strip()!r} is not a number") from None
-    data = {h: values[:, j] for j, h in enumerate(header)}
-    check_finite(data, label, first_line=2)
-    return data
+                shown = x.strip()[:40]
+                raise FitError(f"{label}: line {number}, column {header[j]!r}: {shown!r} is not a number") from None
+            if not math.isfinite(value):
+                raise FitError(f"{label}: line {number}, column {header[j]!r} is {value!r} (NaN or infinite values "
+                               f"are not data; drop the row)")
+            columns[j].append(value)
+    if not columns[0]:
+        raise FitError(f"{label}: no data rows after the header")
+    return {h: np.frombuffer(col, dtype=float).copy() for h, col in zip(header, columns)}
 
 
 def check_finite(data: Mapping[str, np.ndarray], label: str, first_line: int = 1) -> None:

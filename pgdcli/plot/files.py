@@ -91,12 +91,13 @@ def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | 
            field: str | None = None, count: int | None = None, at: Iterable[str] | None = None,
            over: str | None = None, fix: Iterable[str] | None = None, reference: bool = False,
            points: int | None = None, dpi: int = DEFAULT_DPI, size: str | tuple[float, float] | None = None,
-           warn: Callable[[str], None] | None = None) -> Path:
+           warn: Callable[[str], None] | None = None, max_seconds: float | None = None) -> Path:
     """What ``pgd plot`` does: load the codebook, compute, draw and save; returns the written path.
 
     Options that do not apply to ``kind`` raise :class:`QueryError` (naming
     the option) rather than being ignored. ``warn`` receives reference
-    failures (one line each).
+    failures (one line each). The reference integrations stop after ``max_seconds``
+    (:class:`~pgdcli.errors.TimeBudgetExceeded`; nothing is written).
     """
     from ..codebook.codebook import Codebook
 
@@ -124,11 +125,11 @@ def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | 
         data = convergence_data(cb)
         fig = draw_convergence(data, figsize=figsize)
     elif kind == "solution":
-        ref = reference_solver(cb, source=str(codebook_path)) if reference else False
+        ref = reference_solver(cb, source=str(codebook_path), max_seconds=max_seconds) if reference else False
         data = solution_data(cb, field, at=at, over=over, fix=fix, points=points, reference=ref)
         fig = draw_solution(data, figsize=figsize)
     else:
-        ref = reference_solver(cb, source=str(codebook_path))
+        ref = reference_solver(cb, source=str(codebook_path), max_seconds=max_seconds)
         data = error_data(cb, field, at=at, over=over, fix=fix, points=points, reference=ref)
         fig = draw_error(data, figsize=figsize)
     if warn is not None:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import time
 from typing import Callable, Mapping
 
 import numpy as np
 
-from ..errors import PgdError, QueryError
+from ..checks.reference_base import TIME_UP, time_budget
+from ..errors import PgdError, QueryError, TimeBudgetExceeded
 from .options import (DEFAULT_AT_CURVES, LINE_POINTS, MAP_POINTS, REFERENCE_MARKERS, count_points, domain_midpoint,
                       field_name, is_steady, line_axis, parse_over, parse_point, point_label, time_coordinate_of)
 
@@ -17,9 +19,11 @@ __all__ = ["solution_data", "error_data", "reference_solver"]
 # the independent reference
 # ----------------------------------------------------------------------------------------------
 def reference_solver(codebook, *, source: str = "<codebook>", method: str | None = None,
-                     rtol: float | None = None, atol: float | None = None) -> Callable:
+                     rtol: float | None = None, atol: float | None = None,
+                     max_seconds: float | None = None) -> Callable:
     """The independent reference for ``codebook``: ``solve(params, times) -> ReferenceResult``.
 
+    ``max_seconds`` bounds the time of all its integrations together (None: no bound).
     Re-parses the spec embedded in the codebook and integrates it with
     :func:`pgdcli.checks.reference.solve_reference` (scipy ``solve_ivp``; ``None`` settings: its
     defaults, DOP853 at 1e-12 for ODEs, the method of lines with BDF for space coordinates).
@@ -34,9 +38,18 @@ def reference_solver(codebook, *, source: str = "<codebook>", method: str | None
         raise PgdError(f"the reference solver is not available ({exc})") from None
     problem = parse_spec(codebook.spec_text, source=source, allow_nonlinear=True)
 
+    started = time.monotonic()
+
     def solve(params: Mapping[str, np.ndarray], times: np.ndarray | None):
-        return solve_reference(problem, dict(params), None if times is None else np.asarray(times, dtype=float),
-                               method=method, rtol=rtol, atol=atol)
+        left = None if max_seconds is None else max_seconds - (time.monotonic() - started)
+        with time_budget(left):
+            result = solve_reference(problem, dict(params), None if times is None else np.asarray(times, dtype=float),
+                                     method=method, rtol=rtol, atol=atol)
+        if TIME_UP in result.messages:
+            raise TimeBudgetExceeded(f"{source}: the reference integrations stopped at the time budget of "
+                                     f"{max_seconds:g} s before the picture was complete (raise --max-seconds); "
+                                     f"nothing written")
+        return result
 
     if problem.time is None:
         solve.description = "Chebyshev collocation, sparse direct solve"

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import keyword
 import math
-import re
 import reprlib
 from typing import Any, Iterable
 
 from ..errors import SpecError
+from ..names import IDENTIFIER, MAX_NAME_LENGTH
 from .expressions import BUILTIN_NAMES
 
 __all__ = ["RESERVED_NAMES"]
@@ -22,12 +22,10 @@ RESERVED_NAMES = frozenset(
     | {"format", "field", "points", "help", "version", "output", "seed", "samples", "jobs", "kind", "method"}
 )
 
-NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 SHORT_REPR = reprlib.Repr()
 SHORT_REPR.maxstring = SHORT_REPR.maxother = SHORT_REPR.maxlong = 80
 SHORT_REPR.maxdict = SHORT_REPR.maxlist = SHORT_REPR.maxtuple = SHORT_REPR.maxset = 6
 SHORT_REPR.maxlevel = 3
-PROBLEM_NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
 # ----------------------------------------------------------------------------------------------
 # small validators: each raises SpecError("<source>: <path>: ...")
 # ----------------------------------------------------------------------------------------------
@@ -141,7 +139,9 @@ class NameRegistry:
         if not isinstance(key, str):
             raise check.error(section, f"expected a name, got {show_value(key)}; quote it or start it with a letter")
         path = f"{section}.{key}"
-        if not NAME_PATTERN.fullmatch(key):
+        if len(key) > MAX_NAME_LENGTH:
+            raise check.error(path, f"a name of {len(key)} characters; at most {MAX_NAME_LENGTH}")
+        if not IDENTIFIER.fullmatch(key):
             raise check.error(
                 path, f"invalid name '{key}': expected a letter or '_' followed by letters, digits or '_'"
             )

@@ -11,7 +11,9 @@ import pathlib
 from typing import Any
 
 from ..errors import SpecError
-from .checker import PROBLEM_NAME_PATTERN, Checker, show_value
+from ..names import MAX_PROBLEM_NAME_LENGTH
+from ..names import PROBLEM_NAME as PROBLEM_NAME_PATTERN
+from .checker import Checker, show_value
 from .model import SolverOptions
 from .spec_coordinates import MAX_NODES
 
@@ -36,7 +38,7 @@ def default_name(source: str, name: str | None) -> str:
 
 def parse_problem_name(check: Checker, data: dict, default: str) -> str:
     if "name" not in data:
-        if not PROBLEM_NAME_PATTERN.fullmatch(default):
+        if len(default) > MAX_PROBLEM_NAME_LENGTH or not PROBLEM_NAME_PATTERN.fullmatch(default):
             raise check.error(
                 "name", f"the default name '{default}' (from the file name) is not valid; add a 'name:' key"
             )
@@ -44,6 +46,8 @@ def parse_problem_name(check: Checker, data: dict, default: str) -> str:
     value = data["name"]
     if not isinstance(value, str):
         raise check.error("name", f"expected a string of letters, digits, '_', '.', '-', got {show_value(value)}; quote it")
+    if len(value) > MAX_PROBLEM_NAME_LENGTH:
+        raise check.error("name", f"a name of {len(value)} characters; at most {MAX_PROBLEM_NAME_LENGTH}")
     if not PROBLEM_NAME_PATTERN.fullmatch(value):
         raise check.error("name", f"expected letters, digits, '_', '.' or '-' only, got {show_value(value)}")
     return value

@@ -19,6 +19,8 @@ rounding level.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 from typing import Sequence
@@ -207,14 +209,40 @@ def _norm_split(sizes: tuple[int, ...], columns: int) -> tuple[tuple[int, ...], 
     """The split of the modes into two groups with the cheapest pair of sweeps (all splits tried)."""
     d = len(sizes)
     best = (_sweep_cost(sizes, columns), tuple(range(d)), ())
-    for mask in range(1, 2 ** (d - 1)):  # mode d - 1 always in the first group: each split once
-        second = tuple(j for j in range(d) if mask >> j & 1)
-        first = tuple(j for j in range(d) if not mask >> j & 1)
+    for first, second in _candidate_splits(sizes):
         cost = (_sweep_cost([sizes[j] for j in first], columns)
                 + _sweep_cost([sizes[j] for j in second], columns))
         if cost < best[0]:
             best = (cost, first, second)
     return best[1], best[2]
+
+
+#: Modes up to which every split is tried (2^(d-1) of them); beyond, balanced splits only.
+EXHAUSTIVE_SPLIT_MODES = 12
+
+
+def _candidate_splits(sizes: tuple[int, ...]):
+    """Pairs (first, second) of mode groups: every split for few modes, else a few balanced ones.
+
+    The number of splits doubles with each mode, so beyond :data:`EXHAUSTIVE_SPLIT_MODES` only
+    splits that balance the groups' products are tried (largest modes first, each to the group
+    with the smaller product, from each of the first few modes as the seed of the second group).
+    """
+    d = len(sizes)
+    if d <= EXHAUSTIVE_SPLIT_MODES:
+        for mask in range(1, 2 ** (d - 1)):  # mode d - 1 always in the first group: each split once
+            yield (tuple(j for j in range(d) if not mask >> j & 1), tuple(j for j in range(d) if mask >> j & 1))
+        return
+    order = sweep_order(sizes)
+    logs = [math.log(max(n, 1)) for n in sizes]
+    for seed in order[:4]:
+        groups, weight = ([], [seed]), [0.0, logs[seed]]
+        for j in order:
+            if j != seed:
+                k = 0 if weight[0] <= weight[1] else 1
+                groups[k].append(j)
+                weight[k] += logs[j]
+        yield tuple(sorted(groups[0])), tuple(sorted(groups[1]))
 
 
 def separated_norm(weights: np.ndarray, factors: Sequence[np.ndarray]) -> float:

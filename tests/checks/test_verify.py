@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from conftest import spec_text
+from conftest import reseal, spec_text
 import pgdcli
 from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
@@ -19,9 +19,9 @@ from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
 ROOT = Path(__file__).resolve().parents[2]
 PROBLEMS = ROOT / "problems"
 
-TOP_KEYS = {"codebook", "problem", "passed", "gate", "settings", "unknowns", "failures", "wall_time"}
+TOP_KEYS = {"codebook", "problem", "passed", "gate", "settings", "unknowns", "failures", "complete", "wall_time"}
 SETTINGS_KEYS = {"sampling", "samples", "seed", "corners", "corners_total", "points_file", "parameter_points",
-                 "random_times", "time_nodes", "times", "method", "rtol", "atol", "jobs"}
+                 "random_times", "time_nodes", "times", "method", "rtol", "atol", "jobs", "max_seconds", "not_checked"}
 UNKNOWN_KEYS = {"max_abs_error", "max_rel_error", "rms_error", "reference_scale", "where", "codebook_value",
                 "reference_value"}
 
@@ -108,6 +108,7 @@ def test_corrupted_modes_are_caught(accurate, tmp_path):
         data = modes[()]
         data[3, 0] *= 1.0 + 1e-5  # one nodal value of the first mode, at an interior c node
         modes[...] = data
+    reseal(path)  # intact as a file, wrong in its numbers: verify's to find
     result = run("verify", path, "--max-error", "1e-8", "-j", 1, "--format", "json")
     assert result.exit_code == 1
     report = json.loads(result.stdout)
@@ -316,3 +317,39 @@ def test_solver_tolerance_bounds_the_error_at_independent_points(solved, codeboo
     assert measured <= tol
     assert report["check_error"] <= tol
     assert measured <= 2.0 * report["check_error"]  # the solver's measurement is representative
+
+
+@pytest.fixture
+def expensive(codebook_path, tmp_path):
+    """The spring codebook with a stored spec 10^8 times stiffer: its reference would run for hours."""
+    from pgdcli.codebook import io as codebook_io
+
+    cb = Codebook.load(codebook_path("spring"))
+    stiff = cb.spec_text.replace('"der(v) = -k*x - c*v"', '"der(v) = -1e8*k*x - c*v"')
+    assert stiff != cb.spec_text
+    path = tmp_path / "stiff.h5"
+    path.write_bytes(codebook_io.to_bytes(Codebook(cb.coordinates, cb.fields, name=cb.name, spec_text=stiff,
+                                                   report=cb.report)))
+    return path
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_verify_of_an_expensive_stored_spec_stops_at_its_budget(expensive, jobs):
+    import time
+
+    started = time.monotonic()
+    result = run("verify", expensive, "--max-seconds", 2, "-j", jobs, "--format", "json", "-q")
+    elapsed = time.monotonic() - started
+    assert result.exit_code == 1, stderr_of(result)
+    report = json.loads(result.stdout)
+    assert report["complete"] is False and report["passed"] is False
+    assert report["settings"]["not_checked"] > 0 and report["settings"]["max_seconds"] == 2
+    lines = stderr_of(result).splitlines()
+    assert len(lines) == 1 and "stopped at the time budget of 2 s" in lines[0], lines
+    assert elapsed < 60.0  # without the budget: hours
+
+
+def test_a_complete_report_says_so(accurate):
+    result = run("verify", accurate["spring"], "--samples", 4, "--times", 2, "-j", 1, "--format", "json", "-q",
+                 "--max-seconds", 600)
+    assert result.exit_code == 0 and json.loads(result.stdout)["complete"] is True

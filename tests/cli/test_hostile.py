@@ -72,10 +72,10 @@ def alias_bomb(levels: int = 9) -> str:
                                       ("description: ", "description"), ("constants:\n  zz: ", "constants.zz")])
 def test_f1_alias_bomb_refused_fast_naming_the_key(tmp_path, key, path):
     text = (PROBLEMS / "parametric.yaml").read_text() + "\n" + key + alias_bomb() + "\n"
-    started = time.perf_counter()
+    started = time.process_time()  # CPU seconds: the bound is on the work, whatever else the machine runs
     with pytest.raises(SpecError, match=f"bomb.yaml: {path}.*more than {MAX_SPEC_NODES}") as info:
         parse_spec(text, source="bomb.yaml")
-    assert time.perf_counter() - started < 0.5
+    assert time.process_time() - started < 0.5
     assert len(str(info.value)) < 300
     spec = tmp_path / "bomb.yaml"
     spec.write_text(text)
@@ -112,10 +112,11 @@ def test_f1_messages_never_spell_a_huge_value():
     (["--t", "0:1:100000", "--k", "1:2:100000", "--c", "0.1:0.5:100000"], "1000000000000000"),
 ])
 def test_f2_huge_grid_is_refused_with_its_count(codebook_path, args, count):
-    started = time.perf_counter()
-    result = invoke("query", codebook_path("spring"), *args)
+    path = codebook_path("spring")  # solved once per session, outside the bound
+    started = time.process_time()
+    result = invoke("query", path, *args)
     assert_one_error(result, 2, count, "limit", "PGD_QUERY_MAX_POINTS")
-    assert time.perf_counter() - started < 5
+    assert time.process_time() - started < 5
 
 
 def test_f2_limit_is_configurable_and_output_is_chunked(codebook_path, monkeypatch):
@@ -403,10 +404,10 @@ def test_verify_points_file_is_bounded_and_checked(codebook_path, tmp_path, sour
         data = {"big": b"k\n" + b"2\n" * (5 << 20), "nul": b"k\n2\x00\n", "binary": b"\xff\xfek\n"}[source]
         path.write_bytes(data)
         needle = {"big": "larger than", "nul": "line 2", "binary": "cannot read"}[source]
-    started = time.perf_counter()
-    assert_one_error(invoke("verify", codebook_path("parametric"), "--points", path, "-j", "1", "-q"), 2,
-                     str(path), needle)
-    assert time.perf_counter() - started < 30
+    codebook = codebook_path("parametric")
+    started = time.process_time()
+    assert_one_error(invoke("verify", codebook, "--points", path, "-j", "1", "-q"), 2, str(path), needle)
+    assert time.process_time() - started < 30
 
 
 @pytest.mark.parametrize("value", ["!!timestamp x", "!!timestamp 2001-12-14\n  - \"der(u) = 1\"", "!!bool maybe",

@@ -7,7 +7,7 @@ import os
 import h5py
 import numpy as np
 import pytest
-from conftest import codebook_points
+from conftest import codebook_points, reseal
 
 from pgdcli.codebook import io as codebook_io
 from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, Codebook, CoordinateInfo, FieldModes
@@ -322,6 +322,7 @@ def test_load_newer_minor_version_is_accepted(tmp_path, codebook_path):
     path.write_bytes(codebook_path("parametric").read_bytes())
     with h5py.File(path, "r+") as f:
         f.attrs["encoding-version"] = "1.7"
+    reseal(path)
     cb = Codebook.load(path)
     assert float(cb(t=5.0, k=2.0)["u"]) == pytest.approx(20.0, abs=1e-12)
 

@@ -190,3 +190,52 @@ def test_reference_check_with_a_varying_parameter_column(solved):
     result = pgdcli.fit(cb, data, starts=2)
     assert_recovered(result, {"a": 0.5, "u0": 0.8}, max_stderr=5e-3)
     assert result.reference_error < 1e-7 and abs(result.reference_rms - result.rms) < 1e-6
+
+
+def _stream(*parts, repeat: int = 1):
+    """A file-like object yielding ``parts`` then ``repeat`` copies of the last one, never held whole."""
+    import io
+
+    class Endless(io.RawIOBase):
+        def __init__(self):
+            self.chunks = iter(list(parts[:-1]) + [parts[-1]] * repeat)
+            self.left = b""
+
+        def readable(self):
+            return True
+
+        def readinto(self, buffer):
+            while not self.left:
+                self.left = next(self.chunks, None)
+                if self.left is None:
+                    return 0
+            n = min(len(buffer), len(self.left))
+            buffer[:n] = self.left[:n]
+            self.left = self.left[n:]
+            return n
+
+    return io.BufferedReader(Endless())
+
+
+@pytest.mark.parametrize("parts, repeat, needle", [
+    ((b"\n" * 2**20,), 1024, "more than 1000 lines"),  # a gigabyte of blank lines
+    ((b"t,u1\n", b"0.1,1\n" * 2**16), 2**10, "more than 1000 lines"),  # rows past the limit
+    ((b"a," * 2**20 + b"a\n",), 1, "line 1: longer than 65536 bytes"),  # a million columns
+    ((b"\0" * 2**20,), 1024, "line 1: longer than 65536 bytes"),  # a gigabyte without a newline
+])
+def test_huge_data_is_refused_while_streaming(monkeypatch, parts, repeat, needle):
+    import time
+
+    monkeypatch.setenv("PGD_QUERY_MAX_POINTS", "1000")
+    started = time.process_time()
+    with pytest.raises(FitError, match=needle):
+        read_data(_stream(*parts, repeat=repeat), label="DATA (stdin)")
+    assert time.process_time() - started < 2.0
+
+
+def test_streamed_data_equals_the_columns(tmp_path):
+    path = tmp_path / "data.csv"
+    path.write_text("t, u1 ,sigma_u1\n\n0.1,1.5,0.01\n , \n0.2,-2e-3,0.02\n")
+    data = read_data(path)
+    assert list(data) == ["t", "u1", "sigma_u1"]
+    assert data["t"].tolist() == [0.1, 0.2] and data["u1"].tolist() == [1.5, -2e-3]

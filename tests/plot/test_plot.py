@@ -771,3 +771,20 @@ def test_cli_plots_a_tensor_train_codebook(march_codebooks, tmp_path):
         _svg_root(out)
     r = _run("plot", str(path), "--field", "u3", "--count", "3", "-o", str(tmp_path / "u3.png"))
     assert r.exit_code == 0, r.stderr
+
+
+def test_an_expensive_reference_stops_at_the_time_budget_and_writes_nothing(codebook_path, tmp_path):
+    from pgdcli.codebook import io as codebook_io
+
+    cb = Codebook.load(codebook_path("spring"))
+    stiff = cb.spec_text.replace('"der(v) = -k*x - c*v"', '"der(v) = -1e8*k*x - c*v"')
+    source = tmp_path / "stiff.h5"
+    source.write_bytes(codebook_io.to_bytes(Codebook(cb.coordinates, cb.fields, name=cb.name, spec_text=stiff,
+                                                     report=cb.report)))
+    target = tmp_path / "error.png"
+    result = CliRunner().invoke(cli, ["plot", str(source), "--kind", "error", "-o", str(target),
+                                      "--max-seconds", "2"])
+    assert result.exit_code == 1, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and "time budget of 2 s" in lines[0] and "nothing written" in lines[0], lines
+    assert not target.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["stiff.h5"]

@@ -18,8 +18,8 @@ from scipy.integrate import solve_ivp
 from pgdcli import Codebook, load_spec, parse_spec, solve
 from pgdcli.errors import SolverError
 from pgdcli.tensors.cp import CPTensor
-from pgdcli import driver as solver
 from pgdcli.algorithms.enrichment import residual_norm
+from pgdcli.algorithms.enrichment_solve import solve_enrichment
 from pgdcli.driver import SolveResult
 from pgdcli.discretization.linear import STATE, discretize
 
@@ -361,7 +361,7 @@ def test_update_fallback_reports_the_residual_of_what_it_keeps(monkeypatch):
 
     monkeypatch.setattr(enrichment, "_update_all", lambda state, previous: one_pass(state, 0.0))
     monkeypatch.setattr(enrichment, "_update_sweep", checked_sweep)
-    result = solver._enrich(load_spec(PROBLEMS / "relaxation.yaml"), 1e-10, 100, None)  # one enrichment
+    result = solve_enrichment(load_spec(PROBLEMS / "relaxation.yaml"), 1e-10, 100, None)  # one enrichment
     assert result.converged, result.message
     assert len(checked) == result.n_modes
     for reported, full_sweep, f_norm in checked:
@@ -381,7 +381,7 @@ def test_not_converged_when_max_modes_too_small():
 
 def test_callback_sees_every_mode():
     seen = []
-    result = solver._enrich(load_spec(PROBLEMS / "relaxation.yaml"), 1e-4, 100, seen.append)  # one enrichment
+    result = solve_enrichment(load_spec(PROBLEMS / "relaxation.yaml"), 1e-4, 100, seen.append)  # one enrichment
     assert [s["mode"] for s in seen] == list(range(1, result.n_modes + 1))
     np.testing.assert_array_equal([s["residual"] for s in seen], result.residuals[1:])
     np.testing.assert_array_equal([s["iterations"] for s in seen], result.iterations)
