@@ -19,12 +19,13 @@ import numpy as np
 from .algorithms.enrichment import run_enrichment
 from .algorithms.result import SolveResult
 from .checks.budget import check_budget
-from .codebook.codebook import Codebook, FieldModes
+from .codebook.codebook import Codebook
 from .discretization.coefficients import separation_report_text
 from .discretization.coordinates import coordinate_infos
 from .discretization.linear import discretize
 from .errors import PgdError, SolverError
 from .problem.general import has_general
+from .tensors.cp import CPTensor
 
 __all__ = ["solve", "SolveResult"]
 
@@ -402,7 +403,7 @@ def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.n
         # unknown carries nothing for it
         j = 0 if disc.time is None else [c.name for c in coords].index(disc.time)
         keep = np.any(modes[j] != 0.0, axis=0) & (alphas != 0.0)
-        fields[u] = FieldModes(
+        fields[u] = CPTensor(
             np.concatenate([lift.weights, alphas[keep]]),
             tuple(np.hstack([lf, nf[:, keep]]) for lf, nf in zip(lift.factors, modes)),
         )

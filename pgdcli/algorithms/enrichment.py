@@ -18,7 +18,7 @@ Algorithm (free functions below):
    one only if they lower the residual, each checked with one more step of the
    projection's sweep (:func:`_update_sweep`).
 4. The relative residual (eq. 16) is computed in separated form by orthogonal
-   sweeps (:func:`pgdcli.tensors.cp.separated_norm`), accurate to rounding.
+   sweeps (:func:`pgdcli.tensors.cp_sweep.separated_norm`), accurate to rounding.
 
 The state is :mod:`pgdcli.algorithms.enrichment_state`, step 1 :mod:`pgdcli.algorithms.rank_one`,
 step 3's update of one mode :mod:`pgdcli.algorithms.mode_update`; the projection, the update
@@ -32,7 +32,8 @@ from functools import partial
 import numpy as np
 
 from ..discretization.linear import Discretization
-from ..tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, sweep_order, sweep_step
+from ..tensors.cp import CPTensor, SeparatedOperator
+from ..tensors.cp_sweep import khatri_rao_rows, sweep_order, sweep_step
 from .enrichment_state import EnrichmentState
 from .mode_update import update_mode
 from .rank_one import enrich, solve_small
@@ -59,7 +60,7 @@ def _update_order(state: EnrichmentState) -> list[int]:
     """Modes in the order the update sweep visits them: smallest first.
 
     The projection's sweep runs the other way (largest first, the cheap order
-    of :func:`~pgdcli.tensors.cp.sweep_order`), so its partial results are the
+    of :func:`~pgdcli.tensors.cp_sweep.sweep_order`), so its partial results are the
     suffixes the update sweep needs (:func:`_suffix_sweeps`).
     """
     return sweep_order([state.images[j].shape[1] for j in range(state.op.order)])[::-1]

@@ -3,7 +3,7 @@
 :func:`solve_pde_march` compiles the split system (:mod:`.pde_system`) on the codebook's nodes,
 marches it (:mod:`.pde_march`, ETDRK4) and joins the states at the time nodes into one tensor
 train over ``(time, x, parameters)`` (:func:`pgdcli.algorithms.march.join_and_round`), stored as a
-:class:`~pgdcli.codebook.fields.FieldTT`. With ``solver.time_slabs: auto`` (the default) the time
+:class:`~pgdcli.tensors.tt.TT`. With ``solver.time_slabs: auto`` (the default) the time
 coordinate has one slab per accepted step, :data:`SLAB_NODES` Chebyshev-Lobatto nodes each (a
 degree-4 polynomial per step matches the scheme's order 4); with a number of slabs the steps land
 on the time coordinate's nodes. The error gate (:mod:`pgdcli.checks.check`) measures the codebook
@@ -18,6 +18,7 @@ import numpy as np
 
 from ..discretization.coordinates import CoordinateInfo, coordinate_infos
 from ..errors import SolverError
+from ..tensors.tt import TT
 from .march_codebook import SPACE_TIME_FRACTION
 from .space_time import join_and_round
 from .pde_march import UnderResolved, march_pde
@@ -41,7 +42,6 @@ def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | No
     """
     from .. import __version__
     from ..codebook.codebook import Codebook
-    from ..codebook.fields import FieldTT
     from .result import SolveResult
 
     started = _time.perf_counter()
@@ -66,7 +66,7 @@ def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | No
         if isinstance(exc, UnderResolved):
             report["under_resolved"] = exc.coordinate  # pgdcli.adapt refines it and solves again
         order = tuple(names.index(m) for m in [problem.time] + system.modes)
-        fields = {problem.unknowns[0].name: FieldTT(tuple(np.zeros((1, coords[j].nodes, 1)) for j in order), order)}
+        fields = {problem.unknowns[0].name: TT(tuple(np.zeros((1, coords[j].nodes, 1)) for j in order), order)}
         cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
                       description=problem.description)
         return SolveResult(cb, False, 3, message, np.array([np.inf]), np.zeros(0, dtype=int), wall)
@@ -82,7 +82,7 @@ def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | No
     train = join_and_round([states], SPACE_TIME_FRACTION * tolerance * np.sqrt(size),
                            np.random.default_rng(7), batched=False)[0]
     order = tuple(names.index(m) for m in [problem.time] + system.modes)
-    fields = {problem.unknowns[0].name: FieldTT(tuple(train.cores), order)}
+    fields = {problem.unknowns[0].name: TT(train.cores, order)}
     wall = _time.perf_counter() - started
     message = (f"converged: reached {problem.time} = {tcoord.domain[1]:.6g} in {result.steps} steps "
                f"({result.rejected} rejected)")

@@ -117,7 +117,7 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
 
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
-    from ..codebook.fields import FieldTT
+    from ..tensors.tt import TT
     from ..codebook.summary import coordinate_ratios
 
     cb = result.codebook
@@ -150,7 +150,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "tolerance": float(rep["tolerance"]),
         # march: the largest tensor-train rank
         "modes": None if placeholder else {u: fm.rank for u, fm in cb.fields.items()},
-        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if isinstance(fm, FieldTT)},
+        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if isinstance(fm, TT)},
         "coordinates": {c.name: c.nodes for c in cb.coordinates},
         "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
         "wall_time": float(result.wall_time),

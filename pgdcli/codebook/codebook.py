@@ -30,11 +30,11 @@ from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError, QueryError
 from . import io as codebook_io
 from . import summary as codebook_summary
-from .evaluate import Evaluator, nodal_tensor, shared_basis
-from .fields import FieldModes, FieldTT, validate_field
+from .evaluate import Evaluator, shared_basis
+from .fields import CPTensor, TT, validate_field
 from .io import FORMAT_NAME, FORMAT_VERSION
 
-__all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "FieldModes", "FieldTT", "FORMAT_NAME", "FORMAT_VERSION"]
+__all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "CPTensor", "TT", "FORMAT_NAME", "FORMAT_VERSION"]
 
 _SCALAR_TYPES = frozenset({float, int, np.float64})
 
@@ -51,7 +51,9 @@ class Codebook:
     coordinates : sequence of CoordinateInfo
         In dimension order.
     fields : mapping
-        Unknown name -> :class:`FieldModes`, in output order.
+        Unknown name -> :class:`~pgdcli.tensors.cp.CPTensor` (weights and one mode matrix of
+        nodal values per coordinate) or :class:`~pgdcli.tensors.tt.TT` (cores with their
+        ``mode_order``), in output order.
     name : str
     spec_text : str
         The YAML spec the codebook was solved from.
@@ -73,7 +75,7 @@ class Codebook:
     array([0., 20.])
     """
 
-    def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping[str, FieldModes], *,
+    def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping[str, CPTensor | TT], *,
                  name: str = "codebook", spec_text: str = "", report: Mapping | None = None,
                  description: str = "", created: str | None = None, partial: bool = False,
                  format_version: str | None = None):
@@ -155,7 +157,7 @@ class Codebook:
         selected = self._select(fields)
         raw = [coordinates[n] for n in names]
         scalars = all(type(v) in _SCALAR_TYPES for v in raw)
-        if not scalars and any(isinstance(self.fields[u], FieldTT) for u in selected):
+        if not scalars and any(isinstance(self.fields[u], TT) for u in selected):
             return self._evaluate_mixed(coordinates, selected)
         if scalars:
             # one point given as Python numbers: a handful of small numpy calls, no broadcasting
@@ -325,7 +327,7 @@ class Codebook:
 
     def _evaluate_mixed(self, coordinates: Mapping[str, object], selected: list[str]) -> dict[str, np.ndarray]:
         """Tensor-train unknowns (and any CP ones beside them)."""
-        tt = [u for u in selected if isinstance(self.fields[u], FieldTT)]
+        tt = [u for u in selected if isinstance(self.fields[u], TT)]
         cp = [u for u in selected if u not in tt]
         out = self.evaluate(coordinates, cp) if cp else {}
         arrays = np.broadcast_arrays(*[np.asarray(coordinates[c.name], dtype=float) for c in self.coordinates])
@@ -367,7 +369,7 @@ class Codebook:
 
     def nodal_values(self, field_name: str) -> np.ndarray:
         """The unknown on the full tensor grid of nodes (small codebooks only: tests and plots)."""
-        return nodal_tensor(self.fields[self._select([field_name])[0]])
+        return self.fields[self._select([field_name])[0]].full()
 
     @property
     def accurate(self) -> bool | None:

@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..pages import huge_page_array
-from .fields import FieldTT
+from .fields import TT
 from .point_weights import PointData, PointWeights
 
 __all__ = ["TTStack"]
@@ -243,11 +243,11 @@ class TTStack:
         Parameters
         ----------
         fields : mapping
-            Unknown name -> field (only the ``FieldTT`` ones are stacked).
+            Unknown name -> field (only the tensor trains are stacked).
         points : sequence of PointData
             Per coordinate (codebook order).
         """
-        tts = {u: f for u, f in fields.items() if isinstance(f, FieldTT)}
+        tts = {u: f for u, f in fields.items() if isinstance(f, TT)}
         if not tts:
             return None
         order = next(iter(tts.values())).mode_order
