@@ -18,6 +18,7 @@ import numpy as np
 
 from .algorithms.enrichment import run_enrichment
 from .algorithms.result import SolveResult
+from .blas import one_blas_thread
 from .checks.budget import check_budget
 from .codebook.codebook import Codebook
 from .discretization.coefficients import separation_report_text
@@ -33,17 +34,6 @@ __all__ = ["solve", "SolveResult"]
 # ----------------------------------------------------------------------------------------------
 # driver
 # ----------------------------------------------------------------------------------------------
-
-def _blas_single_thread():
-    # Small dense products here run several times faster on one BLAS thread.
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a declared dependency
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
-
 
 def solve(problem, *, tolerance: float | None = None, relative_tolerance: float | None = None,
           max_modes: int | None = None, callback: Callable[[dict], None] | None = None) -> SolveResult:
@@ -87,7 +77,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     else:
         once = partial(_checked_enrichment, tolerance=tol, relative_tolerance=rtol, max_modes=nmax,
                        callback=callback, learned=learned)
-    with _blas_single_thread():
+    with one_blas_thread():  # small dense products: several times faster on one BLAS thread
         result = solve_to_tolerance(problem, once, march=march)
     rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
     if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info

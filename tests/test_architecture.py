@@ -38,6 +38,8 @@ LEAVES = {
     "pages": (),  # arrays in memory pages of a chosen size
     "names": (),  # what a name may be; text safe for a terminal
     "limits": ("pgdcli.errors",),  # the documented limits and their environment overrides
+    "blas": (),  # BLAS on one thread while a block of work runs: the one limiter
+    "tuning": ("pgdcli.errors",),  # the machine-specific tuning constants and their environment overrides
 }
 
 

@@ -8,7 +8,6 @@ isolation per sample are one path that reads best in one file.
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass, field
 import functools
 import math
@@ -16,6 +15,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from ..blas import one_blas_thread
 from ..errors import SolverError
 from .collocation import PdeModel, PdeSystem
 from .reference_base import (DEFAULT_MAX_EVALUATIONS, DEFAULT_SPACE_NODES, PDE_ATOL, PDE_METHODS, PDE_RTOL,
@@ -159,26 +159,10 @@ def _pde_model(text: str, source: str, nodes: tuple) -> PdeModel:
     return PdeModel(parse_cached(text, source), dict(nodes))
 
 
-@contextlib.contextmanager
-def _one_blas_thread():
-    """BLAS limited to one thread while the method of lines runs (its LU factorizations).
-
-    Threaded LAPACK spins when another process holds a core: on 2 busy cores the LU of the
-    2D heat example (1444 unknowns) took 0.27 s with 2 threads, 0.056 s with one.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        yield
-        return
-    with threadpool_limits(limits=1, user_api="blas"):
-        yield
-
-
 def _pde_chunk_worker(spec_text, source, nodes, params, S, t0, times, method, rtol, atol, max_evaluations):
     """Worker-process entry point: parse the spec again, build the grid, integrate one chunk."""
     model = _pde_model(spec_text, source, nodes)
-    with _one_blas_thread():
+    with one_blas_thread():  # the method of lines' LU factorizations (see pgdcli.blas)
         return _solve_group_pde(model, params, S, t0, times, method, rtol, atol, max_evaluations)
 
 
@@ -256,7 +240,7 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     key = tuple(sorted(nodes.items()))
 
     def solve_here(rows):
-        with _one_blas_thread():
+        with one_blas_thread():
             return _solve_group_pde(model, sample_subset(arrays, rows), rows.size, *settings)
 
     def submit(pool, rows):

@@ -46,28 +46,12 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from ..discretization.basis import barycentric_columns
+from ..tuning import BLOCK_BYTES, MAX_BLOCK, MAX_PAIR_VALUES, MIN_BLOCK, SECONDS_PER_BLOCK, SECONDS_PER_MADD
 
 __all__ = ["TTBatch"]
 
-# Points per block: the block's widest intermediate (points x values per point) takes 1.5 MiB,
-# the scratch buffers being reused at every block (the second-level cache is 1 MiB per core
-# here; more points per block amortize the ~50 numpy calls of a block). Measured, one thread,
-# 1e5 points, block sizes in one process (medians of 7) with the scratch buffers: coupled (widest
-# 160) 147.6 / 143.4 / 141.0 / 140.6 ms at 409 / 614 / 1024 / 1536 points; logistic (widest 192)
-# 57.2 / 50.7 / 47.1 / 46.5 ms at 256 / 512 / 1024 / 2048; the rigid body (widest 520) 1.32 /
-# 1.24 / 1.21 / 1.21 s at 126 / 201 / 400 / 600.
-BLOCK_BYTES = 3 << 19
-MIN_BLOCK, MAX_BLOCK = 32, 2048
-# The cost model that decides whether a later coordinate's windows are grouped by (see
-# TTBatch._group_key): seconds per multiply-add in the blocks' products (~25e9 a second on one
-# core here) and per block of points (~50 numpy calls: coupled, 244 against 65 blocks of 1e5
-# points, 147.6 against 140.6 ms: 39 us a block).
-SECONDS_PER_MADD = 4e-11
-SECONDS_PER_BLOCK = 4e-5
 # Slabs up to this many interior breakpoints are found by counting (see _window_of).
 COUNT_BREAKPOINTS = 32
-# Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
-MAX_PAIR_VALUES = 1 << 22
 
 
 def _windows(basis) -> tuple[np.ndarray, int]:

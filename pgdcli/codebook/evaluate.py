@@ -27,7 +27,7 @@ from ..discretization.coordinates import CoordinateInfo
 from .fields import CPTensor, TT
 from .point import TTStack
 from .point_weights import PointData
-from .threads import chunk_bounds, chunk_length, one_blas_thread, run_chunks
+from .threads import batch_blas, chunk_bounds, chunk_length, run_chunks
 
 __all__ = ["Evaluator", "shared_basis", "contract_tt", "grid_tt", "grid_cp"]
 
@@ -182,7 +182,7 @@ class Evaluator:
         first call and 97 ms on the next, against 34-64 ms on one thread (benchmarks/README.md).
         """
         mats = [b.interpolation_matrix(v) for b, v in zip(self.bases, values)]
-        with one_blas_thread(int(np.prod([v.size for v in values], dtype=float))):
+        with batch_blas(int(np.prod([v.size for v in values], dtype=float))):
             return {u: grid_tt(self.fields[u], mats) if isinstance(self.fields[u], TT) else
                     grid_cp(self.fields[u], mats) for u in selected}
 

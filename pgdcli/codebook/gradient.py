@@ -25,13 +25,11 @@ from typing import Sequence
 import numpy as np
 
 from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis, barycentric_rows
+from ..tuning import CHUNK_VALUES
 from .evaluate import contract_tt, grid_cp, grid_tt
 from .fields import TT
 
 __all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
-
-#: Values of the cardinal rows of one coordinate built at once by :func:`gradient_points` (32 MB).
-CHUNK_VALUES = 1 << 22
 
 
 def derivative_matrix(basis, x) -> np.ndarray:

@@ -24,18 +24,18 @@ from typing import Sequence
 import numpy as np
 
 from .fields import TT
-from .threads import one_blas_thread
+from .threads import batch_blas
 
 __all__ = ["evaluate_series", "series_tt", "series_cp"]
 
 
 def evaluate_series(fields, mats: list, series: int, rows: np.ndarray, selected: Sequence[str]) -> dict:
     """The ``selected`` unknowns of ``fields`` at parameter points times series values, each (S, T),
-    under the batches' BLAS policy (:func:`~pgdcli.codebook.threads.one_blas_thread`: with two BLAS
+    under the batches' BLAS policy (:func:`~pgdcli.codebook.threads.batch_blas`: with two BLAS
     threads on a loaded machine these small products ran ~10x slower). ``mats``, ``series`` and
     ``rows`` as in :func:`series_tt`."""
     points = next((m.shape[0] for j, m in enumerate(mats) if j != series), 1)
-    with one_blas_thread(points * rows.shape[0]):
+    with batch_blas(points * rows.shape[0]):
         return {u: series_tt(fields[u], mats, series, rows) if isinstance(fields[u], TT) else
                 series_cp(fields[u].weights, fields[u].factors, mats, series, rows) for u in selected}
 

@@ -1,4 +1,4 @@
-"""The batches' BLAS policy also holds for grids (pgdcli.codebook.threads.one_blas_thread)."""
+"""The batches' BLAS policy also holds for grids (pgdcli.codebook.threads.batch_blas)."""
 
 from __future__ import annotations
 
