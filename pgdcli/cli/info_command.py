@@ -7,28 +7,31 @@ from pathlib import Path
 
 import click
 
-from .group import cli
+from .formats import INFO
+from .group import cli, format_option
 from .text import human_size, nodes_chosen_text, short_where
 
-@cli.command()
-@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True)
-def info(codebook, fmt):
-    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time."""
-    from ..codebook.codebook import Codebook
 
-    cb = Codebook.load(codebook)
-    summary = cb.info(codebook)
-    if fmt == "json":  # JSON escapes control characters itself
-        click.echo(json.dumps(summary, indent=2))
-        return
+@INFO.register("text", "tables and lines of text")
+def write_text(summary: dict) -> None:
+    """The summary as rich text: what the codebook holds, then how it was made."""
     from rich.console import Console
-    from rich.table import Table
 
     summary = _shown(summary)
-    from ..checks.check import points_text
-
     console = Console(highlight=False, soft_wrap=True)
+    _print_contents(console, summary)
+    _print_solve(console, summary)
+
+
+@INFO.register("json", "the summary as JSON")
+def write_json(summary: dict) -> None:
+    click.echo(json.dumps(summary, indent=2))  # JSON escapes control characters itself
+
+
+def _print_contents(console, summary: dict) -> None:
+    """Name, coordinates, modes, rate unknowns and separated coefficients."""
+    from rich.table import Table
+
     console.print(f"[bold]{summary['name']}[/]  {summary['description']}".rstrip())
     coords = Table(title="coordinates", title_justify="left")
     for col in ("name", "role", "domain", "nodes", "discretization"):
@@ -44,6 +47,12 @@ def info(codebook, fmt):
         console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
     for line in summary.get("separated_coefficients", []):
         console.print(f"separated coefficient: {line}", markup=False)
+
+
+def _print_solve(console, summary: dict) -> None:
+    """The solve: its check, the nodes chosen, steps or residual, the march, time, size and format."""
+    from ..checks.check import points_text
+
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("accurate") is False:
@@ -98,3 +107,14 @@ def _shown(value):
     if isinstance(value, list):
         return [_shown(v) for v in value]
     return value
+
+
+@cli.command()
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@format_option(INFO)
+def info(codebook, fmt):
+    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time."""
+    from ..codebook.codebook import Codebook
+
+    cb = Codebook.load(codebook)
+    INFO.writer(fmt)(cb.info(codebook))

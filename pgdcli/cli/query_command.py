@@ -7,13 +7,13 @@ from pathlib import Path
 
 import click
 
-from .group import cli
+from . import stream  # registers the query's output formats
+from .formats import QUERY
+from .group import cli, format_option
 
 @cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(["plain", "csv", "json"]), default="plain", show_default=True,
-              help="plain: values separated by spaces, one line per point; csv: header + coordinates and "
-                   "values; json: a list of objects.")
+@format_option(QUERY)
 @click.option("--field", "fields", multiple=True, metavar="NAME",
               help="Unknown to print (repeatable) [default: all, in declared order].")
 @click.option("--points", metavar="FILE",
@@ -37,7 +37,6 @@ def query(ctx, codebook, fmt, fields, points):
     # plain `pgd query` runs without click (see main): both paths print the same bytes
     from . import query as _query
     from ..codebook.codebook import Codebook
-    from .stream import Writer
 
     cb = Codebook.load(codebook, evaluation_only=True)
     selected = list(fields) if fields else cb.unknown_names
@@ -54,7 +53,7 @@ def query(ctx, codebook, fmt, fields, points):
             raise click.BadParameter(exc.message, param_hint=exc.param_hint) from None
         raise click.UsageError(exc.message) from None
     try:
-        Writer(sys.stdout, fmt, cb, selected).run(chunks)
+        stream.Writer(sys.stdout, fmt, cb, selected).run(chunks)
     finally:
         if handle is not None:
             handle.close()

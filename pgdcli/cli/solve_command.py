@@ -8,8 +8,20 @@ from pathlib import Path
 
 import click
 
-from .group import Failed, cli, run_command, stderr_console, warn
+from .formats import SOLVE
+from .group import Failed, cli, format_option, run_command, stderr_console, warn
 from .text import human_size, nodes_chosen_text, short_where
+
+
+@SOLVE.register("text", "summary table on stderr")
+def write_nothing(summary: dict) -> None:
+    """Nothing on stdout: the table is printed on stderr (none with --quiet)."""
+
+
+@SOLVE.register("json", "the summary as JSON on stdout")
+def write_json(summary: dict) -> None:
+    click.echo(json.dumps(summary, indent=2))
+
 
 @cli.command()
 @click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
@@ -23,8 +35,7 @@ from .text import human_size, nodes_chosen_text, short_where
 @click.option("--keep-inaccurate", is_flag=True,
               help="Write the codebook even when its measured error exceeds the tolerance (marked as such in "
                    "the file; the exit status is still 1).")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text: summary table on stderr; json: the summary as JSON on stdout.")
+@format_option(SOLVE)
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary on stderr.")
 def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
     """Solve the problem in SPEC (YAML) and write its codebook.
@@ -75,8 +86,7 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
         summary["size_bytes"] = target.stat().st_size
     if console is not None:
         console.print(_summary_table(summary))
-    if fmt == "json":
-        click.echo(json.dumps(summary, indent=2))
+    SOLVE.writer(fmt)(summary)
     if not result.converged:
         written = (f"written anyway to {target}, marked inaccurate (--keep-inaccurate)" if keep
                    else f"no codebook written to {target}")

@@ -9,7 +9,8 @@ from pathlib import Path
 import click
 
 from ..limits import DEFAULT_CHECK_SECONDS
-from .group import Failed, cli, run_command, stderr_console
+from .formats import VERIFY
+from .group import Failed, cli, format_option, run_command, stderr_console
 
 
 class _MethodChoice(click.Choice):
@@ -21,6 +22,16 @@ class _MethodChoice(click.Choice):
 
 
 VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.reference.METHODS (no numpy import here)
+
+
+@VERIFY.register("text", "table on stderr")
+def write_nothing(report) -> None:
+    """Nothing on stdout: the tables are printed on stderr with the progress (none with --quiet)."""
+
+
+@VERIFY.register("json", "the report as JSON on stdout (keys in docs/verify.md)")
+def write_json(report) -> None:
+    click.echo(json.dumps(report.to_dict(), indent=2))
 
 
 @cli.command("verify")
@@ -54,8 +65,7 @@ VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.re
               show_default=True, metavar="S",
               help="Time budget of the reference integrations: at S seconds the check stops, the points not "
                    "integrated yet are reported as not checked, and the exit status is 1.")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text: table on stderr; json: the report as JSON on stdout (keys in docs/verify.md).")
+@format_option(VERIFY)
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or table on stderr.")
 def verify_command(codebook, samples, sampling, seed, points, n_times, method, rtol, atol, jobs, max_error,
                    max_rel_error, max_seconds, fmt, quiet):
@@ -97,8 +107,7 @@ def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, at
         report = _verify_with_progress(console, codebook, verify_codebook, options)
         for renderable in _verify_tables(report, max_error, max_rel_error):
             console.print(renderable)
-    if fmt == "json":
-        click.echo(json.dumps(report.to_dict(), indent=2))
+    VERIFY.writer(fmt)(report)
     reasons = report.violations(max_error, max_rel_error)
     if reasons:
         raise Failed(f"{codebook}: verification failed: " + "; ".join(reasons))
