@@ -10,7 +10,7 @@ import pytest
 from conftest import codebook_points, reseal
 
 from pgdcli.codebook import io as codebook_io
-from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, Codebook, CoordinateInfo, CPTensor
+from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, TT, Codebook, CoordinateInfo, CPTensor
 from pgdcli.errors import CodebookError, QueryError
 
 EPS = np.finfo(float).eps
@@ -163,6 +163,26 @@ def test_codebook_validation_names_the_problem():
         Codebook(coords, {"u": CPTensor(np.ones(1), (np.ones((4, 1)),))})
     with pytest.raises(CodebookError, match="non-finite"):
         Codebook(coords, {"u": CPTensor(np.array([np.nan]), (np.ones((3, 1)),))})
+    with pytest.raises(CodebookError, match="unknown 'u': expected a CPTensor or a TT, got dict"):
+        Codebook(coords, {"u": {"alphas": np.ones(1)}})
+    two = coords + [CoordinateInfo("k", (1.0, 2.0), 4)]
+    with pytest.raises(CodebookError, match=r"unknown 'u': core 1 \('t'\) has shape \(2, 4, 1\), expected \(2, 3, r\)"):
+        Codebook(two, {"u": TT((np.ones((1, 4, 2)), np.ones((2, 4, 1))), (1, 0))})
+    with pytest.raises(CodebookError, match="tensor-train mode order \\[0\\] is not a permutation of the 2"):
+        Codebook(two, {"u": TT((np.ones((1, 3, 1)),))})
+
+
+def test_a_malformed_field_in_a_file_names_the_unknown_and_the_factor(codebook_path, tmp_path):
+    """The tensor types' own checks (a factor's columns, a core's ranks), turned into CodebookErrors."""
+    path = tmp_path / "bad.h5"
+    path.write_bytes(codebook_path("spring").read_bytes())
+    with h5py.File(path, "r+") as f:
+        modes = f["unknowns"]["x"]["modes"]
+        rank = modes["k"].shape[1]
+        del modes["k"]
+        modes.create_dataset("k", data=np.ones((20, rank + 1)))
+    with pytest.raises(CodebookError, match=f"unknown 'x': factor 1 has {rank + 1} columns, expected rank {rank}"):
+        Codebook.load(path)
 
 
 # ----------------------------------------------------------------------------------------------
