@@ -26,7 +26,7 @@ recorded, and those factorizations are redone alone on random matrices of the sa
 of 5): the part of the build that no reduction of Python overhead can remove.
 
 The march's tolerance is a max abs error that ``pgdcli.solve`` measures against scipy at its own
-check sample and enforces by repeating the march (README, "The march's tolerance is checked"): the
+check sample and enforces by repeating the march (docs: "The tolerance is a promise"): the
 build times include that check and any repeated march, and the rows say how many marches ran.
 
 rigid_body (problems/rigid_body.yaml: six initial velocities on [0.5, 1.5] with 8 nodes each, t in
@@ -35,7 +35,7 @@ over the brute-force grid with 10 Chebyshev-Lobatto nodes per IC (10^6 ICs x 6 u
 rtol = atol = 1e-6, storing the 16 time nodes: the grid is 10^6 x 6 x 16 float64). The grid's own
 accuracy as a codebook (tensor-product Chebyshev interpolation between its nodes, at the error
 sample's ICs and the 16 time nodes) is reported beside the codebook's. Also one build at
-``solver.tolerance: 1e-6`` (the issue's stretch error is 1e-6).
+``solver.tolerance: 1e-6``.
 
 Errors: max abs error over all unknowns against a per-IC loop of ``solve_ivp`` (DOP853,
 rtol = atol = 1e-12) at random ICs plus points on the faces (1 to d-1 coordinates on a bound) plus
@@ -48,7 +48,7 @@ The scipy runs are limited to one BLAS thread (threadpoolctl), as the solver lim
 machine may be shared and noisy: timings are medians where repeated, and every comparison is made
 within this run.
 
-Issue 15 rows (``--issue15`` runs only these): the rigid body with 10 nodes per IC at
+Large grids (``--large-grids`` runs only these): the rigid body with 10 nodes per IC at
 ``solver.tolerance: 1e-6`` (if the error gate refuses it: 8 nodes, then 10 nodes at 1e-5) beside one vectorized ``solve_ivp`` over its 10^6 grid ICs at
 rtol = atol = 1e-10 (target: build >= 5x faster, codebook <= 1% of that grid); where the
 build's time goes (seconds inside the march's right-hand sides, its stage/state combinations,
@@ -58,8 +58,7 @@ matched accuracy (codebooks at tolerances 1e-7 and 1e-9 beside the loosest rtol 
 error at 200 random grid ICs, against a loop at 1e-13, is at most the codebook's measured error);
 and, with ``--ten``, the 10-D ``problems/rigid_body10.yaml`` (three moments of inertia as
 coordinates too): build time (target <= 120 s), the error gate's measured error and
-``pgdcli.verify`` at 200 points (on 2026-11-24 its build had not finished after 25 minutes on
-the shared machine: not shipped in problems/).
+``pgdcli.verify`` at 200 points.
 
 Products by sketch vs by cross (every run, and alone with ``--products-only``): the march alone (no
 error gate, 1 BLAS thread) on the rigid body with 10 nodes per IC at tolerances 1e-5 and 1e-6 (1e-5
@@ -68,7 +67,7 @@ only with ``--quick``), the right-hand side's products rounded by the randomized
 twice in this process (medians), with the largest difference of the two final states at 2000 grid
 nodes.
 
-The printed table (Markdown) is what benchmarks/README.md quotes.
+The table (Markdown) is printed and written to benchmarks/results/build_speed.md.
 """
 
 from __future__ import annotations
@@ -85,7 +84,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _machine import machine_facts  # benchmarks/ is on sys.path when a script runs
+from _machine import cell, published  # benchmarks/ is on sys.path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 COUPLED = ROOT / "problems" / "coupled.yaml"
@@ -479,7 +478,7 @@ def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
         rep = cb.report
         errors = codebook_errors(cb, ics, params, times, reference)
         err = float(errors.max())
-        also = " (as at 1e-4)" if stretch else ""  # the issue sets time and size targets for the 1e-4 build
+        also = " (as at 1e-4)" if stretch else ""  # the time and size targets are the 1e-4 build's
         rows.append((name, f"build: {how}, one run", fmt_time(build_time),
                      f"{marches(rep)}, {rep['steps']} steps, solver's check {rep['check_error']:.2e} "
                      f"(tolerance {rep['tolerance']:g})", "",
@@ -562,7 +561,7 @@ def bench_rigid_body(rows: list, work: Path, quick: bool) -> None:
 
 
 # ----------------------------------------------------------------------------------------------
-# issue 15: builds against the brute-force grid
+# large grids: builds against the brute-force grid
 # ----------------------------------------------------------------------------------------------
 def with_nodes(path: Path, old: int, new: int, tolerance: float | None = None, time_nodes: int | None = None,
                march: str | None = None):
@@ -667,7 +666,7 @@ def bench_products(rows: list, quick: bool) -> None:
         last: dict = {}
         for _ in range(1 if quick else 2):
             for mode in ("sketch", "cross"):
-                print(f"issue 15: {label}: products by {mode}", file=sys.stderr)
+                print(f"large grids: {label}: products by {mode}", file=sys.stderr)
                 elapsed, last[mode] = march_with_products(problem, tolerance, mode)
                 times[mode].append(elapsed)
         med = {mode: float(np.median(v)) for mode, v in times.items()}
@@ -687,7 +686,7 @@ def bench_products(rows: list, quick: bool) -> None:
                      f"{diff:.1e}", "", f"sketch/cross {med['sketch'] / med['cross']:.2f}x", "", None))
 
 
-def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> None:
+def bench_large_grids(rows: list, work: Path, quick: bool, ten: bool = False) -> None:
     import pgdcli
     from pgdcli.discretization.basis import make_basis
 
@@ -698,7 +697,7 @@ def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> Non
     for nodes, tolerance in ((10, 1e-6), (8, 1e-6), (10, 1e-5)):
         label = f"rigid_body, 6 ICs x {nodes} nodes, tol {tolerance:g}"
         problem = with_nodes(RIGID, 8, nodes, tolerance, time_nodes=8 if tolerance < 1e-5 else None)
-        print(f"issue 15: {label}: building", file=sys.stderr)
+        print(f"large grids: {label}: building", file=sys.stderr)
         elapsed, result, spent = build_split(problem)
         if result.converged:
             break
@@ -725,7 +724,7 @@ def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> Non
         params = [c.name for c in problem.coordinates if c.name != "t"]
         axis = make_basis(coords[params[0]].discretization, coords[params[0]].domain, BRUTE_NODES).nodes
         grid = grid_ics([axis] * 6)
-        print(f"issue 15: one vectorized solve_ivp over {grid.shape[1]} ICs, tol 1e-10", file=sys.stderr)
+        print(f"large grids: one vectorized solve_ivp over {grid.shape[1]} ICs, tol 1e-10", file=sys.stderr)
         with blas1():
             brute, values = timed(lambda: vector_solve(rigid_vector, grid, (0.0, 1.0), tnodes, 1e-10))
         del values, grid
@@ -737,7 +736,7 @@ def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> Non
     # coupled, 40 nodes per IC, beside one vectorized solve_ivp over its 64,000 ICs
     label = "coupled, 3 ICs x 40 nodes (64,000 ICs), tol 1e-9"
     problem = with_nodes(COUPLED, 20, 40)
-    print(f"issue 15: {label}: building", file=sys.stderr)
+    print(f"large grids: {label}: building", file=sys.stderr)
     elapsed, result, spent = build_split(problem)
     if not result.converged:
         raise SystemExit(f"build failed: {result.message}")
@@ -773,7 +772,7 @@ def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> Non
         return
     # the 10-D rigid body: nobody brute-forces 10^9 grid points
     label = "rigid_body10 (10-D: + I1, I2, I3; 10 nodes each), tol 1e-5"
-    print(f"issue 15: {label}: building", file=sys.stderr)
+    print(f"large grids: {label}: building", file=sys.stderr)
     elapsed, result, spent = build_split(pgdcli.load_spec(RIGID10))
     if not result.converged:
         rows.append((label, "build (1 BLAS thread), one run: NOT converged", fmt_time(elapsed),
@@ -786,7 +785,7 @@ def bench_issue15(rows: list, work: Path, quick: bool, ten: bool = False) -> Non
     rows.append((label, "  error gate: measured max abs error (tolerance)", f"{rep['check_error']:.2e}",
                  f"tolerance {rep['tolerance']:g}", "", f"<= {rep['tolerance']:g}",
                  rep["check_error"] <= rep["tolerance"]))
-    print(f"issue 15: {label}: pgdcli.verify at 200 points", file=sys.stderr)
+    print(f"large grids: {label}: pgdcli.verify at 200 points", file=sys.stderr)
     report = pgdcli.verify(cb, samples=200, seed=1)
     worst = max(s.max_abs_error for s in report.unknowns.values())
     rows.append((label, "  pgdcli.verify, 200 Sobol points + corners x 16 t, vs solve_ivp", f"{worst:.2e}",
@@ -838,7 +837,7 @@ def bench_coupled_matched(rows: list, grid: np.ndarray, tnodes: np.ndarray) -> N
 # ----------------------------------------------------------------------------------------------
 def print_table(rows: list) -> None:
     header = ("problem", "measure", "pgdcli", "beside", "ratio", "target", "met")
-    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else str(v))
+    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else cell(v))
                               for v in row) for row in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
     line = lambda r: "| " + " | ".join(v.ljust(w) for v, w in zip(r, widths)) + " |"
@@ -856,40 +855,31 @@ class _EchoRows(list):
         super().append(row)
 
 
-def describe_machine() -> str:
-    m = machine_facts()
-    return (f"{m['processor']}, {m['cpus']} CPUs, shared (load average {m['load']}); "
-            f"Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, "
-            f"BLAS {m['blas']}; solver and scipy runs limited to 1 BLAS thread (threadpoolctl)")
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true",
                         help="skip the rigid-body brute-force grid and the rigid body at tolerance 1e-6")
-    parser.add_argument("--issue15", action="store_true", help="only the rows of issue 15 (see the docstring)")
+    parser.add_argument("--large-grids", action="store_true", help="only the large-grid rows (see the docstring)")
     parser.add_argument("--ten", action="store_true", help="also build the 10-D problems/rigid_body10.yaml (~40 s)")
     parser.add_argument("--products-only", action="store_true",
-                        help="only the march with products by sketch vs by cross (issue 15)")
+                        help="only the march with products by sketch vs by cross")
     args = parser.parse_args(argv)
     rows: list = _EchoRows()
-    started = time.perf_counter()
-    machine_before = describe_machine()
     with tempfile.TemporaryDirectory(prefix="pgdcli-build-") as tmp:
         work = Path(tmp)
-        if not args.issue15 and not args.products_only:
+        if not args.large_grids and not args.products_only:
             bench_coupled(rows, work)
             bench_rigid_body(rows, work, args.quick)
         bench_products(rows, args.quick)
         if not args.products_only:
-            bench_issue15(rows, work, args.quick, args.ten)
-    print(f"Machine: {machine_before}\n")
+            bench_large_grids(rows, work, args.quick, args.ten)
+    print("Solver and scipy runs limited to 1 BLAS thread (threadpoolctl).\n")
     print_table(rows)
     missed = [r for r in rows if r[6] is False]
     print(f"\n{len([r for r in rows if r[6] is True])} targets met, {len(missed)} missed"
-          + "".join(f"\n  missed: {r[0]}: {r[1]}: {r[2]} {r[4]} (target {r[5]})" for r in missed)
-          + f"\nTotal wall time {time.perf_counter() - started:.0f} s; load average at the end "
-          + " ".join(f"{v:.2f}" for v in os.getloadavg()))
+          + "".join(f"\n\n- missed: {r[0]}: {r[1]}: {r[2]} {r[4]} (target {r[5]})" for r in missed))
 
 
 if __name__ == "__main__":
-    with contextlib.suppress(KeyboardInterrupt):
+    with contextlib.suppress(KeyboardInterrupt), published(__file__, "Build speed: nonlinear problems beside solve_ivp"):
         main()

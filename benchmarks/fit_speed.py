@@ -24,6 +24,8 @@ Part 2, C export. The codebook is exported (``pgd export --to c``), compiled wit
 and a batch of 1e5 points).
 
     python benchmarks/fit_speed.py [--quick]   # --quick: coupled and relaxation, fewer repeats
+
+The tables are printed and written to benchmarks/results/fit_speed.md.
 """
 
 from __future__ import annotations
@@ -254,18 +256,14 @@ def _us(seconds: float) -> str:
 
 
 def main() -> int:
-    from _machine import machine_facts
-
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="coupled and relaxation only, fewer repeats")
     parser.add_argument("--starts", type=int, default=8, help="starts for both fits [8]")
     args = parser.parse_args()
     names = ["coupled", "relaxation"] if args.quick else ["coupled", "relaxation", "rigid_body"]
     repeats = 3 if args.quick else 7
-    facts = machine_facts()
-    print("Machine: " + ", ".join(f"{k} {v}" for k, v in facts.items()))
     rows, books = fit_rows(names, repeats, args.starts)
-    print(f"\nFit ({args.starts} starts, same data, same least_squares; scipy model: solve_ivp DOP853 1e-10 per "
+    print(f"Fit ({args.starts} starts, same data, same least_squares; scipy model: solve_ivp DOP853 1e-10 per "
           "evaluation, finite-difference Jacobian)\n")
     print("| problem | codebook build (once) | pgd fit | evaluations | least_squares + solve_ivp | evaluations (solves) "
           "| ratio | max estimate difference / stderr | reference check of the fit | least_squares alone (free model) "
@@ -279,7 +277,7 @@ def main() -> int:
     for r in rows:
         est = ", ".join(f"{p:.5f} / {s:.5f} +/- {e:.1e} (true {t})" for p, s, e, t in
                         zip(r["pgd_est"], r["scipy_est"], r["stderr"], r["truth"]))
-        print(f"  {r['problem']}: pgd / scipy +/- stderr: {est}")
+        print(f"- {r['problem']}: pgd / scipy +/- stderr: {est}")
     crow = c_rows(books, repeats)
     print("\nC export per point (loop of 20,000 random points inside C) beside Codebook\n")
     print("| codebook | C -O2 double | C -O2 float | C -O3 -march=native double | C -O3 -march=native float "
@@ -292,4 +290,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from _machine import published
+
+    with published(__file__, "Fit speed and the exported C beside scipy"):
+        main()

@@ -1,7 +1,7 @@
-"""Codebooks at a checked tolerance on problems written as a new user would (issue 12), in one run.
+"""Codebooks at a checked tolerance on problems written without node counts, beside solve_ivp, in one run.
 
-    python benchmarks/gate_build.py                 # every problem in tests/user_problems (~5-10 min)
-    python benchmarks/gate_build.py sir damped4     # some of them
+    python benchmarks/gate_build.py                 # the problems of DEFAULT below
+    python benchmarks/gate_build.py sir damped4     # any of tests/user_problems, by name
 
 For each problem (``tests/user_problems/<name>.yaml``: no node counts, tolerance 1e-6 or 1e-8), the
 build of the codebook, ``pgdcli.solve`` (automatic resolution and the error gate included), beside
@@ -21,7 +21,7 @@ Sizes: the codebook file beside the grid's values (points x unknowns x time node
 A refused problem (exit 1 of ``pgd solve``) shows its one-line reason and no grid.
 
 The scipy runs use one BLAS thread, as the solver does. The machine is shared: every comparison is
-made within this run; the printed table is what benchmarks/README.md quotes.
+made within this run. The table is printed and written to benchmarks/results/gate_build.md.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from threadpoolctl import threadpool_limits
 import pgdcli
 from pgdcli.checks.reference import solve_reference_pde, solve_reference_vectorized
 
-from _machine import machine_facts
+from _machine import published
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "tests" / "user_problems"
@@ -84,6 +84,9 @@ def time_vectorized(problem, points, times):
 
 #: As in tests/solve/test_user_problems.py: Van der Pol is refused either way, sooner with this cap.
 SETTINGS = {"vanderpol": "  max_nodes: 65\n"}
+# linear and polynomial ODE systems, a linear PDE; the other families have their own benchmarks
+# (nonseparable.py, general_rhs.py, nonlinear_pde.py)
+DEFAULT = ("damped4", "sir", "pendulum_sc", "forced_aux", "vanderpol", "advection_diffusion")
 
 
 def measure(problem) -> dict:
@@ -127,8 +130,7 @@ def row(name: str) -> str:
 
 
 def print_table(names, row_of, first: str = "problem", last: str = "grid values") -> None:
-    """The machine (stderr), then the table's header and one row per problem (stdout, as they finish)."""
-    print(f"machine: {machine_facts()}", file=sys.stderr)
+    """The table's header and one row per problem (stdout, as they finish)."""
     print(f"| {first} | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
           f"codebook's grid | one vectorized solve_ivp over it | codebook file | {last} |")
     print("| --- | --- | --- | --- | --- | --- |")
@@ -141,4 +143,5 @@ def main(names):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or sorted(p.stem for p in PROBLEMS.glob("*.yaml")))
+    with published(__file__, "Codebooks at a checked tolerance beside solve_ivp over the same grid"):
+        main(sys.argv[1:] or DEFAULT)

@@ -1,4 +1,4 @@
-"""Functions of the unknowns (issue 14): codebook builds beside solve_ivp and teneva's TT-cross, one run.
+"""Functions of the unknowns: codebook builds beside solve_ivp and teneva's TT-cross, in one run.
 
     pip install -e '.[benchmark]'                 # teneva, for the black-box TT-cross column
     python benchmarks/general_rhs.py              # every problem below (~5 min on 2 cores)
@@ -21,12 +21,13 @@ such a grid is as accurate as the codebook):
   tolerance; the time of that run is reported, with its solve_ivp points. Each cross may ask at most
   4 times as many values as the whole tensor has (``m``; values of points already solved are free).
 
-A second table builds a 3- and a 4-parameter problem three ways: general terms on the whole grid
-(the default up to about 4 parameters), by TT-cross always, and the whole right-hand side (its
-polynomial monomials too) by the default path.
+A second table builds a 3- and a 4-parameter problem by the tensor-train march (``solver.march:
+train``; the default grid march evaluates on its whole grid anyway) three ways: general terms on
+the whole grid (the default up to about 4 parameters), by TT-cross always, and the whole
+right-hand side (its polynomial monomials too) by the default path.
 
 The scipy runs use one BLAS thread, as the solver does. The machine is shared: every comparison is
-made within this run; benchmarks/README.md quotes the printed table.
+made within this run. The tables are printed and written to benchmarks/results/general_rhs.md.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ import pgdcli
 from pgdcli.checks.reference import solve_reference_vectorized
 from pgdcli.tensors.tt import TT, tt_sum
 
-from _machine import machine_facts
+from _machine import published
 from gate_build import RTOL, ATOL, grid_points, time_loop, time_vectorized
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -175,15 +176,25 @@ solver: {tolerance: 1e-6}
 """
 
 
+def train_march(text: str, source: str):
+    """The problem of spec ``text`` marched as tensor trains (``solver.march: train``)."""
+    import yaml
+
+    data = yaml.safe_load(text)
+    data.setdefault("solver", {})["march"] = "train"
+    return pgdcli.parse_spec(yaml.safe_dump(data, sort_keys=False), source=source)
+
+
 def evaluation_paths():
-    """The march's ways of evaluating general terms, side by side: whole grid, TT-cross, whole right-hand side."""
+    """The tensor-train march's ways of evaluating general terms, side by side: whole grid, TT-cross,
+    whole right-hand side."""
     from pgdcli.algorithms import general_rhs
 
     print("\n| problem | whole grid (default) | TT-cross always | whole right-hand side by the default path |")
     print("| --- | --- | --- | --- |")
     defaults = (general_rhs.DENSE_LIMIT, general_rhs.SWEEPS_PER_CROSS, general_rhs.WHOLE_RHS)
-    for name, problem in (("drag3", pgdcli.load_spec(PROBLEMS["drag3"])),
-                          ("pendulum, 4 parameters", pgdcli.parse_spec(PENDULUM4, source="pendulum4.yaml"))):
+    for name, problem in (("drag3", train_march(PROBLEMS["drag3"].read_text(), "drag3.yaml")),
+                          ("pendulum, 4 parameters", train_march(PENDULUM4, "pendulum4.yaml"))):
         cells = []
         for dense, sweeps, whole in (defaults, (0, 0, False), (defaults[0], defaults[1], True)):
             general_rhs.DENSE_LIMIT, general_rhs.SWEEPS_PER_CROSS, general_rhs.WHOLE_RHS = dense, sweeps, whole
@@ -191,14 +202,13 @@ def evaluation_paths():
             result = pgdcli.solve(problem)
             wall = time.perf_counter() - started
             rep = result.codebook.report
-            cells.append(f"{wall:.1f} s, error {rep['check_error']:.2g}, {rep['cross_evaluations']:.3g} values, "
-                         f"ranks <= {rep['cross_max_rank']}")
+            cells.append(f"{wall:.1f} s, error {rep['check_error']:.2g}, {rep.get('cross_evaluations', 0):.3g} "
+                         f"values, ranks <= {rep.get('cross_max_rank', 0)}")
         general_rhs.DENSE_LIMIT, general_rhs.SWEEPS_PER_CROSS, general_rhs.WHOLE_RHS = defaults
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
 
 def main(names):
-    print(f"machine: {machine_facts()}", file=sys.stderr)
     print("| problem | pgdcli build (gate and automatic resolution included) | loop of solve_ivp over the "
           "codebook's grid | one vectorized solve_ivp over it | teneva TT-cross over it, solve_ivp black box |")
     print("| --- | --- | --- | --- | --- |")
@@ -209,4 +219,5 @@ def main(names):
 
 
 if __name__ == "__main__":
-    main([a for a in sys.argv[1:] if not a.startswith("--")] or list(PROBLEMS))
+    with published(__file__, "Functions of the unknowns beside solve_ivp and teneva's TT-cross"):
+        main([a for a in sys.argv[1:] if not a.startswith("--")] or list(PROBLEMS))

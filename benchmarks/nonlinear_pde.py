@@ -1,4 +1,4 @@
-"""Nonlinear PDEs in one space coordinate (issue 14 item 4): codebook builds beside method-of-lines sweeps.
+"""Nonlinear PDEs in one space coordinate: codebook builds beside method-of-lines sweeps, in one run.
 
     python benchmarks/nonlinear_pde.py                  # every problem below
     python benchmarks/nonlinear_pde.py fisher nagumo    # some of them
@@ -28,7 +28,8 @@ and the error of each alternative at the same 300 random points (the loop's valu
 the parameters with the codebook's bases: the error of the sweep on this grid).
 
 ``--schemes``: the PDE march on fixed nodes with ETDRK4 and with the Lawson RK4 (steps, evaluations of
-the nonlinear part, time, error). The scipy runs use one BLAS thread, as the solver does.
+the nonlinear part, time, error). The scipy runs use one BLAS thread, as the solver does. The table
+is printed and written to benchmarks/results/nonlinear_pde.md (``--schemes``: nonlinear_pde-schemes.md).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from threadpoolctl import threadpool_limits
 import pgdcli
 from pgdcli.checks.reference_pde_nonlinear import solve_reference_nonlinear_pde
 
-from _machine import machine_facts
+from _machine import published
 from general_rhs import cross_full, load_teneva
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -268,7 +269,6 @@ def schemes():
 
 
 def main(argv):
-    print(machine_facts())
     if "--schemes" in argv:
         print("| problem, nodes | scheme | steps | N evaluations | time | max error (360 points) |")
         print("| --- | --- | --- | --- | --- | --- |")
@@ -285,4 +285,9 @@ def main(argv):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    if "--schemes" in sys.argv:
+        with published(__file__, "Nonlinear PDE march: ETDRK4 beside Lawson RK4", variant="schemes"):
+            main(sys.argv[1:])
+    else:
+        with published(__file__, "Nonlinear PDEs beside method-of-lines sweeps and teneva's TT-cross"):
+            main(sys.argv[1:])

@@ -1,6 +1,6 @@
-"""Non-separable coefficients and second-order equations (issue 14, part b): build time beside scipy, in one run.
+"""Non-separable coefficients and second-order equations: build time beside scipy, in one run.
 
-    python benchmarks/nonseparable.py                      # forced.yaml and the part-b user problems (~2-4 min)
+    python benchmarks/nonseparable.py                      # forced.yaml and the problems below (~2-4 min)
     python benchmarks/nonseparable.py forced duffing_forced
 
 Same conventions and table as ``benchmarks/gate_build.py`` (whose grid and timing functions are
@@ -9,7 +9,8 @@ non-separable coefficients and the error gate included), beside a loop of ``solv
 1e-10, timed on at most 200 grid points and scaled) and ONE vectorized ``solve_ivp`` over the grid
 of the codebook's own nodes, which interpolated with the same bases is as accurate as the codebook
 (PDEs: a method-of-lines sweep, no vectorized call). The last column says how many Kronecker (or
-tensor-train) terms each non-separable coefficient needed.
+tensor-train) terms each non-separable coefficient needed. The table is printed and written to
+benchmarks/results/nonseparable.md.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import pgdcli
 
+from _machine import published
 from gate_build import measure, print_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,4 +41,5 @@ def row(name: str) -> str:
 
 
 if __name__ == "__main__":
-    print_table(sys.argv[1:] or list(PROBLEMS), row, "problem (solver)", "non-separable coefficients")
+    with published(__file__, "Non-separable coefficients and second-order equations beside solve_ivp"):
+        print_table(sys.argv[1:] or list(PROBLEMS), row, "problem (solver)", "non-separable coefficients")

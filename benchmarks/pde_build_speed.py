@@ -1,4 +1,4 @@
-"""Build time of the 2D heat codebook beside a sweep of method-of-lines solves (issue 6).
+"""Build time of the 2D heat codebook beside a sweep of method-of-lines solves, in one run.
 
 Solves problems/heat2d.yaml (x, y space; t; kappa, g, q parameters) into a codebook (median of 3
 builds) and, in the same run, times the alternative a user would otherwise run: one method-of-lines
@@ -10,6 +10,8 @@ exact solution at random points (the MOL sweep through its own interpolation at 
 its grid); sizes: codebook floats vs the grid's values (x nodes x y nodes x t nodes x grid points).
 
     python benchmarks/pde_build_speed.py [--subset N]
+
+The table is printed and written to benchmarks/results/pde_build_speed.md.
 """
 
 from __future__ import annotations
@@ -92,4 +94,8 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _machine import published
+
+    with published(__file__, "PDE build speed: the 2-D heat codebook beside a method-of-lines sweep"):
+        main()

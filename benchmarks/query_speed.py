@@ -19,7 +19,7 @@ the same nodes (the relevant speed baseline), and 'cubic' where every axis has >
 nodes (spring). The machine may be shared and noisy: every figure is a median of
 repeated blocks, and every comparison is made within this run.
 
-The printed table (Markdown) is what benchmarks/README.md quotes.
+The table (Markdown) is printed and written to benchmarks/results/query_speed.md.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _machine import machine_facts  # benchmarks/ is on sys.path when a script runs
+from _machine import cell, published  # benchmarks/ is on sys.path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {"spring": ROOT / "problems" / "spring.yaml", "relaxation": ROOT / "problems" / "relaxation.yaml"}
@@ -290,7 +290,7 @@ def measure_cli(name: str, path: Path, rows: list, quick: bool, workdir: Path) -
 # ----------------------------------------------------------------------------------------------
 def print_table(rows: list) -> None:
     header = ("codebook", "measure", "pgdcli", "reference, same run", "ratio", "target", "met")
-    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else str(v))
+    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else cell(v))
                               for v in row) for row in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
     line = lambda r: "| " + " | ".join(v.ljust(w) for v, w in zip(r, widths)) + " |"
@@ -331,12 +331,12 @@ def parallel_capacity() -> float:
 
 
 def describe_machine() -> str:
-    m = machine_facts()
-    return (f"{m['processor']}, {m['cpus']} CPUs (load average {m['load']}, "
-            f"2 threads run {parallel_capacity():.1f}x one thread's work now); "
-            f"Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, BLAS {m['blas']}; "
+    """What the header of :func:`_machine.published` does not say: free cores now, the environment."""
+    return (f"2 threads run {parallel_capacity():.1f}x one thread's work now; "
             f"PYTHONDONTWRITEBYTECODE={os.environ.get('PYTHONDONTWRITEBYTECODE', '(unset)')}, "
             f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', '(unset)')}")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer repetitions")
@@ -352,15 +352,15 @@ def main(argv=None) -> None:
         if not args.no_cli:
             for name in args.codebooks:
                 measure_cli(name, paths[name], rows, args.quick, work)
-    print(f"Machine: {describe_machine()}\n")
+    print(f"Threads and environment: {describe_machine()}\n")
     print_table(rows)
     print("\nratio: latency = reference / pgdcli, throughput = pgdcli / reference (above 1: pgdcli faster); "
           "pgd query = its wall time / that of python -c 'import numpy, h5py'.")
     missed = [r for r in rows if r[6] is False]
     print(f"\n{len([r for r in rows if r[6] is True])} targets met, {len(missed)} missed"
-          + "".join(f"\n  missed: {r[0]}: {r[1]}: {r[2]} (target {r[5]})" for r in missed))
+          + "".join(f"\n\n- missed: {r[0]}: {r[1]}: {r[2]} (target {r[5]})" for r in missed))
 
 
 if __name__ == "__main__":
-    with contextlib.suppress(KeyboardInterrupt):
+    with contextlib.suppress(KeyboardInterrupt), published(__file__, "Query speed: codebooks beside RegularGridInterpolator"):
         main()

@@ -8,10 +8,10 @@ temporary directory, then measures in one process, per codebook:
   first core(s) are contracted again: a best case), 200 random points (every core contracted:
   the target's row), and a time series of 200 random times at one random parameter point;
 - batch: ``codebook.evaluate`` at 1e5 uniform random points, median of 5 runs, with the batch
-  policy (one BLAS thread, up to 2 threads of our own: benchmarks/README.md) and on one thread;
-  beside it, in the same run, the batch algorithm before issue 15 (per block of 2048 points the
+  policy (one BLAS thread, up to 2 threads of our own: pgdcli.codebook.threads) and on one thread;
+  beside it, in the same run, the plain row-wise algorithm (per block of 2048 points the
   row-wise Khatri-Rao product of the running contraction and the cardinal rows times each
-  unfolded core, unknown by unknown, all cores dense: ``rowwise_before`` below);
+  unfolded core, unknown by unknown, all cores dense: ``rowwise_batch`` below);
 - the error gate's shape: 200 random parameter points x the time nodes and midpoints,
   ``Codebook.evaluate_series`` beside ``Codebook.evaluate`` on the broadcast points; for the rigid
   body also the single point's memory floor (its cores read once by one gemv per core);
@@ -26,8 +26,9 @@ temporary directory, then measures in one process, per codebook:
   nodes x 6 unknowns (~330 MB).
 
 Prints a table with ratios (latency: reference / pgdcli; throughput: pgdcli / reference).
-Targets (issue 15): batch >= RGI linear for coupled and the rigid body; single point <= 20 us
-(coupled), <= 50 us (rigid body). The machine is shared and noisy: medians, same process.
+Targets: batch >= RGI linear for coupled and the rigid body; single point <= 20 us (coupled),
+<= 50 us (rigid body). The machine is shared and noisy: medians, same process. The table is
+printed and written to benchmarks/results/query_speed_tt.md.
 
     python benchmarks/query_speed_tt.py [--quick] [--before OLD/pgdcli]
     # --quick: coupled and logistic only; --before: an earlier package side by side
@@ -95,8 +96,8 @@ def _batch(fn, points, repeats: int = 5) -> float:
     return statistics.median(runs)
 
 
-def rowwise_before(cb, points: dict) -> dict:
-    """The tensor-train batch algorithm before issue 15 (pgdcli <= 2026-11-24), same thread policy."""
+def rowwise_batch(cb, points: dict) -> dict:
+    """The plain row-wise tensor-train batch (a baseline for ``Codebook.evaluate``), same thread policy."""
     import pgdcli.codebook.threads as threads_module
 
     flat = [np.clip(points[c.name], *c.domain) for c in cb.coordinates]
@@ -253,7 +254,7 @@ def main() -> int:
             stack = np.column_stack([pts[c.name] for c in coords])
             batch = _batch(cb.evaluate, pts)
             ref_batch = _batch(grid, stack)
-            before = _batch(lambda p: rowwise_before(cb, p), pts)
+            rowwise = _batch(lambda p: rowwise_batch(cb, p), pts)
             saved = threads_module.MAX_THREADS
             threads_module.MAX_THREADS = 1
             try:
@@ -275,12 +276,12 @@ def main() -> int:
                          ">= RGI" if targeted else "", ref_batch >= batch if targeted else None))
             rows.append((label, "  batch, one thread", f"{n / batch1:.3g} pts/s",
                          f"RGI linear: {n / ref_batch:.3g} pts/s", f"{ref_batch / batch1:.2f}x", "", None))
-            rows.append((label, "  batch, algorithm before issue 15 (same policy)", f"{n / before:.3g} pts/s",
-                         "pgdcli (policy, above)", f"{before / batch:.2f}x", "", None))
-            check = rowwise_before(cb, pts)
+            rows.append((label, "  batch, plain row-wise algorithm (same policy)", f"{n / rowwise:.3g} pts/s",
+                         "pgdcli (policy, above)", f"{rowwise / batch:.2f}x", "", None))
+            check = rowwise_batch(cb, pts)
             ours = cb.evaluate(pts)
             diff = max(float(np.max(np.abs(ours[u] - check[u]))) for u in cb.unknown_names)
-            rows.append((label, "  max |new - before| over the batch", f"{diff:.1e}", "", "", "", None))
+            rows.append((label, "  max |pgdcli - row-wise| over the batch", f"{diff:.1e}", "", "", "", None))
             rows.extend(_series_rows(cb, rng, label))
             if name == "rigid_body":
                 floor = _stream_floor(cb, rng)
@@ -303,17 +304,22 @@ def main() -> int:
             rows.append((label, "  (same grid)", f"{m / on_grid:.3g} pts/s",
                          f"RGI linear, same points: {m / ref_grid:.3g} pts/s", f"{ref_grid / on_grid:.0f}x", "", None))
     header = ("codebook", "measure", "pgdcli", "reference, same run", "ratio", "target", "met")
-    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else str(v))
+    from _machine import cell
+
+    cells = [header] + [tuple("" if v is None else ("yes" if v is True else "NO" if v is False else cell(v))
                               for v in r) for r in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
-    print(f"Machine: load average {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     for i, r in enumerate(cells):
         print("| " + " | ".join(v.ljust(w) for v, w in zip(r, widths)) + " |")
         if i == 0:
             print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
-    print("ratio: latency = reference / pgdcli, throughput = pgdcli / reference (above 1: pgdcli faster)")
+    print("\nratio: latency = reference / pgdcli, throughput = pgdcli / reference (above 1: pgdcli faster)")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _machine import published
+
+    with published(__file__, "Query speed: tensor-train codebooks beside RegularGridInterpolator"):
+        main()

@@ -2,10 +2,12 @@
 
 Python API
 ----------
-- :func:`load_spec` -- YAML spec file -> validated :class:`~pgdcli.problem.spec.Problem`
-- :func:`solve` -- problem -> :class:`~pgdcli.driver.SolveResult` (``.codebook``, ``.converged``, ``.residuals``)
+- :func:`load_spec`, :func:`parse_spec` -- YAML spec (file, text) -> validated :class:`Problem`
+- :func:`solve` -- problem -> :class:`SolveResult` (``.codebook``, ``.converged``, ``.check``)
 - :class:`Codebook` -- ``Codebook.load(path)``; ``codebook(t=..., k=...)`` -> {unknown: ndarray}
-- :func:`fit` -- codebook + data -> :class:`~pgdcli.inference.fitting.FitResult` (parameter identification)
+- :func:`verify` -- codebook -> :class:`VerifyReport` (against an independent reference)
+- :func:`fit` -- codebook + data -> :class:`FitResult` (parameter identification)
+- :class:`PgdError` -- the base of every error pgdcli raises on purpose (one-line message)
 
 Submodules are imported lazily so that evaluating a codebook does not pay for
 scipy or yaml.
@@ -13,10 +15,20 @@ scipy or yaml.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "Codebook", "PgdError"]
-__all__ += ["fit"]  # parameter identification (pgdcli.inference.fitting)
+__all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "fit", "Codebook", "Problem",
+           "SolveResult", "VerifyReport", "FitResult", "PgdError"]
+
+if TYPE_CHECKING:  # the names below, for type checkers and the API reference (imported lazily at run time)
+    from .checks.verify import VerifyReport, verify
+    from .codebook.codebook import Codebook
+    from .driver import SolveResult, solve
+    from .errors import PgdError
+    from .inference.fitting import FitResult, fit
+    from .problem.spec import Problem, load_spec, parse_spec
 
 _LAZY = {
     "load_spec": ("problem.spec", "load_spec"),
@@ -26,6 +38,7 @@ _LAZY = {
     "SolveResult": ("driver", "SolveResult"),
     "Codebook": ("codebook.codebook", "Codebook"),
     "verify": ("checks.verify", "verify"),
+    "VerifyReport": ("checks.verify", "VerifyReport"),
     "PgdError": ("errors", "PgdError"),
     "fit": ("inference.fitting", "fit"),
     "FitResult": ("inference.fitting", "FitResult"),

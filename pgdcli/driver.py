@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import executors
 from .algorithms.enrichment import run_enrichment
 from .algorithms.result import SolveResult
 from .blas import one_blas_thread
@@ -36,7 +37,8 @@ __all__ = ["solve", "SolveResult"]
 # ----------------------------------------------------------------------------------------------
 
 def solve(problem, *, tolerance: float | None = None, relative_tolerance: float | None = None,
-          max_modes: int | None = None, callback: Callable[[dict], None] | None = None) -> SolveResult:
+          max_modes: int | None = None, callback: Callable[[dict], None] | None = None,
+          executor=None) -> SolveResult:
     """Compute the PGD codebook of a problem, its error measured against an independent reference.
 
     Parameters
@@ -49,6 +51,10 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     callback : callable, optional
         Called after each enrichment with a dict ``{"mode", "residual", "iterations"}``
         (march: after each step, ``{"time", "end", "steps", "ranks"}``).
+    executor : optional
+        Where the independent tasks of the solve run (the cross march's batches of trajectories, the
+        reference's chunks): a ``distributed.Client`` or a :class:`pgdcli.executors.Executor`; default
+        this process. The codebook is the same bit for bit.
 
     Returns
     -------
@@ -77,7 +83,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     else:
         once = partial(_checked_enrichment, tolerance=tol, relative_tolerance=rtol, max_modes=nmax,
                        callback=callback, learned=learned)
-    with one_blas_thread():  # small dense products: several times faster on one BLAS thread
+    with one_blas_thread(), executors.using(executor):  # small dense products: faster on one BLAS thread
         result = solve_to_tolerance(problem, once, march=march)
     rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
     if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info

@@ -43,3 +43,7 @@ class LimitError(PgdError):
 
 class TimeBudgetExceeded(PgdError):
     """A check or picture stopped at its time budget (``--max-seconds``): exit status 1, not 2."""
+
+
+class ClusterError(PgdError):
+    """A Dask cluster that cannot be used: unreachable, without workers, or lost during the work."""

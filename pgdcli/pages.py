@@ -2,10 +2,11 @@
 
 The kernel maps anonymous memory in 4 KiB pages, or in 2 MiB ones where asked (``madvise``)
 and its transparent huge pages allow. numpy asks for huge pages for every array of 4 MiB and
-more. Two callers want otherwise, both measured (benchmarks/README.md):
+more. Two callers want otherwise, both measured side by side in one process:
 
-- a one-point query reads every core of a tensor-train codebook once (the rigid body: 2.9 MB
-  of tables); in huge pages the tables' page walks go (3-4% of a point, A/B in one process);
+- a one-point query reads every core of a tensor-train codebook once (megabytes of tables for
+  a high-dimensional codebook); in huge pages the tables' page walks go (a few per cent of a
+  point: ``benchmarks/query_speed_tt.py``'s single-point rows);
 - the vector cross's memo of trajectories (up to 1 GiB) is written a few columns at a time
   across all its rows: in huge pages each first write waited on the kernel's compaction.
 

@@ -46,28 +46,32 @@ def setting(name: str, default: int | float, meaning: str) -> int | float:
 
 # ------------------------------------------------------------------ batches: chunks, BLAS, threads
 # (pgdcli.codebook.threads) A chunk's working set, two (chunk, total rank) and two (chunk, nodes)
-# blocks per coordinate, stays within a few MiB of cache; two threads scale only with chunks of
-# ~4 MiB, which hold the GIL for a smaller share of their time.
+# blocks per coordinate, stays within a few MiB of cache; one thread is as fast with smaller chunks,
+# but two threads scale only with chunks this large, which hold the GIL for a smaller share of
+# their time (benchmarks/query_speed.py).
 CHUNK_BYTES = setting("CHUNK_BYTES", 1 << 22, "bytes of a CP batch's chunk of points (its working set)")
 MAX_CHUNK = setting("MAX_CHUNK", 4096, "most points in a CP batch's chunk")
-# Threaded BLAS is at best ~1.2x faster on these skinny products on idle cores, and many times
-# slower when another process holds a core (its threads spin waiting for each other).
+# Threaded BLAS gains little on these skinny products on idle cores, and is many times slower when
+# another process holds a core (its threads spin waiting for each other).
 BLAS_LIMIT_MIN_POINTS = setting("BLAS_LIMIT_MIN_POINTS", 512,
                                 "points from which a batch, grid or series runs with BLAS on one thread")
-# numpy and BLAS release the GIL: chunks shared by threads of our own, ~1.7x on 2 idle cores.
+# numpy and BLAS release the GIL: chunks shared by threads of our own scale close to linearly on
+# idle cores, a few % slower when the cores are busy.
 PARALLEL_MIN_POINTS = setting("PARALLEL_MIN_POINTS", 16384, "points from which a batch's chunks are shared by threads")
 MAX_THREADS = setting("MAX_THREADS", 8, "most threads a batch uses, never more than the cores this process may use")
 
 # ------------------------------------------------------------------ tensor-train batches
 # (pgdcli.codebook.batch_eval) A block's widest intermediate (points x values per point) within
 # the second-level cache, the scratch buffers reused at every block; more points per block
-# amortize the ~50 numpy calls of a block.
+# amortize the few dozen numpy calls of a block (block sizes timed side by side with
+# benchmarks/query_speed_tt.py).
 BLOCK_BYTES = setting("BLOCK_BYTES", 3 << 19, "bytes of a tensor-train batch's widest intermediate per block")
 MIN_BLOCK = setting("MIN_BLOCK", 32, "fewest points in a tensor-train batch's block")
 MAX_BLOCK = setting("MAX_BLOCK", 2048, "most points in a tensor-train batch's block")
 # The cost model that decides whether points are grouped by a later coordinate's windows (slabs,
-# linear elements): seconds per multiply-add in the blocks' products (~25e9 a second on one core)
-# and per block of points (its numpy calls).
+# linear elements): seconds per multiply-add in the blocks' products (one core's AVX2 rate) and per
+# block of points (its few dozen numpy calls), both from the batch rows of
+# benchmarks/query_speed_tt.py with more and fewer blocks.
 SECONDS_PER_MADD = setting("SECONDS_PER_MADD", 4e-11, "seconds per multiply-add of a batch's block products")
 SECONDS_PER_BLOCK = setting("SECONDS_PER_BLOCK", 4e-5, "seconds of overhead per block of a batch")
 MAX_PAIR_VALUES = setting("MAX_PAIR_VALUES", 1 << 22,

@@ -1,7 +1,7 @@
-"""Shared fixtures and references for the issue-2 test suite.
+"""Shared fixtures and references of the test suite.
 
-The shipped problems are solved once per session (``solved``) and their
-codebooks written once to a session temporary directory (``codebook_path``).
+The shipped problems are solved once per test run (``solved``) and their
+codebooks written once to a temporary directory of the run (``codebook_path``).
 Exact solutions are written here from the comments of ``problems/*.yaml``;
 they never use pgdcli. Inline YAML specs come from one factory, :func:`spec_text` (a base spec
 with top-level sections replaced, added or removed) and the ``write_spec`` fixture (the same,
@@ -160,11 +160,11 @@ def write_spec(tmp_path):
 
 
 # ----------------------------------------------------------------------------------------------
-# session fixtures: each shipped problem solved once, its codebook written once
+# fixtures of the whole run: each shipped problem solved once, its codebook written once
 # ----------------------------------------------------------------------------------------------
 @pytest.fixture(scope="session")
 def solved():
-    """``solved(name)`` -> SolveResult of ``problems/<name>.yaml`` (solved once per session)."""
+    """``solved(name)`` -> SolveResult of ``problems/<name>.yaml`` (solved once per test run)."""
     from pgdcli import load_spec, solve
 
     cache: dict = {}

@@ -27,8 +27,10 @@ LOWER = {
     "adapt": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks"},
     "plot": {"problem", "discretization", "tensors", "codebook", "checks"},
     "inference": {"problem", "discretization", "tensors", "codebook", "checks", "plot"},
+    "view": {"discretization", "tensors", "codebook", "inference"},  # a page of a codebook (and data)
+    "family": {"problem", "driver"},  # several specs, one task each
     "cli": {"problem", "discretization", "tensors", "algorithms", "codebook", "checks", "driver", "adapt",
-            "plot", "inference"},
+            "plot", "inference", "view", "family"},
 }
 
 
@@ -40,6 +42,8 @@ LEAVES = {
     "limits": ("pgdcli.errors",),  # the documented limits and their environment overrides
     "blas": (),  # BLAS on one thread while a block of work runs: the one limiter
     "tuning": ("pgdcli.errors",),  # the machine-specific tuning constants and their environment overrides
+    "executors": ("pgdcli.errors", "pgdcli.blas"),  # where independent tasks run: here, a pool, a Dask cluster
+    "cluster": ("pgdcli.errors", "pgdcli.executors"),  # opening a Dask cluster
 }
 
 

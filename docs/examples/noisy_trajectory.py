@@ -1,4 +1,4 @@
-"""Print a noisy rigid-body trajectory as CSV: the README's worked example's "measurements".
+"""Print a noisy rigid-body trajectory as CSV: the "measurements" of the rigid-body fit in the docs.
 
 The trajectory is integrated by pgdcli's independent reference (scipy solve_ivp, DOP853,
 rtol = atol = 1e-12) from known initial velocities, sampled at equally spaced times, and

@@ -1,11 +1,12 @@
-"""Regenerate the README's pictures of ``pgd plot``: docs/figures/<kind>.png.
+"""Regenerate the documentation's pictures: docs/figures/<kind>.png and docs/figures/fit.png.
 
-    python docs/figures/make_figures.py
+    python docs/figures/make_figures.py        # needs the plot extra: pip install -e '.[plot]'
 
-Solves the shipped problems it needs into a temporary directory (a few
-seconds), then draws one picture of each kind with the same code path as
-``pgd plot`` (:func:`pgdcli.plot.files.render`). The equivalent commands are
-printed as it goes.
+Solves the problems it needs into a temporary directory (problems/spring.yaml and the fitting
+tutorial's docs/examples/enzyme.yaml, some seconds), then draws one picture of each kind of
+``pgd plot`` with its code path (:func:`pgdcli.plot.files.render`), and the fitting tutorial's fit
+of a synthetic progress curve with ``pgd fit --plot``'s (:func:`pgdcli.inference.report.plot_fit`).
+The equivalent commands are printed as it goes.
 """
 
 from __future__ import annotations
@@ -60,7 +61,30 @@ def main() -> int:
             path = render(codebooks[problem], kind, HERE / f"{kind}.png", dpi=DPI,
                           warn=lambda m: print(f"warning: {m}", file=sys.stderr), **options)
             print(path)
+    print(fit_figure())
     return 0
+
+
+def fit_figure() -> Path:
+    """The fitting tutorial's picture: its codebook, its data (seed 0) and its fit."""
+    import importlib.util
+
+    import numpy as np
+    from pgdcli import fit, load_spec, solve
+    from pgdcli.inference.report import plot_fit
+
+    examples = ROOT / "docs" / "examples"
+    spec = importlib.util.spec_from_file_location("enzyme_data", examples / "enzyme_data.py")
+    data_module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(data_module)
+    result = solve(load_spec(examples / "enzyme.yaml"))
+    if not result.converged:
+        raise SystemExit(f"enzyme: {result.message}")
+    times = np.linspace(0.0, 10.0, 21)
+    s = data_module.progress_curve(1.2, 2.0, 8.0, times) + np.random.default_rng(0).normal(0.0, 0.05, times.size)
+    print("python docs/examples/enzyme_data.py > progress.csv", file=sys.stderr)
+    print("pgd fit codebooks/enzyme.h5 progress.csv --sigma s=0.05 --plot docs/figures/fit.png", file=sys.stderr)
+    return plot_fit(fit(result.codebook, {"t": times, "s": s}, sigma={"s": 0.05}), HERE / "fit.png", dpi=DPI)
 
 
 if __name__ == "__main__":

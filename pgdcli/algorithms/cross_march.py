@@ -12,7 +12,8 @@ time mode is one trajectory. So:
 2. :func:`pgdcli.tensors.fiber_cross.vector_cross` asks for the trajectories at the nodes its
    index sets name, and every batch of them is marched with the pilot's steps
    (:func:`pgdcli.algorithms.grid_steps.replay`): the values the grid march would have stored
-   there. The cross stops when its train is within ``CROSS_SHARE * tolerance`` of fresh
+   there. The batches are independent: the executor in effect (:mod:`pgdcli.executors`) runs them,
+   here or on the workers of a Dask cluster, and the train does not depend on which. The cross stops when its train is within ``CROSS_SHARE * tolerance`` of fresh
    trajectories at random nodes;
 3. the train (unknowns x stored times first) is split by unknown and rounded to ``delta``.
 
@@ -28,6 +29,7 @@ from itertools import product
 
 import numpy as np
 
+from .. import executors
 from ..tensors.fiber_cross import vector_cross
 from ..tensors.tt import TT, tt_round_shared
 from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, Schedule, advance, initial_values, replay
@@ -124,10 +126,10 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
             failure.indices = pilot
             raise
         try:
-            found = vector_cross(_trajectories(system, schedule, functions), len(system.unknowns) * len(schedule.times),
+            found = vector_cross(_Trajectories(system, schedule, functions), len(system.unknowns) * len(schedule.times),
                                  system.shape, CROSS_SHARE * tolerance, largest=CROSS_LARGEST * tolerance, rng=rng,
                                  max_rank=max_rank, callback=_sweep_progress(callback, CROSS_SHARE * tolerance),
-                                 max_evaluations=budget)
+                                 max_evaluations=budget, map=executors.current().map)
             break
         except _Overflow as overflow:
             if attempt == RETRIES:
@@ -146,6 +148,9 @@ class _Overflow(Exception):
     def __init__(self, indices: np.ndarray, values: np.ndarray):
         super().__init__("non-finite trajectories")
         self.indices, self.values = indices, values
+
+    def __reduce__(self):  # raised on a worker, re-raised here
+        return _Overflow, (self.indices, self.values)
 
 
 def _sweep_progress(callback, target: float):
@@ -166,23 +171,33 @@ def _pilot_indices(shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarr
     return np.unique(np.vstack([corners, random]), axis=0)
 
 
-def _trajectories(system: NonlinearSystem, schedule: Schedule, functions: NodeFunctions):
-    """``F(indices)``: the stored states at grid multi-indices (P, d), as (times x unknowns, P)."""
+class _Trajectories:
+    """``F(indices)``: the stored states at grid multi-indices (P, d), as (times x unknowns, P).
 
-    def replayed(chosen: np.ndarray) -> np.ndarray:  # (times, m, P), finite
-        values = replay(GridRhs(system, chosen, functions), initial_values(system, chosen, functions), schedule)
+    Sent to an executor's workers once per schedule: it pickles as the system and the schedule, and
+    builds the node functions again where it is unpickled.
+    """
+
+    def __init__(self, system: NonlinearSystem, schedule: Schedule, functions: NodeFunctions | None = None):
+        self.system, self.schedule = system, schedule
+        self.functions = NodeFunctions(system) if functions is None else functions
+
+    def __reduce__(self):
+        return _Trajectories, (self.system, self.schedule)
+
+    def _replayed(self, chosen: np.ndarray) -> np.ndarray:  # (times, m, P), finite
+        system, functions = self.system, self.functions
+        values = replay(GridRhs(system, chosen, functions), initial_values(system, chosen, functions), self.schedule)
         _refuse_overflow(chosen, values)
         return values
 
-    def function(indices: np.ndarray) -> np.ndarray:
+    def __call__(self, indices: np.ndarray) -> np.ndarray:
         if len(indices) <= REPLAY_POINTS:  # one replay: its array is the answer (no copy)
-            return replayed(indices).reshape(-1, len(indices))
-        out = np.empty((len(schedule.times), len(system.unknowns), len(indices)))
+            return self._replayed(indices).reshape(-1, len(indices))
+        out = np.empty((len(self.schedule.times), len(self.system.unknowns), len(indices)))
         for start in range(0, len(indices), REPLAY_POINTS):
-            out[:, :, start:start + REPLAY_POINTS] = replayed(indices[start:start + REPLAY_POINTS])
+            out[:, :, start:start + REPLAY_POINTS] = self._replayed(indices[start:start + REPLAY_POINTS])
         return out.reshape(-1, len(indices))
-
-    return function
 
 
 def _refuse_overflow(indices: np.ndarray, values: np.ndarray) -> None:

@@ -3,8 +3,8 @@ method-of-lines reference: its boundary elimination (:class:`PdeModel`) and its 
 assembly per sample (:class:`PdeSystem`). Written here from scratch so that it shares nothing with
 the PGD solver's weak-form discretization (pgdcli.discretization).
 
-A little over 400 lines: ``PdeModel`` and ``PdeSystem`` are the one linear operator of a problem,
-built once and assembled per sample and time; they read best side by side.
+``PdeModel`` and ``PdeSystem`` are the one linear operator of a problem, built once and assembled
+per sample and time.
 """
 
 from __future__ import annotations

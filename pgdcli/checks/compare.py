@@ -20,9 +20,28 @@ _EVAL_BLOCK = 100_000
 
 @dataclass
 class UnknownErrors:
-    """Error figures of one unknown (see the module docstring for the definitions).
+    """Error figures of one unknown over the compared points.
 
     NaN when no sample point could be integrated.
+
+    Attributes
+    ----------
+    max_abs_error : float
+        ``max |u_codebook - u_reference|``.
+    max_rel_error : float
+        ``max_abs_error / reference_scale`` (relative to the unknown's magnitude, not pointwise).
+    rms_error : float
+        Root-mean-square of ``u_codebook - u_reference``.
+    reference_scale : float
+        ``max |u_reference|``.
+    where : dict of str to float
+        Every coordinate (time included) of the largest absolute error.
+    codebook_value, reference_value : float
+        Both values at ``where``.
+    tolerance_ratio : float
+        ``max |u_codebook - u_reference| / (tolerance + relative_tolerance |u_reference|)`` for
+        the codebook's own tolerance: at most 1 where the codebook keeps its promise (NaN when no
+        tolerance was given).
     """
 
     max_abs_error: float
@@ -32,6 +51,7 @@ class UnknownErrors:
     where: dict[str, float]
     codebook_value: float
     reference_value: float
+    tolerance_ratio: float = float("nan")
 
     def to_dict(self) -> dict:
         return {
@@ -42,6 +62,7 @@ class UnknownErrors:
             "where": {k: json_float(v) for k, v in self.where.items()},
             "codebook_value": json_float(self.codebook_value),
             "reference_value": json_float(self.reference_value),
+            "tolerance_ratio": json_float(self.tolerance_ratio),
         }
 
 
@@ -52,8 +73,8 @@ def codebook_at_samples(cb, samples: Mapping[str, np.ndarray], time: str | None,
     repeated T times.
 
     With a time coordinate: :meth:`~pgdcli.codebook.Codebook.evaluate_series`, the parameter cores
-    contracted once per sample and the time core for all times by one matrix product (coupled's
-    check, 92 samples x 99 times: see benchmarks/README.md), in blocks of samples.
+    contracted once per sample and the time core for all times by one matrix product (far faster
+    than evaluating the broadcast points: ``benchmarks/query_speed_tt.py``), in blocks of samples.
     """
     S = len(next(iter(samples.values()))) if samples else 1
     T = times.size
@@ -73,9 +94,11 @@ def codebook_at_samples(cb, samples: Mapping[str, np.ndarray], time: str | None,
     return out
 
 
-def error_statistics(coordinates, time, samples, times, ok, reference, approx, space_points=None) -> UnknownErrors:
+def error_statistics(coordinates, time, samples, times, ok, reference, approx, space_points=None,
+                     tolerance: float | None = None, relative_tolerance: float = 0.0) -> UnknownErrors:
     """Figures over the successful samples; values (S, T) or, with space coordinates, (S, T, X_1, ..., X_d)
-    with the space axes in the order of ``space_points``."""
+    with the space axes in the order of ``space_points``. With ``tolerance`` (> 0), also the largest
+    error over ``tolerance + relative_tolerance |reference|``."""
     if not ok.any():
         nan = float("nan")
         return UnknownErrors(nan, nan, nan, nan, {c: nan for c in coordinates}, nan, nan)
@@ -95,6 +118,9 @@ def error_statistics(coordinates, time, samples, times, ok, reference, approx, s
     rows = np.flatnonzero(ok)
     where = {c: float(times[j]) if c == time else at_space[c] if c in at_space else float(samples[c][rows[i]])
              for c in coordinates}
+    ratio = float("nan")
+    if tolerance is not None and tolerance > 0:
+        ratio = float(np.max(err / (tolerance + relative_tolerance * np.abs(ref))))
     return UnknownErrors(
         max_abs_error=max_abs,
         max_rel_error=float(rel),
@@ -103,6 +129,7 @@ def error_statistics(coordinates, time, samples, times, ok, reference, approx, s
         where=where,
         codebook_value=float(cbv[index]),
         reference_value=float(ref[index]),
+        tolerance_ratio=ratio,
     )
 
 
@@ -112,8 +139,7 @@ def codebook_on_space_grid(cb, samples: Mapping[str, np.ndarray], S: int, time: 
     ``time`` None and one placeholder time).
 
     Each sample's times x space points is one grid, evaluated coordinate by coordinate
-    (:meth:`~pgdcli.codebook.Codebook.evaluate_grid`): on fisher's check (8 samples x 14 times x 85
-    points) 0.73 s per check as points, a few ms as grids.
+    (:meth:`~pgdcli.codebook.Codebook.evaluate_grid`): orders of magnitude faster than as points.
     """
     space = list(space_points)
     shape = tuple(space_points[c].size for c in space)

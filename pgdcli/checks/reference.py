@@ -27,8 +27,9 @@ singular ``A``, too many steps) fails the whole call: the chunk is then split
 in halves recursively until the failing samples are isolated, so a failure is
 reported for exactly the samples that fail on their own.
 
-Chunks can be spread over worker processes (``jobs``); workers receive the
-spec text (picklable) and parse it again.
+Chunks can be spread over worker processes (``jobs``) or the workers of any executor
+(:mod:`pgdcli.executors`, a Dask cluster); workers receive the spec text (picklable) and parse it
+again. The chunks are the same whatever runs them, and so are the values.
 
 Modules: :mod:`.reference_base` (settings, results, argument checks, worker processes),
 :mod:`.reference_ode`, :mod:`.reference_pde` and :mod:`.collocation`; this module is the API.
@@ -86,6 +87,7 @@ def solve_reference(
     progress: Callable[[int], None] | None = None,
     max_evaluations: int = DEFAULT_MAX_EVALUATIONS,
     space_nodes: int | Mapping[str, int] = DEFAULT_SPACE_NODES,
+    executor=None,
 ) -> ReferenceResult:
     """Integrate the problem's ODEs at parameter samples with ``scipy.integrate.solve_ivp``.
 
@@ -113,11 +115,12 @@ def solve_reference(
         Tolerances of ``solve_ivp`` (default 1e-12 and 1e-12; with space
         coordinates :data:`PDE_RTOL` and :data:`PDE_ATOL`).
     jobs : int
-        Worker processes (1: in this process, no pool).
+        Worker processes (1: in this process, or by the executor in effect: see
+        :mod:`pgdcli.executors`).
     chunk_size : int, optional
-        Samples per vectorized ``solve_ivp`` call (default: a quarter of the
-        samples per job, at least 64 and at most 1024; a vectorized call costs
-        little more than a single sample).
+        Samples per vectorized ``solve_ivp`` call (default: a sixteenth of the
+        samples, at least 64 and at most 1024, whatever runs them; a vectorized
+        call costs little more than a single sample).
     progress : callable, optional
         Called with the number of samples finished so far, after each chunk.
     max_evaluations : int
@@ -125,6 +128,9 @@ def solve_reference(
     space_nodes : int or dict of str to int
         Collocation points per space coordinate (problems with space
         coordinates only).
+    executor : optional
+        Where the chunks run, instead of ``jobs``: a ``distributed.Client`` or a
+        :class:`pgdcli.executors.Executor`. The values do not depend on it.
 
     Returns
     -------
@@ -140,6 +146,8 @@ def solve_reference(
         return solve_reference_space(problem, params, times, method=method or "BDF",
                                       rtol=PDE_RTOL if rtol is None else rtol,
                                       atol=PDE_ATOL if atol is None else atol, jobs=jobs, chunk_size=chunk_size,
-                                      progress=progress, max_evaluations=max_evaluations, space_nodes=space_nodes)
+                                      progress=progress, max_evaluations=max_evaluations, space_nodes=space_nodes,
+                                      executor=executor)
     return solve_reference_ode(problem, params, times, method=method, rtol=rtol, atol=atol, jobs=jobs,
-                                chunk_size=chunk_size, progress=progress, max_evaluations=max_evaluations)
+                                chunk_size=chunk_size, progress=progress, max_evaluations=max_evaluations,
+                                executor=executor)

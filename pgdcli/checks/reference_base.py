@@ -1,5 +1,5 @@
 """What the ODE and the PDE references share: settings, result types, argument checks, chunks over
-worker processes. Imports nothing of the solvers (see :mod:`pgdcli.checks.reference`).
+an executor's workers (:mod:`pgdcli.executors`). Imports nothing of the solvers (see :mod:`pgdcli.checks.reference`).
 """
 
 from __future__ import annotations
@@ -8,14 +8,17 @@ import math
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable, Mapping
 
 import numpy as np
 
+from .. import executors
+from ..blas import one_blas_thread
 from ..errors import SolverError
 
 __all__ = ["METHODS", "PDE_METHODS", "ReferenceResult", "ReferenceBudgetExceeded", "ReferenceTimeUp", "time_budget",
-           "check_deadline", "DEFAULT_MAX_EVALUATIONS", "DEFAULT_SPACE_NODES", "TIME_UP"]
+           "check_deadline", "under_deadline", "DEFAULT_MAX_EVALUATIONS", "DEFAULT_SPACE_NODES", "TIME_UP"]
 
 #: The message of a sample not integrated because the time budget ran out.
 TIME_UP = "not checked: the time budget ran out"
@@ -107,30 +110,45 @@ def sample_subset(params: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[st
 
 
 
-def pool_context():
-    """fork on Linux when this process runs no other thread (fast, no ``__main__`` guard needed in
-    user scripts), else forkserver/spawn (forking a process that runs threads can deadlock)."""
-    import multiprocessing
-    import sys
-    import threading
+#: Chunks a reference's samples are cut into (64 to 1024 samples each) whatever runs them: one vectorized
+#: ``solve_ivp`` call's steps depend on its chunk, so the same chunks give the same floats here, in a
+#: pool of processes and on a cluster.
+CHUNKS = 16
 
-    methods = multiprocessing.get_all_start_methods()
-    if sys.platform.startswith("linux") and "fork" in methods and threading.active_count() == 1:
-        return multiprocessing.get_context("fork")
-    return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+
+def chunk_size_for(n_samples: int) -> int:
+    """Samples per chunk of a reference: :data:`CHUNKS` chunks of 64 to 1024 samples."""
+    return min(1024, max(64, math.ceil(n_samples / CHUNKS)))
+
+
+@contextmanager
+def chunk_executor(jobs: int, executor=None):
+    """The executor of a reference's chunks: ``executor`` if given, else a pool of ``jobs`` local processes
+    (closed after the block) when ``jobs`` > 1, else the one in effect (:func:`pgdcli.executors.current`)."""
+    if executor is not None:
+        yield executors.as_executor(executor)
+    elif int(jobs) > 1:
+        with executors.ProcessExecutor(int(jobs)) as pool:
+            yield pool
+    else:
+        yield executors.current()
 
 
 # ----------------------------------------------------------------------------------------------
 # public API
 # ----------------------------------------------------------------------------------------------
 
-def run_in_chunks(n_samples: int, chunk_size: int, jobs: int, progress, values: np.ndarray, success: np.ndarray,
-                   messages: list, solve_here: Callable, submit: Callable | None) -> None:
-    """Solve the samples chunk by chunk, here or in worker processes, storing every result.
+def run_in_chunks(n_samples: int, chunk_size: int, executor, progress, values: np.ndarray, success: np.ndarray,
+                  messages: list, params: Mapping[str, np.ndarray], solve_here: Callable,
+                  task: Callable | None) -> None:
+    """Solve the samples chunk by chunk, here or by the executor's workers, storing every result.
 
-    ``solve_here(rows)`` and the future of ``submit(pool, rows)`` return ``(values, success,
-    messages)`` for the sample indices ``rows``; they are written into the given arrays, and
-    ``progress`` (if any) is told the number of samples finished.
+    ``solve_here(chunk)`` (in this process, the problem as parsed here) and ``task(chunk)`` (picklable: a
+    worker parses the spec again), where ``chunk`` is ``(params of its samples, number of samples)``,
+    return ``(values, success, messages)`` of the chunk's samples; they are written into the given
+    arrays, and ``progress`` (if any) is told the number of samples finished. Every chunk runs on one
+    BLAS thread, wherever it runs, and under the time budget (:func:`time_budget`): the samples of a
+    chunk it stopped are not checked (:data:`TIME_UP`).
     """
     bounds = list(range(0, n_samples, max(1, int(chunk_size)))) + [n_samples]
     chunks = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
@@ -151,30 +169,44 @@ def run_in_chunks(n_samples: int, chunk_size: int, jobs: int, progress, values: 
         for i in rows:
             messages[i] = TIME_UP
 
-    workers = min(max(1, int(jobs)), len(chunks))
-    if workers <= 1 or submit is None:
-        for k, rows in enumerate(chunks):
-            try:
-                store(rows, solve_here(rows))
-            except ReferenceTimeUp:
-                for rest in chunks[k:]:
-                    time_up(rest)
-                return
-        return
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    with ProcessPoolExecutor(max_workers=workers, mp_context=pool_context(), initializer=set_deadline,
-                             initargs=(_DEADLINE[0],)) as pool:
-        futures = {submit(pool, rows): rows for rows in chunks}
-        try:
-            for future in as_completed(futures):
+    items = ((sample_subset(params, rows), rows.size) for rows in chunks)
+    if task is None or isinstance(executor, executors.SerialExecutor) or len(chunks) == 1:
+        with one_blas_thread():
+            for k, (rows, item) in enumerate(zip(chunks, items)):
                 try:
-                    store(futures[future], future.result())
+                    store(rows, solve_here(item))
                 except ReferenceTimeUp:
-                    time_up(futures[future])
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+                    for rest in chunks[k:]:
+                        time_up(rest)
+                    return
+        return
+    for i, future in executor.as_completed(under_deadline(task), items):
+        try:
+            store(chunks[i], future.result())
+        except ReferenceTimeUp:
+            time_up(chunks[i])
+
+
+def under_deadline(task: Callable) -> Callable:
+    """``task`` for a worker, which may be another process or machine, under this process's time budget."""
+    return partial(_before_deadline, _wall_deadline(), task)
+
+
+def _wall_deadline() -> float:
+    """The deadline in this machine's wall-clock time (comparable on a worker elsewhere); inf: none."""
+    left = _DEADLINE[0] - time.monotonic()
+    return time.time() + left if math.isfinite(left) else math.inf
+
+
+def _before_deadline(deadline: float, task: Callable, chunk):
+    """A worker's chunk under the deadline (wall-clock time, see :func:`_wall_deadline`)."""
+    saved = _DEADLINE[0]
+    set_deadline(time.monotonic() + (deadline - time.time()) if math.isfinite(deadline) else math.inf)
+    try:
+        return task(chunk)
+    finally:
+        _DEADLINE[0] = saved
+
 
 def space_coordinates(problem) -> tuple:
     """The coordinates of the problem with role ``'space'`` (spec order)."""

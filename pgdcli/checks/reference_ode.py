@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import math
+from functools import partial
 from typing import Mapping
 
 import numpy as np
@@ -13,7 +14,8 @@ import numpy as np
 from ..errors import SolverError
 from ..problem.general import evaluate as general_tree_values, is_general, tree_of
 from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_deadline, check_tolerances,
-                             checked_params, checked_times, run_in_chunks, sample_subset)
+                             checked_params, checked_times, chunk_executor, chunk_size_for, run_in_chunks,
+                             sample_subset)
 
 __all__ = ["solve_reference_vectorized"]
 
@@ -318,13 +320,14 @@ def parse_cached(text: str, source: str):
         return parse_spec(text, source=source)
 
 
-def _chunk_worker(spec_text, source, params, S, t0, times, method, rtol, atol, max_evaluations):
-    """Worker-process entry point: parse the spec again, integrate one chunk."""
+def _chunk_worker(spec_text, source, settings, chunk):
+    """A worker's task: parse the spec again, integrate one chunk ``(params, samples)``."""
     problem = parse_cached(spec_text, source)
-    return _solve_group(problem, params, S, t0, times, method, rtol, atol, max_evaluations)
+    return _solve_group(problem, *chunk, *settings)
+
 
 def solve_reference_ode(problem, params, times, *, method, rtol, atol, jobs, chunk_size, progress,
-                         max_evaluations) -> ReferenceResult:
+                        max_evaluations, executor=None) -> ReferenceResult:
     """:func:`solve_reference` for a problem without space coordinates: chunks of samples, each one
     vectorized ``solve_ivp`` call, failures isolated."""
     method = "DOP853" if method is None else method
@@ -345,16 +348,11 @@ def solve_reference_ode(problem, params, times, *, method, rtol, atol, jobs, chu
     success = np.zeros(S, dtype=bool)
     messages = [""] * S
     if S:
-        jobs = max(1, int(jobs))
-        if chunk_size is None:
-            chunk_size = min(1024, max(64, math.ceil(S / (4 * jobs))))
         settings = (t0, unique, method, float(rtol), float(atol), int(max_evaluations))
-        run_in_chunks(
-            S, chunk_size, jobs, progress, values, success, messages,
-            lambda rows: _solve_group(problem, sample_subset(arrays, rows), rows.size, *settings),
-            lambda pool, rows: pool.submit(_chunk_worker, problem.source_text, problem.source,
-                                           sample_subset(arrays, rows), rows.size, *settings),
-        )
+        task = partial(_chunk_worker, problem.source_text, problem.source, settings) if problem.source_text else None
+        with chunk_executor(jobs, executor) as chunks:
+            run_in_chunks(S, chunk_size or chunk_size_for(S), chunks, progress, values, success, messages, arrays,
+                          lambda chunk: _solve_group(problem, *chunk, *settings), task)
     return ReferenceResult(
         values={u.name: values[:, i, inverse] for i, u in enumerate(problem.unknowns)},
         success=success,

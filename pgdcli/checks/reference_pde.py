@@ -2,8 +2,8 @@
 Jacobian, or sparse LU for steady problems) on the collocation grid of :mod:`.collocation`;
 the interpolation to the points asked is in :mod:`.reference_pde_points`.
 
-A little over 400 lines: the integration (transient, steady, chunked over workers) and its failure
-isolation per sample are one path that reads best in one file.
+The integration (transient, steady, chunked over workers) and its failure isolation per sample
+are one path, kept in one module.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import functools
 import math
+from functools import partial
 from typing import Callable, Mapping
 
 import numpy as np
@@ -19,9 +20,9 @@ from ..blas import one_blas_thread
 from ..errors import SolverError
 from .collocation import PdeModel, PdeSystem
 from .reference_base import (DEFAULT_MAX_EVALUATIONS, DEFAULT_SPACE_NODES, PDE_ATOL, PDE_METHODS, PDE_RTOL,
-                             ReferenceBudgetExceeded, ReferenceResult, check_tolerances, checked_params,
-                             reference_times, run_in_chunks, sample_subset, sampled_coordinates, space_coordinates,
-                             start_time)
+                             CHUNKS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, checked_params,
+                             chunk_executor, reference_times, run_in_chunks, sample_subset, sampled_coordinates,
+                             space_coordinates, start_time)
 from .reference_ode import parse_cached, scores
 from .reference_pde_points import (at_points, checked_space_points, clipped_to_domain, interpolation_matrices,
                                    values_at_space_points)
@@ -42,8 +43,8 @@ _PDE_CHUNK_STATES = 1024
 _PDE_MAX_CHUNK = 8
 # The exact Jacobian goes to solve_ivp as a dense array up to this many unknowns per call, as a sparse
 # matrix beyond. Collocation couples every node of a grid line, so the LU of a 2D operator fills in
-# almost completely: LAPACK's dense LU was measured 4x faster than SuperLU's at 38 x 38 interior nodes
-# (0.04 s vs 0.17 s per factorization; 1.9 s vs 6.3 s per sample of the 2D heat example).
+# almost completely: LAPACK's dense LU is several times faster than SuperLU's on the 2-D heat example's
+# 38 x 38 interior nodes, per factorization and per sample.
 _DENSE_JACOBIAN_LIMIT = 4096
 def _solve_steady_pde(model: PdeModel, params, S, times):
     """Sparse LU solves of ``A y + b = 0``, one per sample, as :func:`_integrate_pde` returns them.
@@ -159,11 +160,11 @@ def _pde_model(text: str, source: str, nodes: tuple) -> PdeModel:
     return PdeModel(parse_cached(text, source), dict(nodes))
 
 
-def _pde_chunk_worker(spec_text, source, nodes, params, S, t0, times, method, rtol, atol, max_evaluations):
-    """Worker-process entry point: parse the spec again, build the grid, integrate one chunk."""
+def _pde_chunk_worker(spec_text, source, nodes, settings, chunk):
+    """A worker's task: parse the spec again, build the grid, integrate one chunk ``(params, samples)``."""
     model = _pde_model(spec_text, source, nodes)
     with one_blas_thread():  # the method of lines' LU factorizations (see pgdcli.blas)
-        return _solve_group_pde(model, params, S, t0, times, method, rtol, atol, max_evaluations)
+        return _solve_group_pde(model, *chunk, *settings)
 
 
 @dataclass
@@ -223,7 +224,7 @@ def _space_nodes(problem, space_nodes) -> dict[str, int]:
 
 
 def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, chunk_size, progress,
-                 max_evaluations):
+                 max_evaluations, executor=None):
     """Full-grid values (S, q, T_unique, n) at the unique sorted times, success, messages, the model."""
     t0 = start_time(problem)
     unique, inverse = np.unique(times, return_inverse=True)
@@ -233,23 +234,16 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     values = np.full((S, q, unique.size, n), np.nan)
     success = np.zeros(S, dtype=bool)
     messages = [""] * S
-    jobs = max(1, int(jobs))
-    if chunk_size is None:
-        chunk_size = max(1, min(_PDE_MAX_CHUNK, _PDE_CHUNK_STATES // max(model.m, 1), math.ceil(S / jobs)))
+    if chunk_size is None:  # whatever runs the chunks (samples sharing a call share its steps)
+        chunk_size = max(1, min(_PDE_MAX_CHUNK, _PDE_CHUNK_STATES // max(model.m, 1), math.ceil(S / CHUNKS)))
     settings = (t0, unique, method, float(rtol), float(atol), int(max_evaluations))
     key = tuple(sorted(nodes.items()))
-
-    def solve_here(rows):
-        with one_blas_thread():
-            return _solve_group_pde(model, sample_subset(arrays, rows), rows.size, *settings)
-
-    def submit(pool, rows):
-        return pool.submit(_pde_chunk_worker, problem.source_text, problem.source, key,
-                           sample_subset(arrays, rows), rows.size, *settings)
-
     # a problem without spec text cannot be rebuilt in a worker: solve it here
-    run_in_chunks(S, chunk_size, jobs, progress, values, success, messages, solve_here,
-                   submit if problem.source_text else None)
+    task = partial(_pde_chunk_worker, problem.source_text, problem.source, key, settings) \
+        if problem.source_text else None
+    with chunk_executor(jobs, executor) as chunks:
+        run_in_chunks(S, chunk_size, chunks, progress, values, success, messages, arrays,
+                      lambda chunk: _solve_group_pde(model, *chunk, *settings), task)
     return values, success, messages, model, unique, inverse
 
 
@@ -268,6 +262,7 @@ def solve_reference_pde(
     chunk_size: int | None = None,
     progress: Callable[[int], None] | None = None,
     max_evaluations: int = DEFAULT_MAX_EVALUATIONS,
+    executor=None,
 ) -> PdeReferenceResult:
     """Method-of-lines reference of a problem with space coordinates.
 
@@ -305,14 +300,16 @@ def solve_reference_pde(
     rtol, atol : float
         Tolerances of ``solve_ivp``.
     jobs : int
-        Worker processes (1: in this process).
+        Worker processes (1: in this process, or by the executor in effect).
     chunk_size : int, optional
         Samples per ``solve_ivp`` call (default: as many as fit in about
-        1024 unknowns, at most 8).
+        1024 unknowns, at most 8, and a sixteenth of the samples).
     progress : callable, optional
         Called with the number of samples finished so far.
     max_evaluations : int
         Right-hand-side evaluations one integration may spend.
+    executor : optional
+        Where the chunks run (:func:`pgdcli.executors.as_executor`; instead of ``jobs``).
 
     Returns
     -------
@@ -341,7 +338,7 @@ def solve_reference_pde(
 
     states, success, messages, model, unique, inverse = _grid_states(
         problem, arrays, S, times, nodes=nodes, method=method, rtol=rtol, atol=atol, jobs=jobs,
-        chunk_size=chunk_size, progress=progress, max_evaluations=max_evaluations)
+        chunk_size=chunk_size, progress=progress, max_evaluations=max_evaluations, executor=executor)
     if points is None:
         result_points = {c: model.grid.points[c].copy() for c in space}
         out = {u: states[:, s][:, inverse].reshape((S, times.size) + model.grid.shape)
@@ -368,7 +365,7 @@ def _check_settings(method, rtol, atol, jobs) -> None:
 
 
 def solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, chunk_size, progress,
-                           max_evaluations, space_nodes) -> ReferenceResult:
+                          max_evaluations, space_nodes, executor=None) -> ReferenceResult:
     """:func:`solve_reference` for a problem with space coordinates: samples over all non-time
     coordinates; one method-of-lines solve per distinct point of the sampled (non-space) ones."""
     _check_settings(method, rtol, atol, jobs)
@@ -399,7 +396,7 @@ def solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, c
         states, ok, msgs, model, unique, inverse = _grid_states(
             problem, unique_params, G, times, nodes=nodes, method=method, rtol=rtol, atol=atol, jobs=jobs,
             chunk_size=chunk_size, progress=report if progress is not None else None,
-            max_evaluations=max_evaluations)
+            max_evaluations=max_evaluations, executor=executor)
         at_start = unique == t0
         shape = model.grid.shape
         for g in range(G):

@@ -23,14 +23,17 @@ Burgers (``tests/test_reference_pde_nonlinear.py``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Mapping
 
 import numpy as np
 
+from .. import executors
 from ..errors import SolverError
 from ..problem.general import evaluate as general_tree_values, has_general, is_general, tree_of
 from .collocation import barycentric_matrix, chebyshev_differentiation, chebyshev_points, chebyshev_weights
-from .reference_base import TIME_UP, ReferenceTimeUp, check_deadline
+from .reference_base import TIME_UP, ReferenceTimeUp, check_deadline, under_deadline
+from .reference_ode import parse_cached
 from .reference_pde import PdeReferenceResult
 
 __all__ = ["NonlinearPdeReference", "solve_reference_nonlinear_pde", "solve_reference_nonlinear_grid",
@@ -274,12 +277,13 @@ def is_nonlinear_pde(problem) -> bool:
 
 
 def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], space_points: Mapping[str, np.ndarray],
-                                   times: np.ndarray, *, progress=None, **_ignored) -> PdeReferenceResult:
+                                   times: np.ndarray, *, progress=None, executor=None, **_ignored) -> PdeReferenceResult:
     """:func:`solve_reference_nonlinear_pde` in the form of the linear reference's grid result (``pgd verify``).
 
     Each sample is solved on its own (its grids refined until they agree), so that a failing sample is
-    reported alone (NaN values, ``success`` False, the message). The method-of-lines options of the linear
-    reference (``method``, ``space_nodes``, ...) do not apply and are ignored.
+    reported alone (NaN values, ``success`` False, the message), by the workers of ``executor`` (default:
+    the one in effect, :mod:`pgdcli.executors`). The method-of-lines options of the linear reference
+    (``method``, ``space_nodes``, ...) do not apply and are ignored.
 
     Returns
     -------
@@ -293,25 +297,42 @@ def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], sp
     names = list(problem.unknown_names)
     values = {u: np.full((S, times.size, np.size(points)), np.nan) for u in names}
     success, messages, nodes = np.zeros(S, dtype=bool), [""] * S, START_NODES
-    for i in range(S):
+    samples = [{k: v[i:i + 1] for k, v in arrays.items()} for i in range(S)]
+    runner = executors.as_executor(executor) if executor is not None else executors.current()
+    if problem.source_text and not isinstance(runner, executors.SerialExecutor):
+        task = under_deadline(partial(_sample_task, problem.source_text, problem.source, times, points))
+    else:
+        runner, task = executors.SERIAL, partial(_one_sample, problem, times=times, points=points)
+    for done, (i, outcome) in enumerate(runner.as_completed(task, samples), 1):
         try:
-            ref = solve_reference_nonlinear_pde(problem, {k: v[i:i + 1] for k, v in arrays.items()}, times, points)
-        except ReferenceTimeUp:
-            messages[i:] = [TIME_UP] * (S - i)
-            break
-        except SolverError as exc:
-            messages[i] = " ".join(str(exc).split())
-        else:
-            if ref.error_estimate > SPACE_TOLERANCE_LIMIT:
-                messages[i] = (f"the reference's grids did not agree (difference {ref.error_estimate:.2g} with "
-                               f"{ref.nodes} nodes)")
-            else:
-                success[i] = True
-                nodes = max(nodes, ref.nodes)
-                for u in names:
-                    values[u][i] = ref.values[u][0]
+            found, message = outcome.result()
+        except ReferenceTimeUp:  # the samples after it stop at once too
+            found, message = None, TIME_UP
+        messages[i] = message
+        if found is not None:
+            success[i] = True
+            nodes = max(nodes, found.nodes)
+            for u in names:
+                values[u][i] = found.values[u][0]
         if progress is not None:
-            progress(i + 1)
+            progress(done)
     return PdeReferenceResult(values=values, success=success, messages=messages, space=[x_name],
                               space_points={x_name: np.asarray(points)}, nodes={x_name: nodes}, method="Radau",
                               rtol=RTOL, atol=RTOL, times=times)
+
+
+def _one_sample(problem, sample, times, points) -> tuple[NonlinearPdeReference | None, str]:
+    """One sample's reference and ``''``, or None and why it failed (ReferenceTimeUp: the time budget)."""
+    try:
+        ref = solve_reference_nonlinear_pde(problem, sample, times, points)
+    except SolverError as exc:
+        return None, " ".join(str(exc).split())
+    if ref.error_estimate > SPACE_TOLERANCE_LIMIT:
+        return None, (f"the reference's grids did not agree (difference {ref.error_estimate:.2g} with "
+                      f"{ref.nodes} nodes)")
+    return ref, ""
+
+
+def _sample_task(spec_text: str, source: str, times, points, sample):
+    """A worker's task: parse the spec again, solve one sample (:func:`_one_sample`)."""
+    return _one_sample(parse_cached(spec_text, source), sample, times, points)

@@ -30,8 +30,8 @@ __all__ = ["MAX_CORNERS", "SAMPLINGS", "space_coordinates", "sampled_coordinates
 #: Most corners of the parameter box that are checked (a random subset beyond).
 MAX_CORNERS = 1024
 #: Random (Sobol) parameter points by default, besides the corners: ODE and steady problems, and
-#: time-dependent PDEs, whose method-of-lines reference costs ~2 s per point (BDF on a 40 x 40 grid;
-#: 64 + 8 corners took 104 s on heat2d, 8 + 8 corners 20 s, with 2 jobs).
+#: time-dependent PDEs, whose method-of-lines reference (BDF on a 40 x 40 grid) costs seconds per
+#: point: the default sample keeps ``pgd verify`` of the 2-D heat problem under half a minute.
 DEFAULT_SAMPLES = 64
 DEFAULT_SAMPLES_PDE = 4
 #: Largest points file (bytes) read by verify: some 1e5 points, far more than anyone can afford.
@@ -258,16 +258,16 @@ def space_points_grid(cb, space: list[str], seed: int, count: int) -> dict[str, 
 # ----------------------------------------------------------------------------------------------
 # the solve-time check's sample (pgdcli.checks.check)
 # ----------------------------------------------------------------------------------------------
-# All corners up to pgd verify's limit: the extreme dynamics sit there, and a seeded 64 of the 10-D
-# rigid body's 512 missed the one where pgd verify found 1.0008e-5 at tolerance 1e-5 (u3).
+# All corners up to pgd verify's limit: the extreme dynamics sit there, and a seeded subset can miss
+# the one corner where the error peaks (the 10-D rigid body: one of its 512 was just over 1e-5).
 CORNERS = MAX_CORNERS
 FACE_NODES = 96
 BETWEEN = 96
 LINE = 16
 #: Per parameter coordinate, points off its nodes with every other coordinate at an end of its domain:
-#: one from each corner of the others' box, up to this many (a seeded subset beyond). An unseen SEIRS
-#: model's error peaked along E0 with the other five at ends (1.4x its tolerance, 4x what the random
-#: lines saw); along E0 from the 32 corners of the others the check sees 1.3x.
+#: one from each corner of the others' box, up to this many (a seeded subset beyond). An error can
+#: peak along one coordinate with every other one at an end of its domain, where random lines do not
+#: look (the SEIRS model of tests/user_problems/seirs_wide.yaml, along E0).
 CORNER_LINES = 64
 
 

@@ -30,11 +30,12 @@ Figures, per unknown ``u``, over every successful sample point and time:
   solution crosses zero)
 - ``rms_error = sqrt(mean((u_codebook - u_reference)**2))``
 - ``where``: all coordinates (time included) of the largest error.
+- ``tolerance_ratio = max |u_codebook - u_reference| / (tolerance + relative_tolerance |u_reference|)``
+  with the codebook's own tolerance: the promise holds at the checked points when it is at most 1.
 
-See ``docs/verify.md`` for the JSON schema.
-
-About 410 lines, over the ~400 guideline by this docstring and the report's: the public function,
-its report type and its option checks read best together.
+The gate: with ``max_error`` and/or ``max_rel_error`` those thresholds; without either, the
+codebook's own tolerance (every ``tolerance_ratio`` at most 1). Either way, every reference
+integration must succeed. The JSON schema is in the user guide (``pgd verify``).
 """
 
 from __future__ import annotations
@@ -47,8 +48,9 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from .. import executors
 from ..errors import CodebookError, VerifyError
-from .reference_base import TIME_UP, time_budget
+from .reference_base import TIME_UP, chunk_executor, time_budget
 from .compare import UnknownErrors, codebook_at_samples, codebook_on_space_grid, error_statistics
 from .sampling import (DEFAULT_RANDOM_SPACE_POINTS, MAX_CORNERS, SAMPLINGS, check_times, default_samples, parameter_points,
                        sampled_coordinates, space_coordinates, space_points_grid)
@@ -86,7 +88,11 @@ class VerifyReport:
     settings : dict
         Sampling and integration settings (the JSON ``settings`` object).
     max_error, max_rel_error : float or None
-        The gate given to :func:`verify` (used by :meth:`to_dict`).
+        The gate given to :func:`verify` (used by :meth:`to_dict`); without either, the gate is the
+        codebook's own tolerance.
+    tolerance, relative_tolerance : float or None, float
+        The codebook's tolerance (``solver.tolerance`` and ``solver.relative_tolerance`` of its spec;
+        None when the codebook records none).
     samples : dict of str to ndarray, shape (S,)
         The parameter points.
     times : ndarray, shape (T,)
@@ -116,6 +122,8 @@ class VerifyReport:
     codebook_values: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     wall_time: float = 0.0
     space_points: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    tolerance: float | None = None
+    relative_tolerance: float = 0.0
 
     @property
     def n_points(self) -> int:
@@ -127,8 +135,35 @@ class VerifyReport:
         """Parameter points the time budget left unchecked (0: the report is complete)."""
         return int(self.settings.get("not_checked", 0))
 
+    def tolerance_gate(self, max_error: float | None = None, max_rel_error: float | None = None) -> bool:
+        """True when the gate is the codebook's own tolerance: no threshold given, and the codebook has one."""
+        return max_error is None and max_rel_error is None and self.tolerance is not None
+
+    def gate_text(self, max_error: float | None = None, max_rel_error: float | None = None) -> str:
+        """The gate in words, e.g. ``every reference integration succeeds, max abs error <= 1e-08``."""
+        gates = ["every reference integration succeeds"]
+        if max_error is not None:
+            gates.append(f"max abs error <= {max_error:.3g}")
+        if max_rel_error is not None:
+            gates.append(f"max rel error <= {max_rel_error:.3g}")
+        if self.tolerance_gate(max_error, max_rel_error):
+            relative = f" + {self.relative_tolerance:.3g} |u|" if self.relative_tolerance else ""
+            gates.append(f"error <= the codebook's tolerance {self.tolerance:.3g}{relative}")
+        return ", ".join(gates)
+
     def violations(self, max_error: float | None = None, max_rel_error: float | None = None) -> list[str]:
-        """Reasons the check fails (empty when it passes), one line each."""
+        """Reasons the check fails (empty when it passes), one line each.
+
+        Parameters
+        ----------
+        max_error, max_rel_error : float, optional
+            Thresholds of every unknown's max abs and max rel error. Without either, the gate is
+            the codebook's own tolerance (when it records one).
+
+        Returns
+        -------
+        list of str
+        """
         reasons = []
         if self.not_checked:
             reasons.append(f"stopped at the time budget of {self.settings.get('max_seconds', 0):g} s with "
@@ -147,10 +182,16 @@ class VerifyReport:
             if max_rel_error is not None and not stats.max_rel_error <= max_rel_error:
                 reasons.append(f"{name}: max rel error {stats.max_rel_error:.3e} > {max_rel_error:.3e}"
                                f" at {_format_point(stats.where)}")
+            if self.tolerance_gate(max_error, max_rel_error) and not stats.tolerance_ratio <= 1:
+                reasons.append(f"{name}: max abs error {stats.max_abs_error:.3e} at {_format_point(stats.where)}, "
+                               f"{stats.tolerance_ratio:.3g} x the codebook's tolerance {self.tolerance:.3g}")
         return reasons
 
     def passed(self, max_error: float | None = None, max_rel_error: float | None = None) -> bool:
-        """True when every reference integration succeeded and the given tolerances hold.
+        """True when every reference integration succeeded and the gate holds.
+
+        Without either threshold, the gate is the codebook's own tolerance: every unknown's
+        ``tolerance_ratio`` at most 1.
 
         Parameters
         ----------
@@ -158,6 +199,10 @@ class VerifyReport:
             Largest allowed absolute error of every unknown.
         max_rel_error : float, optional
             Largest allowed relative error (``max_abs_error / reference_scale``).
+
+        Returns
+        -------
+        bool
         """
         return not self.violations(max_error, max_rel_error)
 
@@ -167,7 +212,10 @@ class VerifyReport:
             "codebook": self.codebook,
             "problem": self.problem,
             "passed": self.passed(self.max_error, self.max_rel_error),
-            "gate": {"max_error": self.max_error, "max_rel_error": self.max_rel_error},
+            "gate": {"max_error": self.max_error, "max_rel_error": self.max_rel_error,
+                     **({"tolerance": self.tolerance, "relative_tolerance": self.relative_tolerance}
+                        if self.tolerance_gate(self.max_error, self.max_rel_error)
+                        else {"tolerance": None, "relative_tolerance": None})},
             "settings": dict(self.settings),
             "unknowns": {name: stats.to_dict() for name, stats in self.unknowns.items()},
             "failures": {"count": len(self.failures), "points": [f.to_dict() for f in self.failures]},
@@ -242,6 +290,7 @@ def verify(
     space_points: int = DEFAULT_RANDOM_SPACE_POINTS,
     space_nodes: int | Mapping[str, int] | None = None,
     max_seconds: float | None = None,
+    executor=None,
 ) -> VerifyReport:
     """Compare a codebook with an independent ``solve_ivp`` reference of its own problem.
 
@@ -271,9 +320,10 @@ def verify(
         ``solve_ivp`` tolerances (default 1e-12 and 1e-12; with space
         coordinates 1e-10 and 1e-12).
     jobs : int, optional
-        Worker processes (default: ``os.cpu_count()``; 1: no pool).
+        Worker processes (default: ``os.cpu_count()``; 1: no pool, or the executor in effect).
     max_error, max_rel_error : float, optional
-        The gate recorded in the report (see :meth:`VerifyReport.passed`).
+        The gate recorded in the report (see :meth:`VerifyReport.passed`); without either, the
+        gate is the codebook's own tolerance.
     max_corners : int
         Most corners checked; beyond, a seeded random subset.
     progress : callable, optional
@@ -290,6 +340,9 @@ def verify(
     max_seconds : float, optional
         Time budget of the reference integrations (default: none). When it runs out, the points
         not integrated yet are reported as not checked and the report does not pass.
+    executor : optional
+        Where the reference's chunks run instead of ``jobs`` processes: a ``distributed.Client`` or a
+        :class:`pgdcli.executors.Executor` (:mod:`pgdcli.executors`). The report does not depend on it.
 
     Returns
     -------
@@ -324,16 +377,18 @@ def verify(
 
     report_progress(0)
     settings["max_seconds"] = max_seconds = _check_tolerance("max_seconds", max_seconds)
-    with time_budget(max_seconds):
+    with time_budget(max_seconds), chunk_executor(opts["jobs"], executor) as runner:
+        if isinstance(runner, executors.DaskExecutor):
+            settings.update(jobs=runner.workers, cluster=runner.address)
         result, approx, space_grid = _reference_and_codebook(cb, problem, sample_points, S, all_times, opts,
                                                              settings, method, rtol, atol, space_nodes,
-                                                             report_progress)
+                                                             report_progress, runner)
     return _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,
                    _time.perf_counter() - started)
 
 
 def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, settings, method, rtol, atol,
-                            space_nodes, report_progress) -> tuple:
+                            space_nodes, report_progress, executor) -> tuple:
     """The reference and the codebook at the sample points and times (on the space grid, with space
     coordinates): ``(reference result, {unknown: codebook values}, space grid)``; records the space
     settings in ``settings``."""
@@ -349,7 +404,7 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
         nonlinear = is_nonlinear_pde(problem)  # its own method of lines (Radau, grids refined until they agree)
         reference = solve_reference_nonlinear_grid if nonlinear else solve_reference_pde
         result = reference(problem, sample_points, space_grid, None if time is None else all_times,
-                           grid=True, method=method, rtol=rtol, atol=atol, jobs=opts["jobs"],
+                           grid=True, method=method, rtol=rtol, atol=atol, jobs=1, executor=executor,
                            progress=report_progress, space_nodes=nodes)
         if nonlinear:
             settings.update(method=f"{result.method}, nonlinear method of lines", rtol=result.rtol, atol=result.atol)
@@ -361,7 +416,7 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
     else:
         space_grid = {}
         result = solve_reference(problem, sample_points, all_times, method=method, rtol=rtol, atol=atol,
-                                 jobs=opts["jobs"], progress=report_progress)
+                                 executor=executor, progress=report_progress)
         approx = codebook_at_samples(cb, sample_points, time, all_times, unknowns)
     return result, approx, space_grid
 
@@ -371,8 +426,9 @@ def _report(cb, path, problem, opts, settings, sample_points, all_times, result,
     """The :class:`VerifyReport` of the compared values: error statistics per unknown, failures."""
     time = problem.time
     names = [c.name for c in sampled_coordinates(problem)]
+    tolerance, relative = _codebook_tolerance(cb)
     stats = {u: error_statistics(cb.coordinate_names, time, sample_points, all_times, result.success,
-                                 result.values[u], approx[u], space_grid)
+                                 result.values[u], approx[u], space_grid, tolerance, relative)
              for u in problem.unknown_names}
     failures = [Failure({n: float(sample_points[n][i]) for n in names}, result.messages[i] or "integration failed")
                 for i in np.flatnonzero(~result.success) if result.messages[i] != TIME_UP]
@@ -386,7 +442,16 @@ def _report(cb, path, problem, opts, settings, sample_points, all_times, result,
                         unknowns=stats, failures=failures, settings=settings, max_error=opts["max_error"],
                         max_rel_error=opts["max_rel_error"], samples=sample_points, times=all_times,
                         reference=reference, codebook_values=approx, wall_time=wall_time,
-                        space_points=space_grid)
+                        space_points=space_grid, tolerance=tolerance, relative_tolerance=relative)
+
+
+def _codebook_tolerance(cb) -> tuple[float | None, float]:
+    """The codebook's ``(tolerance, relative_tolerance)`` from its report; ``(None, 0.0)`` without one."""
+    tolerance = float(cb.report.get("tolerance", np.nan))
+    relative = float(cb.report.get("relative_tolerance", 0.0))
+    if not (math.isfinite(tolerance) and tolerance > 0):
+        return None, 0.0
+    return tolerance, relative if math.isfinite(relative) and relative > 0 else 0.0
 
 
 def _checked_options(*, samples, times, seed, max_corners, jobs, sampling, method, space_points, rtol, atol,

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from .formats import FIT
-from .group import cli, format_option
+from .group import Failed, cli, format_option
 
 
 @FIT.register("plain", "'name estimate stderr' per free coordinate")
@@ -82,12 +82,21 @@ def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_pa
     Jacobian from the codebook's exact derivatives), then checked by re-solving at
     the estimate with the independent reference.
 
+    Exit status: 0 success; 1 an estimate on a bound of its domain (the best
+    fit may lie outside the codebook: one Warning line, the output is still
+    written, "success": false) or a least-squares solve that did not
+    converge; 2 invalid input.
+
     \b
       pgd fit codebooks/coupled.h5 trajectory.csv --sigma u1=1e-3 --format json
     """
     from ..inference.fitting import fit
     from ..inference.report import plot_fit, summary
 
+    if plot_path is not None:
+        from ..plot.options import require_matplotlib
+
+        require_matplotlib("pgd fit --plot")  # before the fit
     label = "DATA (stdin)" if data.name == "<stdin>" else str(data.name)
     result = fit(codebook, data, fix=_assignments(fix, "--fix"), sigma=_assignments(sigma, "--sigma"),
                  starts=starts, seed=seed, check=not no_check, label=label)
@@ -96,6 +105,13 @@ def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_pa
         plot_fit(result, plot_path)
     if not quiet:
         click.echo(summary(result), err=True)
+    if result.at_bound:
+        where = ", ".join(f"{n} = {result.estimate[n]:.6g} (domain [{result.bounds[n][0]:g}, "
+                          f"{result.bounds[n][1]:g}])" for n in result.at_bound)
+        raise Failed(f"fit: the estimate lies on its domain bound: {where}; the best fit may lie outside the "
+                     f"codebook: widen the domain and solve again", warning=True)
+    if not result.success:
+        raise Failed(f"fit: least squares did not converge: {result.message}")
 
 
 @cli.command("export")

@@ -1,8 +1,8 @@
 """The output formats of the commands: one registry per command, one writer per format.
 
-``pgd query``, ``pgd fit``, ``pgd info``, ``pgd verify`` and ``pgd solve`` take ``--format NAME``.
-Each command has a :class:`Formats` here; each format is a writer registered on it where the writer
-is defined (``@QUERY.register("csv", "...")``). The choices click offers, the names the lean
+``pgd query``, ``pgd fit``, ``pgd info``, ``pgd verify``, ``pgd solve`` and ``pgd sensitivity`` take
+``--format NAME``. Each command has a :class:`Formats` here; each format is a writer registered on it
+where the writer is defined (``@QUERY.register("csv", "...")``). The choices click offers, the names the lean
 ``pgd query`` parser accepts, the option's help and the writer a name runs are all read from that
 registry: a format is added by registering its writer, and a name without a writer can be neither
 offered nor run (no branch of an ``if`` to miss). No click and no numpy (the lean query path
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-__all__ = ["Formats", "QUERY", "FIT", "INFO", "VERIFY", "SOLVE"]
+__all__ = ["Formats", "QUERY", "FIT", "INFO", "VERIFY", "SOLVE", "SENSITIVITY"]
 
 
 class Formats:
@@ -66,3 +66,4 @@ FIT = Formats("fit", "plain")
 INFO = Formats("info", "text")
 VERIFY = Formats("verify", "text")
 SOLVE = Formats("solve", "text")
+SENSITIVITY = Formats("sensitivity", "plain")

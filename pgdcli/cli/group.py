@@ -81,7 +81,7 @@ class PgdGroup(click.Group):
         except Failed as exc:
             code = _flushed(EXIT_FAILED)
             if code != EXIT_USAGE:  # a full disk was reported instead; a reader gone away is no excuse
-                error(str(exc))
+                (warn if exc.warning else error)(str(exc))
                 code = EXIT_FAILED
         except BrokenPipeError:
             code = _flushed(EXIT_OK, broken=True)
@@ -137,7 +137,15 @@ def error(message: str) -> None:
 
 
 class Failed(Exception):
-    """A numerical outcome that ends a command with exit status 1 and a one-line reason."""
+    """A numerical outcome that ends a command with exit status 1 and a one-line reason.
+
+    ``Failed(reason)`` prints ``Error: reason``; ``Failed(reason, warning=True)`` prints
+    ``Warning: reason`` (the command's output stands, but it is not to be trusted as such).
+    """
+
+    def __init__(self, message: str, *, warning: bool = False):
+        super().__init__(message)
+        self.warning = warning
 
 
 def format_option(formats):

@@ -7,12 +7,13 @@ from pathlib import Path
 
 import click
 
+from ..errors import CodebookError
 from .formats import INFO
 from .group import cli, format_option
 from .text import human_size, nodes_chosen_text, short_where
 
 
-@INFO.register("text", "tables and lines of text")
+@INFO.register("text", "a readable summary")
 def write_text(summary: dict) -> None:
     """The summary as rich text: what the codebook holds, then how it was made."""
     from rich.console import Console
@@ -23,7 +24,7 @@ def write_text(summary: dict) -> None:
     _print_solve(console, summary)
 
 
-@INFO.register("json", "the summary as JSON")
+@INFO.register("json", "every figure as JSON")
 def write_json(summary: dict) -> None:
     click.echo(json.dumps(summary, indent=2))  # JSON escapes control characters itself
 
@@ -46,7 +47,7 @@ def _print_contents(console, summary: dict) -> None:
     if summary.get("rates"):
         console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
     for line in summary.get("separated_coefficients", []):
-        console.print(f"separated coefficient: {line}", markup=False)
+        console.print(f"separated coefficient: {line}")
 
 
 def _print_solve(console, summary: dict) -> None:
@@ -112,9 +113,22 @@ def _shown(value):
 @cli.command()
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
 @format_option(INFO)
-def info(codebook, fmt):
-    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time."""
+@click.option("--spec", "show_spec", is_flag=True,
+              help="Print the problem spec stored in CODEBOOK (YAML, as it was solved) instead.")
+def info(codebook, fmt, show_spec):
+    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time.
+
+    \b
+      pgd info codebooks/coupled.h5
+      pgd info codebooks/coupled.h5 --format json
+      pgd info codebooks/coupled.h5 --spec > coupled.yaml    # solve it again: pgd solve coupled.yaml
+    """
     from ..codebook.codebook import Codebook
 
     cb = Codebook.load(codebook)
+    if show_spec:
+        if not cb.spec_text.strip():
+            raise CodebookError(f"{codebook}: the codebook holds no problem spec")
+        click.echo(cb.spec_text, nl=not cb.spec_text.endswith("\n"))
+        return
     INFO.writer(fmt)(cb.info(codebook))

@@ -7,6 +7,7 @@ registers the commands, one module each. The console script starts in :mod:`pgdc
 from __future__ import annotations
 
 from . import fit_command, info_command, plot_command, query_command, solve_command, verify_command  # noqa: F401
+from . import sensitivity_command, view_command  # noqa: F401
 from .group import cli
 
 __all__ = ["cli"]

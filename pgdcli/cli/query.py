@@ -29,6 +29,7 @@ from .stream import check_grid_size
 __all__ = ["run", "UsageProblem", "one_line_error"]
 
 _VALUE_OPTIONS = ("--format", "--field", "--points")
+_CLICK_ONLY = ("--output", "--scheduler", "--workers")  # a query into a file, on a cluster: the click command
 
 
 class UsageProblem(Exception):
@@ -244,7 +245,7 @@ def _split(args: list[str]):
     while i < len(args):
         arg = args[i]
         i += 1
-        if arg in ("--help", "--"):
+        if arg in ("--help", "--") or arg.partition("=")[0] in _CLICK_ONLY:
             return None
         if arg.startswith("--"):
             name, eq, value = arg.partition("=")

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from . import stream  # registers the query's output formats
+from .cluster_options import cluster_options, open_executor, scheduler_given
 from .formats import QUERY
 from .group import cli, format_option
 
@@ -19,8 +20,12 @@ from .group import cli, format_option
 @click.option("--points", metavar="FILE",
               help="CSV file whose header names the coordinates ('-' for stdin): one output row per input row, "
                    "read and printed in chunks.")
+@click.option("--output", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE.h5",
+              help="Write the points and values to this HDF5 file (atomically) instead of stdout, evaluated in "
+                   "partitions; --points may then be an HDF5 file too (docs/cluster.md).")
+@cluster_options("the partitions of an --output query")
 @click.pass_context
-def query(ctx, codebook, fmt, fields, points):
+def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
     """Evaluate CODEBOOK at points given as --NAME VALUE for every coordinate.
 
     \b
@@ -32,6 +37,7 @@ def query(ctx, codebook, fmt, fields, points):
     \b
       pgd query codebooks/parametric.h5 --t 5 --k 2
       pgd query codebooks/spring.h5 --t 0:4:41 --k 2 --c 0.3 --field x --format csv
+      pgd query codebooks/spring.h5 --points big.h5 --output values.h5 --workers 2
     """
     # the parsing, checking and printing helpers live in pgdcli.cli.query and pgdcli.cli.stream, where a
     # plain `pgd query` runs without click (see main): both paths print the same bytes
@@ -46,14 +52,42 @@ def query(ctx, codebook, fmt, fields, points):
                                      param_hint="'--field'")
     if points is not None and ctx.args:
         raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
+    if output is None and (workers is not None or scheduler_given(ctx, scheduler)[1] == "--scheduler" and scheduler):
+        # PGD_SCHEDULER alone leaves a query to stdout here: it evaluates each point on its own
+        raise click.UsageError("--scheduler and --workers evaluate into --output FILE.h5; add --output")
+    if output is not None:
+        return _to_file(ctx, cb, points, output, selected, scheduler, workers)
+    chunks, handle = _usage(_query.point_chunks, cb, points, ctx.args)
     try:
-        chunks, handle = _query.point_chunks(cb, points, ctx.args)
+        stream.Writer(sys.stdout, fmt, cb, selected).run(chunks)
+    finally:
+        if handle is not None:
+            handle.close()
+
+
+def _usage(function, *args):
+    """``function(*args)``, its usage problems as click's."""
+    from . import query as _query
+
+    try:
+        return function(*args)
     except _query.UsageProblem as exc:
         if exc.param_hint is not None:
             raise click.BadParameter(exc.message, param_hint=exc.param_hint) from None
         raise click.UsageError(exc.message) from None
+
+
+def _to_file(ctx, cb, points, output, selected, scheduler, workers) -> None:
+    """``--output``: the points evaluated in partitions (on the cluster, if one is given) into an HDF5 file."""
+    from .group import stderr_console
+    from .outputs import prepare_output
+    from .query_output import H5_SUFFIXES, point_partitions, write_query
+
+    prepare_output(output, "--output", H5_SUFFIXES)
+    chunks, handle = _usage(point_partitions, cb, points, ctx.args)
     try:
-        stream.Writer(sys.stdout, fmt, cb, selected).run(chunks)
+        with open_executor(ctx, scheduler, workers) as executor:
+            write_query(cb, chunks, output, selected, executor, stderr_console())
     finally:
         if handle is not None:
             handle.close()

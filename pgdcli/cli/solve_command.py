@@ -2,31 +2,36 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+from functools import partial
 from pathlib import Path
 
 import click
 
+from .cluster_options import cluster_options, open_executor
 from .formats import SOLVE
 from .group import Failed, cli, format_option, run_command, stderr_console, warn
 from .text import human_size, nodes_chosen_text, short_where
 
 
 @SOLVE.register("text", "summary table on stderr")
-def write_nothing(summary: dict) -> None:
+def write_nothing(summary: dict | list) -> None:
     """Nothing on stdout: the table is printed on stderr (none with --quiet)."""
 
 
-@SOLVE.register("json", "the summary as JSON on stdout")
-def write_json(summary: dict) -> None:
+@SOLVE.register("json", "the summary as JSON on stdout (several specs: a list, one row per spec)")
+def write_json(summary: dict | list) -> None:
+    """The summary of one spec, or the rows of several (:func:`~pgdcli.cli.solve_family.solve_family`)."""
     click.echo(json.dumps(summary, indent=2))
 
 
 @cli.command()
-@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
-              help="Codebook path [default: the spec's output, else codebooks/<name>.h5].")
+@click.argument("specs", metavar="SPEC...", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path),
+              help="Codebook path [default: the spec's output, else codebooks/<name>.h5]; with several specs, "
+                   "the folder of their codebooks.")
 @click.option("--tolerance", type=float,
               help="Override solver.tolerance: the bound on the codebook's max abs error, measured.")
 @click.option("--relative-tolerance", type=float, help="Override solver.relative_tolerance (error <= "
@@ -37,7 +42,11 @@ def write_json(summary: dict) -> None:
                    "the file; the exit status is still 1).")
 @format_option(SOLVE)
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary on stderr.")
-def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
+@cluster_options("the cross march's batches of trajectories and the reference's chunks (several specs: one task "
+                 "each)")
+@click.pass_context
+def solve(ctx, specs, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet, scheduler,
+          workers):
     """Solve the problem in SPEC (YAML) and write its codebook.
 
     After the solve, the codebook's error is measured against an independent
@@ -46,11 +55,22 @@ def solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurat
     at the target path and the exit status is 1, with one line saying how large
     the error is, where, and what lacks resolution (--keep-inaccurate writes a
     codebook that misses its tolerance anyway, marked in the file).
+
+    Several specs (or a folder of them) are a family: each is built on its own
+    (one task each on a cluster), a failure does not stop the others, and a
+    table sums them up.
     """
-    run_command(_solve, spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet)
+    from .solve_family import family_specs, solve_family
+
+    options = (tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet)
+    family = family_specs(specs)
+    cluster = partial(open_executor, ctx, scheduler, workers, quiet)  # opened once the specs are checked
+    run_command(_solve if family is None else solve_family, specs[0] if family is None else family, output,
+                *options, cluster=cluster)
 
 
-def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet):
+def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet,
+           cluster=contextlib.nullcontext):
     from .outputs import prepare_output
     from ..driver import check_solvable
     from ..driver import solve as solve_problem
@@ -72,10 +92,12 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
     rtol = problem.solver.relative_tolerance if relative_tolerance is None else relative_tolerance
     check_solvable(problem, tol, rtol, nmax)  # a refusal before the progress bar: one line on stderr
     prepare_output(target, "--output" if output is not None else f"{spec}: output")  # before the solve
-    if console is None:
-        result = solve_problem(problem, **overrides)
-    else:
-        result = _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides)
+    with cluster() as executor:
+        overrides["executor"] = executor
+        if console is None:
+            result = solve_problem(problem, **overrides)
+        else:
+            result = _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides)
     for warning in result.warnings:
         warn(warning)
     keep = result.converged or (keep_inaccurate and result.accurate is False)
@@ -123,6 +145,10 @@ def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
             progress.update(task, completed=max(done, 0.0),
                             status=f"{info['mode']}/{nmax} modes  residual {r:.2e} (tolerance {tol:.0e})")
 
+        executor = overrides.get("executor")
+        if executor is not None:  # the tasks the cluster finished
+            tasks = progress.add_task("tasks on the cluster", total=None, status="")
+            executor.progress = lambda done: progress.update(tasks, status=f"{done:,} finished")
         return solve_problem(problem, callback=callback, **overrides)
 
 

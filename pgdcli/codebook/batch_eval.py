@@ -14,12 +14,11 @@ multiply-adds per point in BLAS-sized products, whichever keeps the smaller inte
 
 Every intermediate is written into a scratch buffer that lives as long as the batch (one
 set per thread): a fresh array per block and core, freed right after, could make glibc hand
-the memory back to the system and fault it in again at every block (the coupled codebook's
-one-thread batch ran 1.6-1.7x slower in the processes where it did). The cardinal rows are
-stored points last (``(n, P)``, handed on as transposed views) wherever BLAS takes them as a
-matrix: elementwise work then runs along the points, not along ~20 nodes (the rows 1.7x, the
-Khatri-Rao block below 2.3x faster); the rows a batched product takes point by point stay
-points first. Measurements in benchmarks/README.md.
+the memory back to the system and fault it in again at every block, which slows a whole batch
+down in the processes where it happens. The cardinal rows are stored points last (``(n, P)``,
+handed on as transposed views) wherever BLAS takes them as a matrix: elementwise work then runs
+along the points, not along the few nodes of a window; the rows a batched product takes point
+by point stay points first.
 
 The first core of the train (the time coordinate of the march's codebooks) is split
 into windows: the slabs of a piecewise Chebyshev coordinate, the elements of a linear
@@ -30,12 +29,11 @@ into a table of ``(w n_2, r_2)``: per point ``w n_2 r_2`` multiply-adds instead 
 ``w r_1 + r_1 n_2 r_2`` and one product less. A later coordinate of several windows (a
 parameter given slabs by the automatic discretization, or linear elements) is grouped by too
 when the multiply-adds saved outweigh the blocks added (a cost model): its core then costs a
-point ``r0 w r1``, not ``r0 n r1`` (a Brusselator whose rate ``b`` has two slabs of 37 nodes:
-1.8x; an SIR model whose contact rate has 444 linear elements: 4.8x).
+point ``r0 w r1``, not ``r0 n r1``, which pays most for coordinates of many linear elements.
 
 The values equal those of the core-by-core row-wise contraction
 (:func:`pgdcli.codebook.evaluate.contract_tt`) to rounding: the same sums in another order.
-Measurements: ``benchmarks/query_speed_tt.py`` and benchmarks/README.md.
+Measurements: ``benchmarks/query_speed_tt.py`` (batch rows).
 """
 
 from __future__ import annotations
@@ -76,7 +74,7 @@ def _window_of(basis, x: np.ndarray) -> np.ndarray:
         if len(interior) > COUNT_BREAKPOINTS:
             return basis.slab_of(x)
         # the interior breakpoints at or below x, counted: x is in the domain, so this is the
-        # clipped search, 15x faster than searchsorted's unpredictable branches (1e5 points, 7 slabs)
+        # clipped search, without searchsorted's unpredictable branches (far faster for a few slabs)
         window, above = np.zeros(x.shape, np.uint8), np.empty(x.shape, bool)
         for b in interior:
             np.add(window, np.greater_equal(x, b, out=above), out=window)
@@ -92,8 +90,8 @@ def _rows_points_last(basis, x: np.ndarray, lo: int, width: int, out: np.ndarray
     window's nodes only, points last: shape (width, P), written into ``out`` (``work``: scratch
     of the same shape; either may be the transposed view of a points-first buffer). The
     arithmetic of the basis's own interpolation rows (a point on a node gets the unit row); the
-    layout lets the first two cores' Khatri-Rao product broadcast along the points (42 against
-    97 ns per point for 8 x 20 values, 1228 points).
+    layout lets the first two cores' Khatri-Rao product broadcast along the points (about twice
+    as fast as along the values).
     """
     nodes = basis.nodes[lo:lo + width]
     if basis.kind == "linear" and width == 2:
@@ -131,10 +129,10 @@ class _Train:
         # point, whichever has the smaller intermediate per point: 'rows first' (r0 < n) for all the
         # unknowns at once, as (n, sum_u r0_u r1_u) with each unknown's block its core transposed to
         # (n, r0, r1); or 'running vector first' (r0 >= n) per unknown, as (r0, n r1), then each
-        # point's cardinal row (n,) times its (n, r1) block. Measured on the rigid body's (72, 8, 65)
-        # core, 512 points, one thread: rows first 6.8 us per point and unknown, vector first 1.4 us,
-        # the row-wise Khatri-Rao product of v and the rows times the core as (r0 n, r1) (the path
-        # before) 2.0 us, a third of it forming the Khatri-Rao block
+        # point's cardinal row (n,) times its (n, r1) block. On a wide middle core (r0 >> n) the
+        # running vector first is several times faster than rows first, and faster than the
+        # row-wise Khatri-Rao product of v and the rows times the core as (r0 n, r1), a third of
+        # whose time goes to forming the Khatri-Rao block (benchmarks/query_speed_tt.py's batch rows)
         self.rest = []
         widest = [self.first.shape[1]] + ([self.pair[0].shape[0]] if self.pair is not None else [])
         for k, group in enumerate(rest, start=len(cores) - len(rest)):
@@ -327,8 +325,8 @@ class TTBatch:
         Returns
         -------
         key : ndarray of unsigned int, shape (P,)
-            The smallest type: numpy's stable sort of <= 16-bit integers is a radix sort (1e5
-            points in 7 windows: 0.8 ms against 2.0 ms as int64).
+            The smallest type: numpy's stable sort of <= 16-bit integers is a radix sort, a few
+            times faster than the merge sort of int64 keys.
         radices : list of (coordinate, window count)
             The later coordinates in the key, most significant first after the first coordinate.
         """

@@ -46,20 +46,28 @@ class InaccurateCodebookWarning(UserWarning):
 class Codebook:
     """A separated solution that evaluates anywhere in its domain.
 
+    Usually made by :func:`pgdcli.solve` (``result.codebook``) or read by :meth:`load`; each
+    unknown is stored either as a sum of products of one-coordinate modes (CP, from the PGD
+    enrichment) or as a tensor train (from the time march).
+
     Parameters
     ----------
     coordinates : sequence of CoordinateInfo
-        In dimension order.
+        In dimension order: name, role (``time``, ``space`` or ``parameter``), domain, nodes and
+        discretization of each.
     fields : mapping
         Unknown name -> :class:`~pgdcli.tensors.cp.CPTensor` (weights and one mode matrix of
         nodal values per coordinate) or :class:`~pgdcli.tensors.tt.TT` (cores with their
         ``mode_order``), in output order.
     name : str
+        The problem's name.
     spec_text : str
-        The YAML spec the codebook was solved from.
+        The YAML spec the codebook was solved from (``pgd info --spec`` prints it).
     report : dict
-        Solver report (see ``docs/codebook-format.md``).
+        Solver report: convergence, the measured error, tolerance, nodes chosen (see the
+        codebook file format in the user guide).
     description : str
+        The spec's description.
     created : str, optional
         ISO 8601 time of the solve (default: now).
     partial : bool
@@ -67,6 +75,18 @@ class Codebook:
         the report's arrays were not read, and :meth:`save` refuses it.
     format_version : str, optional
         The format of the file it was loaded from (``"1.0"`` files carry no checksums).
+
+    Raises
+    ------
+    CodebookError
+        No coordinate or no unknown, or a field whose shapes do not match the coordinates.
+
+    Attributes
+    ----------
+    coordinates : tuple of CoordinateInfo
+    fields : dict of str to CPTensor or TT
+    name, spec_text, description, created : str
+    report : dict
 
     Examples
     --------
@@ -101,16 +121,40 @@ class Codebook:
         self._bases, self._stacked, self._slices = ev.bases, ev.stacked, ev.slices
         self._tt_stack, self._tt_all = ev.tt_stack, ev.tt_all
 
+    def __reduce__(self):
+        """Pickled as its parts: the evaluator's tables, most of the bytes, are built again where it is
+        unpickled (a Dask worker)."""
+        attributes = ("name", "spec_text", "report", "description", "created", "partial", "format_version")
+        return _from_parts, (self.coordinates, self.fields, {a: getattr(self, a) for a in attributes})
+
     # ------------------------------------------------------------------ introspection
     @property
     def coordinate_names(self) -> list[str]:
+        """The coordinates' names, in dimension order."""
         return [c.name for c in self.coordinates]
 
     @property
     def unknown_names(self) -> list[str]:
+        """The unknowns' names, in output order (second-order unknowns' rates last)."""
         return list(self.fields)
 
     def coordinate(self, name: str) -> CoordinateInfo:
+        """The coordinate called ``name``.
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        CoordinateInfo
+            Its role, domain, nodes and discretization; ``.basis()`` gives its 1-D basis.
+
+        Raises
+        ------
+        QueryError
+            No coordinate has that name.
+        """
         for c in self.coordinates:
             if c.name == name:
                 return c
@@ -121,10 +165,48 @@ class Codebook:
         ranks = ", ".join(f"{u}: {fm.rank}" for u, fm in self.fields.items())
         return f"<Codebook {self.name!r} coordinates ({coords}) modes ({ranks})>"
 
+    def _repr_html_(self) -> str:
+        """A summary card in notebooks (:func:`pgdcli.codebook.notebook.summary_html`)."""
+        from .notebook import summary_html
+
+        return summary_html(self)
+
     # ------------------------------------------------------------------ evaluation
-    def __call__(self, **coordinates) -> dict[str, np.ndarray]:
-        """Evaluate every unknown; see :meth:`evaluate`."""
-        return self.evaluate(coordinates)
+    def __call__(self, points=None, /, **coordinates):
+        """Evaluate every unknown: ``cb(t=..., k=...)`` as :meth:`evaluate`, or ``cb(points)``.
+
+        Parameters
+        ----------
+        points : array_like, shape (..., d), optional
+            Points as rows of their coordinates in codebook order (``coordinate_names``), as
+            ``scipy.interpolate.RegularGridInterpolator`` takes them.
+        **coordinates
+            Or every coordinate name -> scalar or array_like (broadcast together).
+
+        Returns
+        -------
+        ndarray, shape (..., n_unknowns)
+            For ``points``: the unknowns in declared order (``unknown_names``) along the last axis.
+        dict
+            For keyword coordinates: unknown name -> ndarray of the broadcast shape (0-d for scalars).
+
+        Axes: ``points`` and keyword arrays are points, not grids (no coordinate adds or drops an
+        axis); :meth:`evaluate_grid` gives grids, with an axis for every coordinate, and
+        :meth:`to_xarray` grids without the axes of coordinates given as scalars.
+        """
+        if points is None:
+            return self.evaluate(coordinates)
+        if coordinates:
+            raise QueryError(f"give points as one (N, {len(self._names)}) array or coordinates as NAME=VALUE, not both")
+        array = np.asarray(points, dtype=float)
+        if array.ndim == 0 or array.shape[-1] != len(self._names):
+            raise QueryError(f"points: expected an array of shape (..., {len(self._names)}) with the coordinates "
+                             f"{', '.join(self._names)} in its last axis, got shape {array.shape}")
+        values = self.evaluate({n: array[..., j] for j, n in enumerate(self._names)})
+        out = np.empty(array.shape[:-1] + (len(values),))
+        for k, v in enumerate(values.values()):
+            out[..., k] = v
+        return out
 
     def evaluate(self, coordinates: Mapping[str, object], fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """Evaluate unknowns at points given per coordinate.
@@ -139,13 +221,20 @@ class Codebook:
 
         Returns
         -------
-        dict
-            Unknown name -> ndarray of the broadcast shape (0-d for scalars).
+        dict of str to ndarray
+            Unknown name -> values of the broadcast shape (0-d for scalars); a dask array when a
+            coordinate is one (evaluated block by block when computed, :mod:`pgdcli.codebook.blockwise`).
 
         Raises
         ------
         QueryError
             Missing, unknown or out-of-domain coordinates, unknown fields.
+
+        Notes
+        -----
+        A point given as Python numbers takes the one-point path, the one ``pgd query`` uses
+        (the same digits whichever way the point is asked); arrays take the batch path, whose
+        last bits can differ with the shape of the batch.
         """
         if fields is None and self._tt_all is not None:
             values = self._tensor_train_point(coordinates)
@@ -157,6 +246,10 @@ class Codebook:
         selected = self._select(fields)
         raw = [coordinates[n] for n in names]
         scalars = all(type(v) in _SCALAR_TYPES for v in raw)
+        if not scalars and any(hasattr(v, "__dask_graph__") for v in raw):  # a dask array: lazily, blockwise
+            from .blockwise import evaluate_blockwise
+
+            return evaluate_blockwise(self, dict(zip(names, raw)), selected)
         if not scalars and any(isinstance(self.fields[u], TT) for u in selected):
             return self._evaluate_mixed(coordinates, selected)
         if scalars:
@@ -190,8 +283,8 @@ class Codebook:
 
         Returns
         -------
-        dict
-            Unknown name -> ndarray of shape ``(len(axes[c_1]), ..., len(axes[c_d]))``, the
+        dict of str to ndarray
+            Unknown name -> values of shape ``(len(axes[c_1]), ..., len(axes[c_d]))``, the
             coordinates in codebook order (``coordinate_names``), whatever the mapping's order.
 
         Raises
@@ -234,8 +327,8 @@ class Codebook:
 
         Returns
         -------
-        dict
-            Unknown name -> ndarray of shape (S, T).
+        dict of str to ndarray
+            Unknown name -> values of shape ``(S, T)``.
 
         Raises
         ------
@@ -285,10 +378,15 @@ class Codebook:
 
         Returns
         -------
-        dict
+        dict of str to dict of str to ndarray
             ``out[u][c]``: d u / d c, shaped like :meth:`evaluate`'s (or :meth:`evaluate_grid`'s) values.
             Where the interpolant has a kink (a slab breakpoint, a linear element's node) the derivative
             is the one from the right (at the upper end: from the left). See :mod:`pgdcli.codebook.gradient`.
+
+        Raises
+        ------
+        QueryError
+            Missing, unknown or out-of-domain coordinates, an unknown name in ``wrt`` or ``fields``.
         """
         from .gradient import gradient_grid, gradient_points
 
@@ -312,7 +410,7 @@ class Codebook:
     def _tensor_train_point(self, coordinates: Mapping[str, object]) -> dict[str, np.ndarray] | None:
         """Every unknown at one point given as Python numbers, when all are in the tensor-train stack.
 
-        The one-point path without its bookkeeping (a few microseconds of a ~15 us
+        The one-point path without its bookkeeping (a sizeable share of a one-point
         query); None when the coordinates are anything else (the general path then
         decides, and raises what it raises).
         """
@@ -368,7 +466,23 @@ class Codebook:
         return np.clip(x, low, high)
 
     def nodal_values(self, field_name: str) -> np.ndarray:
-        """The unknown on the full tensor grid of nodes (small codebooks only: tests and plots)."""
+        """An unknown on the full tensor grid of nodes (small codebooks only: tests and plots).
+
+        Parameters
+        ----------
+        field_name : str
+            The unknown.
+
+        Returns
+        -------
+        ndarray, shape (n_1, ..., n_d)
+            Its values at every node, coordinates in dimension order (``n_k`` nodes of the k-th).
+
+        Raises
+        ------
+        QueryError
+            No unknown has that name.
+        """
         return self.fields[self._select([field_name])[0]].full()
 
     @property
@@ -378,13 +492,77 @@ class Codebook:
         return codebook_summary.accurate(self.report)
 
     def nodes_chosen(self) -> dict | None:
-        """The automatic resolution's solves: ``{"automatic": [names], "reason": str, "rounds": [{"nodes":
-        {coordinate: nodes}, "ratio": measured error / tolerance}]}``; None for a codebook without it."""
+        """The automatic resolution's solves.
+
+        Returns
+        -------
+        dict or None
+            ``{"automatic": [names], "reason": str, "rounds": [{"nodes": {coordinate: nodes},
+            "ratio": measured error / tolerance}]}``; None for a codebook without it.
+        """
         return codebook_summary.nodes_chosen(self.report, self.coordinate_names)
+
+    # ------------------------------------------------------------------ analysis
+    def sensitivity(self, *, times=None, at: Mapping[str, float] | None = None, densities: Mapping | None = None,
+                    second_order: bool = False, fields: Sequence[str] | None = None):
+        """Means, variances and Sobol indices over the parameters (``pgd sensitivity``).
+
+        Every coordinate that is neither time nor in ``at`` is an independent random input,
+        uniform over its domain unless ``densities`` says otherwise (``{"k": "normal:2,0.3"}``).
+        Exact for the codebook's function: one-dimensional quadratures contracted through the
+        modes or cores, no sampling. See :func:`pgdcli.codebook.sensitivity.sensitivity`.
+
+        Returns
+        -------
+        SensitivityResult
+            ``mean[u]``, ``variance[u]`` (T,), ``first[u]``, ``total[u]`` (T, inputs), ``second[u]``
+            (T, inputs, inputs) when asked, ``inputs``, ``times``.
+        """
+        from .sensitivity import sensitivity
+
+        return sensitivity(self, times=times, at=at, densities=densities, second_order=second_order, fields=fields)
+
+    def to_xarray(self, axes: Mapping[str, object] | None = None, /, *, fields: Sequence[str] | None = None,
+                  **coordinates):
+        """The unknowns on a grid as a labelled ``xarray.Dataset`` (xarray: ``pip install 'pgdcli[xarray]'``).
+
+        Parameters
+        ----------
+        axes : mapping, optional
+            Coordinate name -> values (or give them as keywords: ``cb.to_xarray(t=ts, k=[1, 2], c=0.3)``).
+            Every coordinate is needed. A sequence (even of one value) is a dimension; a scalar holds
+            the coordinate there and is a scalar coordinate of the Dataset, not a dimension.
+        fields : sequence of str, optional
+            Unknowns (default all): the Dataset's variables.
+
+        Returns
+        -------
+        xarray.Dataset
+            Variables: the unknowns over the dimensions (codebook order). Coordinates carry their
+            role, domain, nodes and discretization as attributes; the Dataset carries the name,
+            description, tolerance, relative_tolerance, measured_error (max abs against the
+            independent reference), measured_points and accurate (1 within tolerance, 0 written
+            with --keep-inaccurate, -1 not measured).
+        """
+        from .notebook import to_xarray
+
+        return to_xarray(self, {**dict(axes or {}), **coordinates}, fields=fields)
 
     # ------------------------------------------------------------------ summary
     def info(self, path: str | os.PathLike | None = None) -> dict:
-        """Summary as plain Python data (what ``pgd info`` prints).
+        """Summary as plain Python data (what ``pgd info --format json`` prints).
+
+        Parameters
+        ----------
+        path : path-like, optional
+            The codebook's file, for its size (``size_bytes``).
+
+        Returns
+        -------
+        dict
+            Name, description, format, coordinates, unknowns (representation, modes or ranks),
+            method, convergence, the measured error (``check``), tolerance, nodes chosen, solve
+            time, and more: JSON-ready values only.
 
         Raises
         ------
@@ -403,6 +581,16 @@ class Codebook:
 
         A crash or error while writing leaves any previous file at ``path``
         untouched and no partial file behind.
+
+        Parameters
+        ----------
+        path : path-like
+            The HDF5 file to write (its folder must exist).
+
+        Returns
+        -------
+        path-like
+            The path written.
         """
         return codebook_io.save(self, path)
 
@@ -412,13 +600,19 @@ class Codebook:
 
         The file must be self-contained (no links to other files, no external storage), its
         arrays of the sizes its metadata implies and within ``PGD_MAX_CODEBOOK_BYTES``, and (format
-        1.1) match their checksums and digests.
+        1.1) match their checksums and digests. A codebook written with ``pgd solve
+        --keep-inaccurate`` loads with an :class:`InaccurateCodebookWarning`.
 
         Parameters
         ----------
-        path : str or path
+        path : path-like
+            An HDF5 file written by :meth:`save` (or ``pgd solve``).
         evaluation_only : bool
             Skip what evaluation does not need (the stored spec, the report's arrays).
+
+        Returns
+        -------
+        Codebook
 
         Raises
         ------
@@ -433,3 +627,8 @@ class Codebook:
             warnings.warn(f"{path}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was "
                           f"written with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
         return cb
+
+
+def _from_parts(coordinates, fields, attributes: dict) -> Codebook:
+    """The codebook :meth:`Codebook.__reduce__` pickled."""
+    return Codebook(coordinates, fields, **attributes)

@@ -178,8 +178,8 @@ class Evaluator:
         """Unknowns on the cartesian grid of checked per-coordinate ``values`` (none empty).
 
         Under the batches' BLAS policy (one BLAS thread from BLAS_LIMIT_MIN_POINTS grid points):
-        with two BLAS threads on a loaded machine the rigid body's 8 x 5^6 grid took 1.0 s on the
-        first call and 97 ms on the next, against 34-64 ms on one thread (benchmarks/README.md).
+        threaded BLAS on a loaded machine made grids of the high-dimensional codebooks many times
+        slower, the first call most (``benchmarks/query_speed_tt.py``'s grid rows).
         """
         mats = [b.interpolation_matrix(v) for b, v in zip(self.bases, values)]
         with batch_blas(int(np.prod([v.size for v in values], dtype=float))):

@@ -5,7 +5,7 @@ overhead and by reading the cores, not flops: per coordinate its nodes, barycent
 windows are precomputed (:class:`pgdcli.codebook.point_weights.PointData`) and the tensor-train
 unknowns' cores laid out as contiguous tables (:class:`TTStack`), so a point costs one small BLAS
 call and one batched product per core.
-numpy only (the query path). Measurements: benchmarks/query_speed_tt.py, benchmarks/README.md.
+numpy only (the query path). Measurements: ``benchmarks/query_speed_tt.py`` (single-point rows).
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ _add_reduce, _dot, _matmul = np.add.reduce, np.dot, np.matmul
 class _Arena:
     """Arrays carved one after another out of one buffer, in huge pages when it is large.
 
-    A point reads every table once; in 4 KiB pages their page walks cost 3-4% of the rigid
-    body's point (benchmarks/README.md). An array that no longer fits is an ordinary one.
+    A point reads every table once; in 4 KiB pages their page walks cost a few per cent of a
+    high-dimensional codebook's point. An array that no longer fits is an ordinary one.
     """
 
     def __init__(self, values: int):
@@ -55,14 +55,15 @@ class TTStack:
     the weights; the slices are chained by one batched product. Cores of more
     than ``ROW_FIRST_MAX`` slice values are contracted with the running vector
     first instead (``(q, 1, r0) @ (q, r0, n r1)``): that product's output stays
-    in the first-level cache, where the table's would not (measured: a (74, 8, 63)
-    core of 6 unknowns took 33 us that way, 44 us through the table); its weights
-    are then applied by one gemv of the result seen as ``(q r0, w)``.
+    in the first-level cache, where the table's would not (a quarter faster on the
+    wide middle cores of the 7-D rigid body); its weights are then applied by one
+    gemv of the result seen as ``(q r0, w)``.
 
     The first two cores are merged into one table (see :meth:`_pair`) when the
     first coordinate's window (a time slab: 6-8 nodes) is narrower than the
-    bond between them, or the flops are no more: one product less (coupled:
-    4.5 -> 2.5 us); the last two likewise, reversed (:attr:`tail_pair`).
+    bond between them, or the flops are no more: one product less, which on a
+    small codebook is a large share of a point; the last two likewise, reversed
+    (:attr:`tail_pair`).
 
     The train is contracted from both ends: the head (the merged pair, or the
     first core) from the left into ``(q, 1, r)``, the tail (every later core)
@@ -138,7 +139,7 @@ class TTStack:
     def _merges(first: np.ndarray, second: np.ndarray, point: PointData) -> bool:
         """Whether two cores are cheaper merged: per point ``w n2 q r2`` multiply-adds instead of
         ``w q r1 + n2 q r1 r2`` (w: the first coordinate's window), or about as many and one product
-        less (the rigid body's last two cores: 10,816 against 10,936, 3.3 -> 2.4 us)."""
+        less (a product's call costs as much as thousands of multiply-adds)."""
         q, _, n1, r1 = first.shape
         _, _, n2, r2 = second.shape
         width = max(hi - lo for lo, hi in point.window_bounds())
@@ -209,8 +210,8 @@ class TTStack:
         """The tail contracted from the right at the point's ``weights``: a row (q, 1, r) and its scale (None: no tail).
 
         The running vector is a row (q, 1, r1) times the transposed slices (q, r1, r0): every
-        product then reads its matrix row by row, as the head's do (measured: the (74, 8, 63)
-        core of 6 unknowns 7% faster than as (q, r0 w, r1) times a column).
+        product then reads its matrix row by row, as the head's do (a little faster than as
+        (q, r0 w, r1) times a column).
         """
         v, scale = (None, 1.0) if self.tail_pair is None else self._at_pair(self.tail_pair, weights)
         for j, through_table, rows, windows, shape in self.tail:

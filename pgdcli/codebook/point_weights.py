@@ -5,8 +5,8 @@ barycentric weights on it: :class:`PointData` holds one coordinate's constants (
 cardinal rows of :class:`pgdcli.codebook.evaluate.Evaluator`'s CP path); :class:`PointWeights`
 gives a point's weights on every coordinate for :class:`pgdcli.codebook.point.TTStack`, those of
 coordinates sharing a plain Chebyshev basis of one node count from one subtraction and one
-division (the rigid body's seven coordinates: 6.1 -> 3.9 us of a ~50 us point; coupled's four:
-3.7 -> 3.5 us). numpy only (the query path).
+division (the many same-size coordinates of a high-dimensional codebook pay one numpy call
+instead of one each: ``benchmarks/query_speed_tt.py``). numpy only (the query path).
 """
 
 from __future__ import annotations

@@ -31,8 +31,8 @@ __all__ = ["evaluate_series", "series_tt", "series_cp"]
 
 def evaluate_series(fields, mats: list, series: int, rows: np.ndarray, selected: Sequence[str]) -> dict:
     """The ``selected`` unknowns of ``fields`` at parameter points times series values, each (S, T),
-    under the batches' BLAS policy (:func:`~pgdcli.codebook.threads.batch_blas`: with two BLAS
-    threads on a loaded machine these small products ran ~10x slower). ``mats``, ``series`` and
+    under the batches' BLAS policy (:func:`~pgdcli.codebook.threads.batch_blas`: threaded BLAS
+    makes these small products many times slower on a loaded machine). ``mats``, ``series`` and
     ``rows`` as in :func:`series_tt`."""
     points = next((m.shape[0] for j, m in enumerate(mats) if j != series), 1)
     with batch_blas(points * rows.shape[0]):

@@ -2,8 +2,9 @@
 
 Batches (CP and tensor-train) are cut into chunks of points, run in this thread or shared by
 a few threads of our own, with BLAS limited to one thread while they run
-(:func:`pgdcli.blas.one_blas_thread`). The sizes are :mod:`pgdcli.tuning`'s. numpy only at
-import (threadpoolctl on the first large batch).
+(:func:`pgdcli.blas.one_blas_thread`). The sizes are :mod:`pgdcli.tuning`'s; the policy's
+measurements: ``benchmarks/query_speed.py`` (its thread configurations). numpy only at import
+(threadpoolctl on the first large batch).
 
 A batch of at most one chunk makes exactly the numpy/BLAS calls of the unchunked algorithm.
 Larger batches: chunk lengths are multiples of ROW_ALIGN, so every row keeps its position in the

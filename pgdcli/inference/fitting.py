@@ -57,6 +57,17 @@ class FitResult:
         Max abs difference codebook - reference at the data points (all unknowns), at the estimate.
     reference_rms : float or None
         ``rms`` with the reference solution in place of the codebook.
+    success : bool
+        The least-squares solve converged and no estimate lies on a bound of its domain.
+    message : str
+        One line: ``least_squares``' termination reason, and the coordinates on a bound.
+    at_bound : list of str
+        Free coordinates whose estimate lies on a bound of their domain (within 1e-9 of its
+        width): the best fit may lie outside the codebook, and ``success`` is False.
+    bounds : dict of str to tuple of float
+        Free coordinate -> ``(low, high)``, the domain searched.
+    nfev, starts : int
+        Residual evaluations over all starts, and the number of starts.
     elapsed, check_elapsed : float
         Seconds spent fitting (loading the codebook and reading the data excluded) and in the reference check.
     """
@@ -81,6 +92,8 @@ class FitResult:
     data: dict = field(default_factory=dict, repr=False)
     coordinates: list = field(default_factory=list)
     jacobian: np.ndarray | None = field(default=None, repr=False)
+    at_bound: list = field(default_factory=list)
+    bounds: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """Plain Python data (what ``pgd fit --format json`` prints)."""
@@ -91,6 +104,7 @@ class FitResult:
                 "stderr": {k: num(v) for k, v in self.stderr.items()},
                 "fixed": dict(self.fixed), "cost": float(self.cost), "rms": float(self.rms),
                 "residuals": int(self.residuals.size), "success": bool(self.success), "message": self.message,
+                "at_bound": list(self.at_bound),
                 "evaluations": int(self.nfev), "starts": int(self.starts), "observed": list(self.observed),
                 "reference_error": num(self.reference_error), "reference_rms": num(self.reference_rms),
                 "reference_message": self.reference_message, "elapsed": float(self.elapsed),
@@ -287,11 +301,14 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
     errors = _stderr(jac, best.fun)
     fitted = {n: v.copy() for n, v in coords.items()}
     fitted.update(model.values(best.x))
+    at_bound = _at_bound(best.x, free, bounds)
     result = FitResult(
         estimate=dict(zip(free, map(float, best.x))), stderr=dict(zip(free, map(float, errors))), fixed=fixed,
-        cost=float(best.cost), rms=float(np.sqrt(2 * best.cost / m)), residuals=best.fun, success=bool(best.success),
-        message=_message(best, free, bounds), nfev=nfev, starts=int(starts), fitted=fitted, observed=observed,
-        data={u: data[u] for u in observed}, coordinates=list(coords), jacobian=jac)
+        cost=float(best.cost), rms=float(np.sqrt(2 * best.cost / m)), residuals=best.fun,
+        success=bool(best.success) and not at_bound, message=_message(best, at_bound), nfev=nfev,
+        starts=int(starts), fitted=fitted, observed=observed, data={u: data[u] for u in observed},
+        coordinates=list(coords), jacobian=jac, at_bound=at_bound,
+        bounds={n: (float(lo), float(hi)) for n, lo, hi in zip(free, *bounds)})
     result.elapsed = _time.perf_counter() - began
     if check:
         began = _time.perf_counter()
@@ -324,12 +341,16 @@ def _best_of_starts(model, data, bounds: np.ndarray, starts: int, seed: int, tol
     return best, nfev
 
 
-def _message(res, free: Sequence[str], bounds: np.ndarray) -> str:
-    text = " ".join(str(res.message).split()).rstrip(".")
+def _at_bound(x: np.ndarray, free: Sequence[str], bounds: np.ndarray) -> list[str]:
+    """The free coordinates whose estimate is on a bound of the domain (within 1e-9 of its width)."""
     span = bounds[1] - bounds[0]
-    at = [n for n, x, lo, hi, s in zip(free, res.x, *bounds, span) if min(x - lo, hi - x) <= 1e-9 * s]
-    if at:
-        text += f"; at the domain bound: {', '.join(at)} (the best fit may lie outside the codebook)"
+    return [n for n, v, lo, hi, s in zip(free, x, *bounds, span) if min(v - lo, hi - v) <= 1e-9 * s]
+
+
+def _message(res, at_bound: Sequence[str]) -> str:
+    text = " ".join(str(res.message).split()).rstrip(".")
+    if at_bound:
+        text += f"; at the domain bound: {', '.join(at_bound)} (the best fit may lie outside the codebook)"
     return text
 
 

@@ -23,6 +23,9 @@ def summary(result) -> str:
 
 def plot_fit(result, path, dpi: int = 150):
     """Data (markers) and the fitted curve (lines) of every observed unknown; saved as PNG/SVG."""
+    from ..plot.options import require_matplotlib
+
+    require_matplotlib("pgd fit --plot")
     from matplotlib.figure import Figure
 
     from ..plot.files import save_figure

@@ -1,4 +1,4 @@
-"""Pictures of a codebook: modes, convergence, solution and error (``pgd plot``).
+"""Pictures of a codebook: solution, modes, convergence, error, phase and sensitivity (``pgd plot``).
 
 Two layers, so that tests check numbers rather than pixels (modules: :mod:`.options` the
 arguments, :mod:`.modes` and :mod:`.solution` the data, :mod:`.draw` the figures,
@@ -6,7 +6,8 @@ arguments, :mod:`.modes` and :mod:`.solution` the data, :mod:`.draw` the figures
 
 - ``*_data`` functions compute what is drawn, as plain dicts of numpy arrays:
   :func:`modes_data`, :func:`convergence_data`, :func:`solution_data`,
-  :func:`error_data`. Every array handed to matplotlib comes from them.
+  :func:`error_data`, :func:`phase_data` (:mod:`.phase`), :func:`sensitivity_data`
+  (:mod:`.sobol`). Every array handed to matplotlib comes from them.
 - ``draw_*`` functions turn such a dict into a :class:`matplotlib.figure.Figure`;
   ``plot_*`` do both (``plot_modes(codebook, ...) -> Figure``), and
   :func:`render` does what ``pgd plot`` does: load, compute, draw, save.
@@ -20,7 +21,9 @@ Conventions
 -----------
 - Curves ("lines" layout) run along the time coordinate, one per parameter
   point; a point that leaves a non-time coordinate unset takes the midpoint of
-  its domain.
+  its domain. Codebook curves are lines (color and line style tell them apart);
+  markers mean the independent reference (open) or one marked point (the largest
+  error, a phase portrait's start).
 - Maps ("map" layout) are drawn over two coordinates ``(x, y)``; every other
   coordinate is fixed, by default at the midpoint of its domain.
 - Tensor-train codebooks (the nonlinear time march) have no stored modes:
@@ -41,9 +44,12 @@ from .draw import (draw_convergence, draw_error, draw_modes, draw_solution, plot
 from .files import default_output, render, save_figure
 from .modes import convergence_data, modes_data, tt_hosvd_modes
 from .options import DEFAULT_DPI, FORMATS, KINDS, parse_over, parse_point, parse_size
+from .phase import draw_phase, phase_data, plot_phase
+from .sobol import draw_sensitivity, plot_sensitivity, sensitivity_data
 from .solution import error_data, reference_solver, solution_data
 
 __all__ = ["KINDS", "FORMATS", "DEFAULT_DPI", "modes_data", "tt_hosvd_modes", "convergence_data", "solution_data",
            "error_data", "draw_modes", "draw_convergence", "draw_solution", "draw_error", "plot_modes",
            "plot_convergence", "plot_solution", "plot_error", "reference_solver", "parse_point", "parse_over",
-           "parse_size", "default_output", "save_figure", "render"]
+           "parse_size", "default_output", "save_figure", "render", "phase_data", "draw_phase", "plot_phase",
+           "sensitivity_data", "draw_sensitivity", "plot_sensitivity"]

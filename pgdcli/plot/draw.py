@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .modes import convergence_data, modes_data
-from .options import DEFAULT_COUNT, DEFAULT_DPI, point_label
+from .options import DEFAULT_COUNT, DEFAULT_DPI, point_label, require_matplotlib
 from .solution import error_data, solution_data
 
 __all__ = ["draw_modes", "draw_convergence", "draw_solution", "draw_error", "plot_modes", "plot_convergence", "plot_solution", "plot_error"]
@@ -23,7 +23,7 @@ _MAP_CMAP = "viridis"
 _ERROR_CMAP = "cividis"
 
 
-def _style(i: int) -> dict:
+def line_style(i: int) -> dict:
     return {"color": _COLORS[i % len(_COLORS)], "linestyle": _LINESTYLES[i % len(_LINESTYLES)],
             "marker": _MARKERS[i % len(_MARKERS)]}
 
@@ -31,15 +31,16 @@ def _style(i: int) -> dict:
 # ----------------------------------------------------------------------------------------------
 # drawing
 # ----------------------------------------------------------------------------------------------
-def _new_figure(fig, figsize):
+def new_figure(fig, figsize):
     if fig is not None:
         return fig
+    require_matplotlib()
     from matplotlib.figure import Figure
 
     return Figure(figsize=figsize, dpi=DEFAULT_DPI, layout="constrained")
 
 
-def _title(fig, data: dict, what: str) -> None:
+def figure_title(fig, data: dict, what: str) -> None:
     fig.suptitle(f"{data['problem']}: {what}", fontsize="large")
 
 
@@ -94,14 +95,14 @@ def draw_modes(data: dict, *, fig=None, figsize=None):
     npan = len(panels)
     ncols = npan if npan <= 3 else (2 if npan == 4 else 3)
     nrows = math.ceil(npan / ncols)
-    fig = _new_figure(fig, figsize or (3.6 * ncols + 1.4, (3.2 if tt else 2.9) * nrows + 0.6))
+    fig = new_figure(fig, figsize or (3.6 * ncols + 1.4, (3.2 if tt else 2.9) * nrows + 0.6))
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     field = data["field"]
     for ax, panel in zip(axes, panels):
         x, vals = panel["x"], panel["values"]
         step = max(1, x.size // 8)
         for i in range(vals.shape[1]):
-            st = _style(i)
+            st = line_style(i)
             label = f"mode {i + 1}" if tt else f"mode {i + 1} (\u03b1={data['alphas'][i]:.3g})"
             ax.plot(x, vals[:, i], color=st["color"], linestyle=st["linestyle"], marker=st["marker"],
                     markersize=4.5, markerfacecolor="white", markevery=(i * step // max(vals.shape[1], 1), step),
@@ -129,12 +130,12 @@ def draw_modes(data: dict, *, fig=None, figsize=None):
         fig.legend(handles, labels, loc="outside right upper", fontsize="small", title_fontsize="small",
                    title=f"{field}: tensor train\nranks {ranks}\n\nHOSVD modes,\nnormalized to\n"
                          f"unit 2-norm\nat the nodes")
-        _title(fig, data, f"first {data['count']} HOSVD modes of {field}" if data["count"]
+        figure_title(fig, data, f"first {data['count']} HOSVD modes of {field}" if data["count"]
                else f"{field} is zero at every node: no HOSVD modes")
         return fig
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right upper", fontsize="small", title=f"{field}: {data['rank']} modes")
-    _title(fig, data, f"first {data['count']} modes of {field}")
+    figure_title(fig, data, f"first {data['count']} modes of {field}")
     return fig
 
 
@@ -144,7 +145,7 @@ def draw_convergence(data: dict, *, fig=None, figsize=None):
     if data.get("method") == "march":
         return _draw_march_convergence(data, fig=fig, figsize=figsize)
     outer = data["outer"]
-    fig = _new_figure(fig, figsize or ((10.0, 4.2) if outer is not None else (6.4, 4.2)))
+    fig = new_figure(fig, figsize or ((10.0, 4.2) if outer is not None else (6.4, 4.2)))
     axes = fig.subplots(1, 2 if outer is not None else 1, squeeze=False).ravel()
     ax = axes[0]
     res = np.where(data["residual"] > 0, data["residual"], np.nan)
@@ -170,13 +171,13 @@ def draw_convergence(data: dict, *, fig=None, figsize=None):
         ax2.xaxis.get_major_locator().set_params(integer=True)
         ax2.grid(True, which="both", linewidth=0.4, alpha=0.5)
         ax2.set_title("outer (nonlinear) iteration", fontsize="medium")
-    _title(fig, data, "convergence")
+    figure_title(fig, data, "convergence")
     return fig
 
 
 def _draw_march_convergence(data: dict, *, fig=None, figsize=None):
     """(a) accepted step sizes against time, (b) tensor-train rank per time node and unknown."""
-    fig = _new_figure(fig, figsize or (8.4, 6.4))
+    fig = new_figure(fig, figsize or (8.4, 6.4))
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
     tname, nodes = data["time"], data["node_times"]
     sizes, start, end = data["step_sizes"], data["step_start"], data["step_end"]
@@ -201,7 +202,7 @@ def _draw_march_convergence(data: dict, *, fig=None, figsize=None):
     ranks = data["ranks"]
     seen: dict[tuple, str] = {}
     for i, u in enumerate(data["unknowns"]):
-        st = _style(i)
+        st = line_style(i)
         key = tuple(ranks[:, i].tolist())
         label = u if key not in seen else f"{u} (same as {seen[key]})"
         seen.setdefault(key, u)
@@ -220,19 +221,34 @@ def _draw_march_convergence(data: dict, *, fig=None, figsize=None):
                   loc="left")
     state = "" if data["converged"] else ", not converged"
     measured = "" if np.isnan(data["check_error"]) else f"max error {_sci(data['check_error'])} vs scipy, "
-    _title(fig, data, f"time march, {measured}RMS estimate {_sci(data['error_estimate'])} "
+    figure_title(fig, data, f"time march, {measured}RMS estimate {_sci(data['error_estimate'])} "
                       f"(tolerance {_sci(data['tolerance'])}){state}")
     return fig
 
 
-def _draw_lines(ax, data: dict, *, markers: bool) -> None:
+def _draw_lines(ax, data: dict) -> None:
+    """The codebook's curves: lines only (color and line style), markers being the reference's."""
     t, vals = data["t"], data["values"]
-    step = max(1, t.size // 10)
     for i, label in enumerate(data["labels"]):
-        st = _style(i)
-        kw = dict(marker=st["marker"], markersize=4.5, markerfacecolor="white",
-                  markevery=(i * step // max(len(data["labels"]), 1), step)) if markers else {}
-        ax.plot(t, vals[i], color=st["color"], linestyle=st["linestyle"], linewidth=1.6, label=label, **kw)
+        st = line_style(i)
+        ax.plot(t, vals[i], color=st["color"], linestyle=st["linestyle"], linewidth=1.6, label=label)
+
+
+def _mark_inside(ax, x: float, y: float, label: str, log_y: bool = False) -> None:
+    """A marker at (x, y), the view widened so that the whole marker lies inside the frame."""
+    ax.plot([x], [y], linestyle="none", marker="X", markersize=10, markerfacecolor="white", markeredgecolor="black",
+            label=label, zorder=5)
+    margin = 0.03  # of the axis span: more than half the marker on a figure of the default size
+    x0, x1 = ax.get_xlim()
+    pad = margin * (x1 - x0)
+    ax.set_xlim(min(x0, x - pad), max(x1, x + pad))
+    y0, y1 = ax.get_ylim()
+    if log_y and y0 > 0 and y > 0:
+        f = ((y1 / y0) ** margin)
+        ax.set_ylim(min(y0, y / f), max(y1, y * f))
+    else:
+        pad = margin * (y1 - y0)
+        ax.set_ylim(min(y0, y - pad), max(y1, y + pad))
 
 
 def _map_mesh(ax, fig, data: dict, z, *, cmap: str, norm=None, label: str):
@@ -250,12 +266,12 @@ def draw_solution(data: dict, *, fig=None, figsize=None):
     field = data["field"]
     ref = data.get("reference")
     if data["layout"] == "lines":
-        fig = _new_figure(fig, figsize or (8.4, 4.6))
+        fig = new_figure(fig, figsize or (8.4, 4.6))
         ax = fig.subplots()
-        _draw_lines(ax, data, markers=ref is None)
+        _draw_lines(ax, data)
         if ref is not None:
             for i in range(len(data["labels"])):
-                st = _style(i)
+                st = line_style(i)
                 ax.plot(ref["t"], ref["values"][i], linestyle="none", marker=st["marker"], markersize=6,
                         markerfacecolor="none", markeredgecolor=st["color"], markeredgewidth=1.1)
             handles, labels = ax.get_legend_handles_labels()
@@ -272,9 +288,9 @@ def draw_solution(data: dict, *, fig=None, figsize=None):
         ax.set_ylabel(field)
         ax.set_xlim(data["t"][0], data["t"][-1])
         ax.grid(True, linewidth=0.4, alpha=0.5)
-        _title(fig, data, f"{field} against {data['time']}")
+        figure_title(fig, data, f"{field} against {data['time']}")
         return fig
-    fig = _new_figure(fig, figsize or (7.0, 5.2))
+    fig = new_figure(fig, figsize or (7.0, 5.2))
     ax = fig.subplots()
     _map_mesh(ax, fig, data, data["values"], cmap=_MAP_CMAP, label=field)
     if ref is not None:
@@ -287,7 +303,7 @@ def draw_solution(data: dict, *, fig=None, figsize=None):
         ax.legend([Line2D([], [], color="black", linewidth=1.4), Line2D([], [], color="white", linestyle="--")],
                   ["PGD codebook (contours)", f"reference ({ref['description']})"], fontsize="small",
                   loc="upper right", facecolor="0.75", framealpha=0.9)
-    _title(fig, data, f"{field} over {data['x']}, {data['y']}{_fixed_note(data['fixed'])}")
+    figure_title(fig, data, f"{field} over {data['x']}, {data['y']}{_fixed_note(data['fixed'])}")
     return fig
 
 
@@ -298,23 +314,25 @@ def draw_error(data: dict, *, fig=None, figsize=None):
     field = data["field"]
     what = f"|{field} \u2212 {field}_ref|"
     if data["layout"] == "lines":
-        fig = _new_figure(fig, figsize or (8.4, 4.6))
+        fig = new_figure(fig, figsize or (8.4, 4.6))
         ax = fig.subplots()
         shown = dict(data)
         shown["values"] = np.where(data["values"] > 0, data["values"], np.nan)  # log axis: exact zeros omitted
         shown["labels"] = [f"{lab} (max {np.nanmax(v) if np.isfinite(v).any() else float('nan'):.2g})"
                            for lab, v in zip(data["labels"], data["values"])]
-        _draw_lines(ax, shown, markers=True)
+        _draw_lines(ax, shown)
         ax.set_yscale("log")
         ax.set_xlabel(data["time"])
         ax.set_ylabel(f"absolute error {what}")
         ax.set_xlim(data["t"][0], data["t"][-1])
+        if data.get("argmax") and np.isfinite(data["max"]) and data["max"] > 0:
+            _mark_inside(ax, data["argmax"][data["time"]], data["max"], f"max {data['max']:.2g}", log_y=True)
         ax.grid(True, which="both", linewidth=0.4, alpha=0.5)
         fig.legend(*ax.get_legend_handles_labels(), fontsize="small", loc="outside right upper")
         ax.set_title(f"reference: {data['description']}", fontsize="small", pad=8)
-        _title(fig, data, f"error of {field} against {data['time']}")
+        figure_title(fig, data, f"error of {field} against {data['time']}")
         return fig
-    fig = _new_figure(fig, figsize or (7.0, 5.2))
+    fig = new_figure(fig, figsize or (7.0, 5.2))
     ax = fig.subplots()
     z = data["values"]
     positive = z[np.isfinite(z) & (z > 0)]
@@ -331,12 +349,10 @@ def draw_error(data: dict, *, fig=None, figsize=None):
                   label=f"absolute error {what}")
     if data.get("argmax"):
         am = data["argmax"]
-        ax.plot([am[data["x"]]], [am[data["y"]]], linestyle="none", marker="X", markersize=10,
-                markerfacecolor="white", markeredgecolor="black", label=f"max {data['max']:.2g}", clip_on=False,
-                zorder=5)
+        _mark_inside(ax, am[data["x"]], am[data["y"]], f"max {data['max']:.2g}")
         ax.legend(fontsize="small", loc="upper right", framealpha=0.9)
     ax.set_title(f"reference: {data['description']}", fontsize="small", pad=10)
-    _title(fig, data, f"error of {field} over {data['x']}, {data['y']}{_fixed_note(data['fixed'])}")
+    figure_title(fig, data, f"error of {field} over {data['x']}, {data['y']}{_fixed_note(data['fixed'])}")
     return fig
 
 

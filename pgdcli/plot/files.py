@@ -9,7 +9,10 @@ import os
 from ..errors import PgdError, QueryError
 from .draw import draw_convergence, draw_error, draw_modes, draw_solution
 from .modes import convergence_data, modes_data
-from .options import DEFAULT_COUNT, DEFAULT_DPI, FORMATS, KINDS, parse_size
+from .options import (DEFAULT_COUNT, DEFAULT_DPI, DEFAULT_KIND, FORMATS, KINDS, parse_point, parse_size,
+                      require_matplotlib)
+from .phase import draw_phase, phase_data
+from .sobol import draw_sensitivity, sensitivity_data
 from .solution import error_data, reference_solver, solution_data
 
 __all__ = ["default_output", "save_figure", "render"]
@@ -84,23 +87,29 @@ _APPLIES = {
     "convergence": set(),
     "solution": {"--at", "--over", "--fix", "--reference", "--points", "--field"},
     "error": {"--at", "--over", "--fix", "--points", "--field"},
+    "phase": {"--at", "--reference", "--points", "--x", "--y"},
+    "sensitivity": {"--at", "--points", "--field", "--density"},
 }
 
 
-def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | os.PathLike | None = None, *,
+def render(codebook_path: str | os.PathLike, kind: str = DEFAULT_KIND, output: str | os.PathLike | None = None, *,
            field: str | None = None, count: int | None = None, at: Iterable[str] | None = None,
            over: str | None = None, fix: Iterable[str] | None = None, reference: bool = False,
            points: int | None = None, dpi: int = DEFAULT_DPI, size: str | tuple[float, float] | None = None,
-           warn: Callable[[str], None] | None = None, max_seconds: float | None = None) -> Path:
+           warn: Callable[[str], None] | None = None, max_seconds: float | None = None, x: str | None = None,
+           y: str | None = None, densities: dict | None = None) -> Path:
     """What ``pgd plot`` does: load the codebook, compute, draw and save; returns the written path.
 
     Options that do not apply to ``kind`` raise :class:`QueryError` (naming
     the option) rather than being ignored. ``warn`` receives reference
     failures (one line each). The reference integrations stop after ``max_seconds``
-    (:class:`~pgdcli.errors.TimeBudgetExceeded`; nothing is written).
+    (:class:`~pgdcli.errors.TimeBudgetExceeded`; nothing is written). ``x``, ``y``: the unknowns
+    of a phase portrait; ``densities``: the inputs' densities of a sensitivity plot
+    (``{"k": "normal:2,0.3"}``).
     """
     from ..codebook.codebook import Codebook
 
+    require_matplotlib("pgd plot")
     if kind not in KINDS:
         raise QueryError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
     target = Path(output) if output is not None else default_output(codebook_path, kind)
@@ -111,7 +120,8 @@ def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | 
     at = list(at or [])
     fix = list(fix or [])
     given = {"--count": count is not None, "--at": bool(at), "--over": over is not None, "--fix": bool(fix),
-             "--reference": bool(reference), "--points": points is not None, "--field": field is not None}
+             "--reference": bool(reference), "--points": points is not None, "--field": field is not None,
+             "--x": x is not None, "--y": y is not None, "--density": bool(densities)}
     for opt, present in given.items():
         if present and opt not in _APPLIES[kind]:
             applies = [k for k, a in _APPLIES.items() if opt in a]
@@ -128,10 +138,23 @@ def render(codebook_path: str | os.PathLike, kind: str = "modes", output: str | 
         ref = reference_solver(cb, source=str(codebook_path), max_seconds=max_seconds) if reference else False
         data = solution_data(cb, field, at=at, over=over, fix=fix, points=points, reference=ref)
         fig = draw_solution(data, figsize=figsize)
-    else:
+    elif kind == "error":
         ref = reference_solver(cb, source=str(codebook_path), max_seconds=max_seconds)
         data = error_data(cb, field, at=at, over=over, fix=fix, points=points, reference=ref)
         fig = draw_error(data, figsize=figsize)
+    elif kind == "phase":
+        ref = reference_solver(cb, source=str(codebook_path), max_seconds=max_seconds) if reference else False
+        data = phase_data(cb, x, y, at=at, points=points, reference=ref)
+        fig = draw_phase(data, figsize=figsize)
+    else:
+        fixed = {}
+        for text in at:  # one point: the coordinates held fixed
+            for name, value in parse_point(text, cb, "--at").items():
+                if name in fixed:
+                    raise QueryError(f"--at: coordinate {name!r} given twice")
+                fixed[name] = value
+        data = sensitivity_data(cb, field, at=fixed, points=points, densities=densities)
+        fig = draw_sensitivity(data, figsize=figsize)
     if warn is not None:
         for message in data.get("failures", []):
             warn(message)

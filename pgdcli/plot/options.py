@@ -5,12 +5,14 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 import math
 
-from ..errors import QueryError
+from ..errors import PgdError, QueryError
 
-__all__ = ["KINDS", "FORMATS", "DEFAULT_DPI", "parse_point", "parse_over", "parse_size"]
+__all__ = ["KINDS", "DEFAULT_KIND", "FORMATS", "DEFAULT_DPI", "parse_point", "parse_over", "parse_size",
+           "require_matplotlib"]
 
 
-KINDS = ("modes", "convergence", "solution", "error")
+KINDS = ("solution", "modes", "convergence", "error", "phase", "sensitivity")
+DEFAULT_KIND = "solution"
 FORMATS = ("png", "svg")
 DEFAULT_DPI = 150
 DEFAULT_COUNT = 6
@@ -18,6 +20,31 @@ LINE_POINTS = 201          # samples along a curve
 MAP_POINTS = 81            # samples per axis of a map
 REFERENCE_MARKERS = 21     # reference markers per curve (solution --reference)
 DEFAULT_AT_CURVES = 5      # curves along the first parameter when no --at is given
+
+
+def require_matplotlib(what: str = "drawing a figure") -> None:
+    """Raise a one-line :class:`~pgdcli.errors.PgdError` when matplotlib is not installed.
+
+    matplotlib is an optional dependency (the ``plot`` extra): solving, querying, verifying,
+    fitting and exporting do not need it.
+
+    Parameters
+    ----------
+    what : str
+        What needs it, for the message (e.g. ``"pgd plot"``).
+
+    Raises
+    ------
+    PgdError
+        matplotlib cannot be imported; the message gives the command that installs it.
+    """
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise PgdError(f"{what} needs matplotlib, which is not installed: pip install 'pgdcli[plot]' "
+                       f"(or pip install matplotlib)") from None
+
+
 # ----------------------------------------------------------------------------------------------
 # argument parsing shared by the CLI and the Python API (errors name the option)
 # ----------------------------------------------------------------------------------------------

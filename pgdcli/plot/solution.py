@@ -12,7 +12,7 @@ from ..errors import PgdError, QueryError, TimeBudgetExceeded
 from .options import (DEFAULT_AT_CURVES, LINE_POINTS, MAP_POINTS, REFERENCE_MARKERS, count_points, domain_midpoint,
                       field_name, is_steady, line_axis, parse_over, parse_point, point_label, time_coordinate_of)
 
-__all__ = ["solution_data", "error_data", "reference_solver"]
+__all__ = ["solution_data", "error_data", "reference_solver", "line_points", "reference_values"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -59,7 +59,7 @@ def reference_solver(codebook, *, source: str = "<codebook>", method: str | None
     return solve
 
 
-def _reference_values(reference: Callable, field: str, params: Mapping[str, np.ndarray],
+def reference_values(reference: Callable, field: str, params: Mapping[str, np.ndarray],
                       times: np.ndarray | None, axis: str | None = None) -> tuple[np.ndarray, list[str]]:
     """Reference values (S, T) of ``field``; rows whose solve failed are NaN, with a message each.
 
@@ -94,7 +94,7 @@ def _reference_description(reference) -> str:
     return getattr(reference, "description", "independent reference")
 
 
-def _line_points(codebook, at, what: str) -> tuple[object, list[dict[str, float]]]:
+def line_points(codebook, at, what: str) -> tuple[object, list[dict[str, float]]]:
     """Complete ``--at`` points: every coordinate but the curves' axis set (default: domain midpoint)."""
     tc = line_axis(codebook, what)
     others = [c for c in codebook.coordinates if c is not tc]
@@ -153,7 +153,7 @@ def _map_reference(codebook, reference, field, xn, yn, xv, yv, fixed) -> tuple[n
     """The reference on the map grid, shape (len(yv), len(xv))."""
     coords = _map_coordinates(xn, yn, xv, yv, fixed)
     if is_steady(codebook):  # no times: every map point is a point of the reference
-        values, failures = _reference_values(reference, field, {k: v.reshape(-1) for k, v in coords.items()}, None)
+        values, failures = reference_values(reference, field, {k: v.reshape(-1) for k, v in coords.items()}, None)
         return values.reshape(yv.size, xv.size), failures
     tc = time_coordinate_of(codebook, "a reference solution")
     if tc.name in (xn, yn):  # one solve per point of the other axis, all times at once
@@ -161,11 +161,11 @@ def _map_reference(codebook, reference, field, xn, yn, xv, yv, fixed) -> tuple[n
         times = xv if time_is_x else yv
         params = {pn: pv}
         params.update({k: np.full(pv.size, v) for k, v in fixed.items() if k != tc.name})
-        values, failures = _reference_values(reference, field, params, times)  # (n_p, n_t)
+        values, failures = reference_values(reference, field, params, times)  # (n_p, n_t)
         return (values if time_is_x else values.T), failures
     t = fixed[tc.name]
     params = {k: v.reshape(-1) for k, v in coords.items() if k != tc.name}
-    values, failures = _reference_values(reference, field, params, np.array([t]))
+    values, failures = reference_values(reference, field, params, np.array([t]))
     return values.reshape(yv.size, xv.size), failures
 
 
@@ -210,14 +210,14 @@ def solution_data(codebook, field: str | None = None, *, at=None, over=None, fix
     if over is None and fix:
         raise QueryError("--fix applies to maps (--over X,Y); curves take their parameters from --at")
     if over is None:
-        tc, pts = _line_points(codebook, at, "curves along time")
+        tc, pts = line_points(codebook, at, "curves along time")
         t = np.linspace(tc.domain[0], tc.domain[1], count_points(points, LINE_POINTS))
         values = np.array([codebook.evaluate({**p, tc.name: t}, fields=[name])[name] for p in pts])
         out.update(layout="lines", time=tc.name, t=t, points=pts, labels=[point_label(p) for p in pts], values=values)
         if ref is not None:
             tr = np.linspace(tc.domain[0], tc.domain[1], REFERENCE_MARKERS)
             params = {k: np.array([p[k] for p in pts]) for k in pts[0]} if pts and pts[0] else {}
-            rv, failures = _reference_values(ref, name, params, tr, tc.name if is_steady(codebook) else None)
+            rv, failures = reference_values(ref, name, params, tr, tc.name if is_steady(codebook) else None)
             out["reference"] = {"t": tr, "values": rv, "description": _reference_description(ref)}
             out["failures"] = failures
         return out
@@ -257,11 +257,11 @@ def error_data(codebook, field: str | None = None, *, at=None, over=None, fix=No
     out = {"kind": "error", "problem": codebook.name, "field": name, "description": _reference_description(ref)}
     single = over is None and len(codebook.coordinates) == 1
     if at or single:
-        tc, pts = _line_points(codebook, at, "error curves along time")
+        tc, pts = line_points(codebook, at, "error curves along time")
         t = np.linspace(tc.domain[0], tc.domain[1], count_points(points, LINE_POINTS))
         cbv = np.array([codebook.evaluate({**p, tc.name: t}, fields=[name])[name] for p in pts])
         params = {k: np.array([p[k] for p in pts]) for k in pts[0]} if pts[0] else {}
-        rv, failures = _reference_values(ref, name, params, t, tc.name if is_steady(codebook) else None)
+        rv, failures = reference_values(ref, name, params, t, tc.name if is_steady(codebook) else None)
         err = np.abs(cbv - rv)
         out.update(layout="lines", time=tc.name, t=t, points=pts, labels=[point_label(p) for p in pts],
                    codebook=cbv, reference=rv, values=err, failures=failures)

@@ -74,6 +74,11 @@ class CPTensor:
     def order(self) -> int:
         return len(self.factors)
 
+    @property
+    def size(self) -> int:
+        """Number of stored floats (the weights and the factors')."""
+        return int(self.weights.size + sum(f.size for f in self.factors))
+
     def full(self) -> np.ndarray:
         """The full tensor, shape ``self.shape`` (small tensors only: tests, plots)."""
         letters = "abcdefghijklmnopqrstuvwxyz"[: self.order]

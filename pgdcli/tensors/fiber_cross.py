@@ -31,6 +31,7 @@ This module imports numpy, scipy.linalg, :mod:`pgdcli.tensors` and :mod:`pgdcli.
 
 from __future__ import annotations
 
+import builtins
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -109,7 +110,7 @@ def vector_cross(function: Callable[[np.ndarray], np.ndarray], outputs: int, sha
                  tolerance: float, *, largest: float | None = None, rng: np.random.Generator, max_rank: int = 400,
                  initial_rank: int = 16, check_points: int = 256, max_sweeps: int = 16,
                  callback: Callable[[dict], None] | None = None,
-                 max_evaluations: int | None = None) -> VectorCrossResult:
+                 max_evaluations: int | None = None, map: Callable | None = None) -> VectorCrossResult:
     """A tensor train of shape ``(outputs,) + shape`` within ``tolerance`` of ``F`` at random checks.
 
     Parameters
@@ -138,11 +139,17 @@ def vector_cross(function: Callable[[np.ndarray], np.ndarray], outputs: int, sha
         After every half sweep: ``{"sweep", "error", "largest", "ranks", "evaluations"}``.
     max_evaluations : int, optional
         Stop (not converged) after the half sweep that passes this many evaluations.
+    map : callable, optional
+        ``map(function, batches)``: ``function`` of every batch of multi-indices, in order (an executor's
+        map, which may run the batches elsewhere at once); default the builtin. The batches are the
+        same whatever runs them, and so is the train.
     """
     shape = tuple(int(n) for n in shape)
     if not shape or min(shape) < 1 or outputs < 1:
         raise ValueError(f"vector_cross needs outputs >= 1 and a grid of d >= 1 modes, got {outputs}, {shape}")
     cross = _VectorCross(function, outputs, shape, tolerance, rng, max_rank, initial_rank)
+    if map is not None:
+        cross.map = map
     return cross.run(check_points, max_sweeps, np.inf if largest is None else largest, callback,
                      np.inf if max_evaluations is None else max_evaluations)
 
@@ -164,6 +171,7 @@ class _VectorCross:
         self.left: list = [None] * (self.d + 1)  # left[k], k = 1..d: rows of (vector index, i_1, ..., i_{k-1})
         self.edge = None  # (mode, fibres) computed last, reused by the next half sweep's first core
         self.memo = _Memo.of(shape, outputs)
+        self.map = builtins.map  # of the function over batches (vector_cross's ``map``)
 
     def _random_indices(self, modes: tuple, count: int) -> np.ndarray:
         count = min(count, int(np.prod(modes, dtype=float)))
@@ -283,7 +291,7 @@ class _VectorCross:
             return self.memo.values[:, slots]
         batch = self._batch
         self.evaluations += len(points)
-        return np.concatenate([self.function(points[s:s + batch]) for s in range(0, len(points), batch)], axis=1)
+        return np.concatenate(list(self.map(self.function, _batches(points, batch))), axis=1)
 
     def _pick(self, points: np.ndarray, point_of: np.ndarray, output_of: np.ndarray) -> np.ndarray:
         """The values ``F(points[point_of[e]])[output_of[e]]``, evaluating the points by batches."""
@@ -295,8 +303,7 @@ class _VectorCross:
         sorted_points = point_of[order]
         out = np.empty(point_of.size)
         self.evaluations += len(points)
-        for s in range(0, len(points), batch):
-            values = self.function(points[s:s + batch])
+        for s, values in zip(range(0, len(points), batch), self.map(self.function, _batches(points, batch))):
             lo, hi = np.searchsorted(sorted_points, [s, s + batch])
             entries = order[lo:hi]
             out[entries] = values[output_of[entries], point_of[entries] - s]
@@ -323,9 +330,8 @@ class _VectorCross:
                 return None
             self.memo.clear()
         fresh, start, batch = points[~known][first], self.memo.count, self._batch
-        for s in range(0, len(fresh), batch):
-            chunk = fresh[s:s + batch]
-            self.memo.values[:, start + s:start + s + len(chunk)] = self.function(chunk)
+        for s, values in zip(range(0, len(fresh), batch), self.map(self.function, _batches(fresh, batch))):
+            self.memo.values[:, start + s:start + s + values.shape[1]] = values
         self.evaluations += len(new)
         self.memo.insert(new, start)
         slots[~known] = start + inverse.reshape(-1)
@@ -336,6 +342,11 @@ class _VectorCross:
         points = self._random_indices(self.shape, count)
         difference = tt_vectors_at(train, points) - self._evaluate(points).T
         return float(np.sqrt(np.mean(difference * difference))), float(np.max(np.abs(difference)))
+
+
+def _batches(points: np.ndarray, batch: int):
+    """Consecutive slices of ``batch`` points (the last one shorter)."""
+    return (points[s:s + batch] for s in range(0, len(points), batch))
 
 
 class _Memo:

@@ -5,7 +5,7 @@ ranks are the products of the factors' ranks: a randomized range finder
 (randomize-then-orthogonalize, Al Daas, Ballard et al., SIAM J. Sci. Comput. 2023) sketches
 the sum with a Gaussian train, then the sketch is rounded by TT-SVD. Its cost per core is
 about ``n r_A r_B (r_A + r_B) s`` for sketch rank ``s ~ r``: it grows as r^4 for factors of
-rank r (measured: the march's main cost on the rigid body, issue 15).
+rank r (the main cost of the march on the rigid body, benchmarks/build_speed.py).
 
 This module imports numpy and :mod:`pgdcli.tensors.tt` only.
 """

@@ -1,4 +1,4 @@
-"""Nonlinear problems through the separated time march (pgdcli.algorithms.march, issue 3).
+"""Nonlinear problems through the separated time march (pgdcli.algorithms.march).
 
 References are independent of pgdcli: scipy's solve_ivp (DOP853, rtol = atol =
 1e-12) for the coupled system, the closed form for the logistic and

@@ -97,7 +97,7 @@ def test_heat_1d_exact():
     assert np.max(np.abs(scattered.values["u"] - exact)) <= 1e-8
 
 
-def test_heat_2d_issue_example_exact():
+def test_heat_2d_with_dirichlet_neumann_and_source_is_exact():
     problem = spec(HEAT_2D)
     P = {"kappa": np.array([0.1, 1.0, 0.43]), "g": np.array([-1.0, 1.0, 0.37]), "q": np.array([2.0, 0.0, 1.21])}
     rng = np.random.default_rng(1)

@@ -377,6 +377,26 @@ def test_info_text_and_json(runner, codebook_path):
     assert info["size_bytes"] == path.stat().st_size
 
 
+def test_info_spec_prints_the_stored_spec_that_solves_again(runner, codebook_path, tmp_path):
+    path = codebook_path("parametric")
+    result = _invoke(runner, ["info", path, "--spec"])
+    assert result.exit_code == 0, result.stderr
+    assert result.stdout == (PROBLEMS / "parametric.yaml").read_text() and result.stderr == ""
+    spec = tmp_path / "again.yaml"
+    spec.write_text(result.stdout)
+    again = pgdcli.solve(pgdcli.load_spec(spec))
+    before = Codebook.load(path)
+    t, k = np.linspace(0, 10, 7), np.linspace(1, 10, 5)
+    assert np.array_equal(again.codebook(t=t[:, None], k=k)["u"], before(t=t[:, None], k=k)["u"])
+
+
+def test_info_spec_of_a_codebook_without_spec_is_one_error_line(runner, codebook_path, tmp_path):
+    cb = Codebook.load(codebook_path("parametric"))
+    cb.spec_text = ""
+    path = cb.save(tmp_path / "nospec.h5")
+    _assert_usage_error(_invoke(runner, ["info", path, "--spec"]), "nospec.h5", "holds no problem spec")
+
+
 def test_version(runner):
     for flag in ("--version", "-V"):
         result = _invoke(runner, [flag])

@@ -8,10 +8,10 @@ import click
 import pytest
 
 from pgdcli.cli import query as lean_query
-from pgdcli.cli.formats import FIT, INFO, QUERY, SOLVE, VERIFY, Formats
+from pgdcli.cli.formats import FIT, INFO, QUERY, SENSITIVITY, SOLVE, VERIFY, Formats
 from pgdcli.cli.main import cli
 
-REGISTRIES = {"query": QUERY, "fit": FIT, "info": INFO, "verify": VERIFY, "solve": SOLVE}
+REGISTRIES = {"query": QUERY, "fit": FIT, "info": INFO, "verify": VERIFY, "solve": SOLVE, "sensitivity": SENSITIVITY}
 
 
 @pytest.mark.parametrize("command", sorted(REGISTRIES))

@@ -1,4 +1,4 @@
-"""Fuzz suite (issue 17): hostile specs, arguments and CSV for every command.
+"""Fuzz suite: hostile specs, arguments and CSV for every command.
 
 The invariant, whatever the input: exit status 0, 1 or 2 (never the internal
 error's 70), at most one ``Error:`` line on stderr, no ``Traceback`` anywhere,

@@ -11,6 +11,7 @@ from conftest import codebook_points, reseal
 
 from pgdcli.codebook import io as codebook_io
 from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, TT, Codebook, CoordinateInfo, CPTensor
+from pgdcli.codebook.fields import cp_field, tt_field
 from pgdcli.errors import CodebookError, QueryError
 
 EPS = np.finfo(float).eps
@@ -173,7 +174,7 @@ def test_codebook_validation_names_the_problem():
 
 
 def test_a_malformed_field_in_a_file_names_the_unknown_and_the_factor(codebook_path, tmp_path):
-    """The tensor types' own checks (a factor's columns, a core's ranks), turned into CodebookErrors."""
+    """A mode matrix of the wrong shape is refused by the reader before any tensor is built."""
     path = tmp_path / "bad.h5"
     path.write_bytes(codebook_path("spring").read_bytes())
     with h5py.File(path, "r+") as f:
@@ -181,8 +182,16 @@ def test_a_malformed_field_in_a_file_names_the_unknown_and_the_factor(codebook_p
         rank = modes["k"].shape[1]
         del modes["k"]
         modes.create_dataset("k", data=np.ones((20, rank + 1)))
-    with pytest.raises(CodebookError, match=f"unknown 'x': factor 1 has {rank + 1} columns, expected rank {rank}"):
+    with pytest.raises(CodebookError, match=f"dataset 'unknowns/x/modes/k' has shape \\(20, {rank + 1}\\), "
+                                            f"expected \\(20, {rank}\\)"):
         Codebook.load(path)
+
+
+def test_the_tensor_types_checks_become_codebook_errors_naming_the_unknown():
+    with pytest.raises(CodebookError, match="unknown 'x': factor 1 has 3 columns, expected rank 2"):
+        cp_field("x", np.ones(2), (np.ones((4, 2)), np.ones((5, 3))))
+    with pytest.raises(CodebookError, match="unknown 'w': core 1 has left rank 3, core 0 right rank 2"):
+        tt_field("w", (np.ones((1, 4, 2)), np.ones((3, 5, 1))), (0, 1))
 
 
 # ----------------------------------------------------------------------------------------------

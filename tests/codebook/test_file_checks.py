@@ -318,14 +318,21 @@ def test_a_small_file_declaring_huge_arrays_is_refused_fast(tmp_path, codebook_p
               "try:\n    main(sys.argv[1:])\nfinally:\n"
               "    use = resource.getrusage(resource.RUSAGE_SELF)\n"
               "    sys.stderr.write(f'used {use.ru_utime + use.ru_stime} {use.ru_maxrss}\\n')\n")
-    for command in (["query", str(path), "--t", "0", "--k", "1", "--c", "0"], ["info", str(path)]):
+
+    def run(*command):
         done = subprocess.run([sys.executable, "-c", script, *command], capture_output=True, text=True,
                               timeout=120)
         lines = done.stderr.splitlines()
-        cpu_seconds, rss_kib = float(lines[-1].split()[1]), int(lines[-1].split()[2])
+        return done, lines, float(lines[-1].split()[1]), int(lines[-1].split()[2])
+
+    # The resident size of a bare start (Python, numpy, its BLAS buffers) differs from machine to
+    # machine; the arrays declared are gigabytes, so what matters is the growth over a valid file's.
+    _, _, _, baseline_kib = run("info", str(codebook_path("spring")))
+    for command in (["query", str(path), "--t", "0", "--k", "1", "--c", "0"], ["info", str(path)]):
+        done, lines, cpu_seconds, rss_kib = run(*command)
         assert done.returncode == 2, done.stderr
         assert len(lines) == 2 and lines[0].startswith("Error: ") and "corrupt codebook" in lines[0], done.stderr
-        assert cpu_seconds < 2.0 and rss_kib < 500 * 1024, (cpu_seconds, rss_kib)
+        assert cpu_seconds < 2.0 and rss_kib < baseline_kib + 200 * 1024, (cpu_seconds, rss_kib, baseline_kib)
 
 
 def test_the_size_limit_has_an_override(tmp_path, codebook_path, monkeypatch):

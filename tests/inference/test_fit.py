@@ -94,13 +94,42 @@ def test_rows_at_different_known_coordinates(solved):
     assert result.reference_error < 1e-7
 
 
-def test_estimate_at_a_bound_is_reported(solved):
-    cb = solved("relaxation").codebook
+def _beyond_the_bound(solved):
+    """Relaxation data whose initial value, 1.5, lies outside u0's domain [0, 1]."""
     data = synthetic("relaxation", {"k": 1.0, "a": 0.0, "u0": 1.0}, np.linspace(0, 3, 30), ["u"], noise=0, seed=0)
-    data["u"] = data["u"] * 1.5  # an initial value of 1.5: outside u0's domain [0, 1]
-    result = pgdcli.fit(cb, data, starts=2, check=False)
+    data["u"] = data["u"] * 1.5
+    return data
+
+
+def test_estimate_at_a_bound_is_not_a_success(solved):
+    cb = solved("relaxation").codebook
+    result = pgdcli.fit(cb, _beyond_the_bound(solved), starts=2, check=False)
     assert "at the domain bound: " in result.message and "u0" in result.message
     assert result.estimate["u0"] == pytest.approx(1.0)
+    assert result.at_bound == ["u0"] and result.bounds["u0"] == (0.0, 1.0)
+    assert not result.success and result.to_dict()["success"] is False
+
+
+def test_estimate_inside_the_domain_is_a_success(solved):
+    cb = solved("relaxation").codebook
+    data = synthetic("relaxation", {"k": 1.0, "a": 0.0, "u0": 0.7}, np.linspace(0, 3, 30), ["u"], noise=0, seed=0)
+    result = pgdcli.fit(cb, data, starts=2, check=False)
+    assert result.success and result.at_bound == [] and result.to_dict()["at_bound"] == []
+
+
+def test_cli_estimate_at_a_bound_exits_1_with_one_warning(solved, tmp_path):
+    path = tmp_path / "relaxation.h5"
+    solved("relaxation").codebook.save(path)
+    data = _beyond_the_bound(solved)
+    csv = tmp_path / "d.csv"
+    csv.write_text("t,u\n" + "".join(f"{t!r},{u!r}\n" for t, u in zip(map(float, data["t"]), map(float, data["u"]))))
+    result = _run(["fit", path, csv, "--starts", "2", "--format", "json", "-q", "--no-check"])
+    assert result.exit_code == 1, result.stderr
+    report = json.loads(result.stdout)  # the output stands, marked
+    assert report["success"] is False and report["at_bound"] == ["u0"]
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Warning: fit: the estimate lies on its domain bound: u0 = 1 ")
+    assert "domain [0, 1]" in lines[0] and "Traceback" not in result.stderr
 
 
 # ----------------------------------------------------------------------------------------------
@@ -239,3 +268,18 @@ def test_streamed_data_equals_the_columns(tmp_path):
     data = read_data(path)
     assert list(data) == ["t", "u1", "sigma_u1"]
     assert data["t"].tolist() == [0.1, 0.2] and data["u1"].tolist() == [1.5, -2e-3]
+
+
+def test_plot_without_matplotlib_is_one_error_line_before_the_fit(coupled_file, tmp_path):
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.modules['matplotlib'] = None  # as if not installed\n"
+            "from pgdcli.cli.entry import main\nmain(sys.argv[1:])\n")
+    data = tmp_path / "d.csv"
+    data.write_text("t,u1\n0.1,1\n0.2,1.1\n0.3,1.2\n0.4,1.3\n")
+    r = subprocess.run([sys.executable, "-c", code, "fit", str(coupled_file), str(data), "--plot",
+                        str(tmp_path / "f.png")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and r.stdout == "" and "Traceback" not in r.stderr
+    assert r.stderr.splitlines() == ["Error: pgd fit --plot needs matplotlib, which is not installed: "
+                                     "pip install 'pgdcli[plot]' (or pip install matplotlib)"]

@@ -1,4 +1,4 @@
-"""Tests of pgdcli.plot.figures and ``pgd plot`` (issue 5).
+"""Tests of pgdcli.plot and ``pgd plot``.
 
 The data handed to matplotlib is checked against the codebook (not pixels):
 mode curves at the nodes are the stored mode matrices, solution curves and maps
@@ -40,7 +40,7 @@ MARCHED = ("coupled", "logistic")  # nonlinear: time march, tensor-train codeboo
 
 
 # ----------------------------------------------------------------------------------------------
-# fixtures: the shipped problems solved once per session, and exact references
+# fixtures: the shipped problems solved once per test run, and exact references
 # ----------------------------------------------------------------------------------------------
 @pytest.fixture(scope="session")
 def plot_codebooks(tmp_path_factory):
@@ -532,6 +532,44 @@ def test_cli_needs_no_display_and_no_pyplot(plot_codebooks, tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == str(out)
     _png_size(out)
+
+
+_WITHOUT_MATPLOTLIB = ("import sys; sys.modules['matplotlib'] = None  # as if not installed\n"
+                       "from pgdcli.cli.entry import main\nmain(sys.argv[1:])\n")
+
+
+def _without_matplotlib(*args, cwd=None):
+    return subprocess.run([sys.executable, "-c", _WITHOUT_MATPLOTLIB, *map(str, args)], capture_output=True,
+                          text=True, timeout=300, cwd=cwd)
+
+
+def test_without_matplotlib_plotting_is_one_error_line_with_the_install_command(plot_codebooks, tmp_path,
+                                                                              monkeypatch):
+    _, path = plot_codebooks["parametric"]
+    out = tmp_path / "new" / "m.png"
+    r = _without_matplotlib("plot", path, "-o", out)
+    assert r.returncode == 2 and r.stdout == "" and "Traceback" not in r.stderr
+    assert r.stderr.splitlines() == ["Error: pgd plot needs matplotlib, which is not installed: "
+                                     "pip install 'pgdcli[plot]' (or pip install matplotlib)"]
+    assert not out.parent.exists()  # nothing made before the error
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # the Python API says the same
+    with pytest.raises(PgdError, match=r"needs matplotlib, which is not installed: pip install 'pgdcli\[plot\]'"):
+        P.plot_modes(plot_codebooks["parametric"][0])
+
+
+def test_without_matplotlib_solve_query_verify_info_and_export_work(tmp_path):
+    spec = tmp_path / "decay.yaml"
+    spec.write_text("coordinates:\n  t: {domain: [0, 1]}\n  k: {domain: [0.5, 2]}\nunknowns:\n  u: {initial: 1}\n"
+                    "equations:\n  - \"der(u) = -k*u\"\nsolver:\n  tolerance: 1e-8\n")
+    book = tmp_path / "decay.h5"
+    steps = [("solve", spec, "-o", book, "-q"), ("query", book, "--t", "0.5", "--k", "1"),
+             ("verify", book, "-j", "1", "-q", "--samples", "4"), ("info", book), ("export", book, "--to", "c", "-q")]
+    outputs = {}
+    for args in steps:
+        r = _without_matplotlib(*args)
+        assert r.returncode == 0, (args, r.stderr)
+        outputs[args[0]] = r.stdout
+    assert abs(float(outputs["query"]) - np.exp(-0.5)) <= 1e-8  # u = exp(-k t)
 
 
 # ----------------------------------------------------------------------------------------------

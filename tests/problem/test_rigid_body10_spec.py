@@ -1,4 +1,4 @@
-"""problems/rigid_body10.yaml (issue 15's 10-D rigid body) states the Kirchhoff equations.
+"""problems/rigid_body10.yaml (the 10-D rigid body) states the Kirchhoff equations.
 
 Its build is tested in tests/algorithms/test_cross_march.py; here the compiled right-hand side of
 the march at t = 0, at random nodes of the 9-D parameter grid, is held to the equations

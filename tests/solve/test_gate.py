@@ -1,4 +1,4 @@
-"""The error gate and automatic resolution (pgdcli.adapt), on problems written as a new user would.
+"""The error gate and automatic resolution (pgdcli.adapt), on problems written as users write them.
 
 Every accuracy claim is checked against an independent reference: scipy's solve_ivp
 (DOP853, rtol = atol = 1e-12), integrated here point by point at 300 random points,

@@ -1,4 +1,4 @@
-"""Functions of the unknowns in the march (issue 14): shipped and new-user problems against solve_ivp.
+"""Functions of the unknowns in the march: shipped and user-written problems against solve_ivp.
 
 Each spec is written the natural way (``sin(th)``, ``v*sqrt(vx**2 + vy**2)``, ``exp(-a*x)``,
 ``s/(km + s)``) without node counts; its codebook must be within the spec's tolerance at 300

@@ -1,4 +1,4 @@
-"""Nonlinear PDEs in one space coordinate through pgdcli.solve / pgd solve (issue 14 item 4).
+"""Nonlinear PDEs in one space coordinate through pgdcli.solve / pgd solve.
 
 Shipped (problems/fisher.yaml, problems/burgers.yaml) and fresh user-style problems written without
 node counts; each codebook the solver calls accurate is measured at 300 random points (5 parameter

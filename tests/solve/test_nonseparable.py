@@ -1,4 +1,4 @@
-"""Non-separable coefficients, second-order time derivatives and x-dependent der(u, x, 2) (issue 14, part b).
+"""Non-separable coefficients, second-order time derivatives and x-dependent der(u, x, 2).
 
 Every codebook here is compared with a reference written in this file (numpy right-hand sides
 integrated by solve_ivp DOP853 at 1e-12, or a Chebyshev method-of-lines of its own for the PDEs),

@@ -1,4 +1,4 @@
-"""Space coordinates (issue 6): weak-form PGD for parametric heat equations against exact solutions."""
+"""Space coordinates: weak-form PGD for parametric heat equations against exact solutions."""
 
 from __future__ import annotations
 
@@ -121,8 +121,8 @@ def test_initial_value_must_satisfy_dirichlet_conditions():
 
 
 def test_space_dependent_diffusivity_meets_its_tolerance_against_the_method_of_lines():
-    # refused before issue 14; the weak form now carries f' (tests/solve/test_nonseparable.py checks it at
-    # 300 points against a method of lines of its own)
+    # the weak form carries f' (tests/solve/test_nonseparable.py checks it at 300 points against a
+    # method of lines of its own)
     text = (HEAT1D.replace('"der(u) = kappa*der(u, x, 2)"', '"der(u) = kappa*(1 + x)*der(u, x, 2)"')
             .replace("tolerance: 1e-11", "tolerance: 1e-6").replace("nodes: 24", "nodes: auto"))
     result = pgdcli.solve(pgdcli.parse_spec(text, source="variable.yaml"))
@@ -130,8 +130,8 @@ def test_space_dependent_diffusivity_meets_its_tolerance_against_the_method_of_l
 
 
 def test_nonlinear_pde_outside_the_pde_march_is_refused():
-    # polynomial terms (- u*u) go to the PDE march since issue 14 (tests/solve/test_nonlinear_pde.py);
-    # a function of the unknown is still refused, with the march's scope
+    # polynomial terms (- u*u) go to the PDE march (tests/solve/test_nonlinear_pde.py); a function of
+    # the unknown is refused, with the march's scope
     text = HEAT1D.replace('"der(u) = kappa*der(u, x, 2)"', '"der(u) = kappa*der(u, x, 2) - sin(u)"')
     with pytest.raises(SolverError, match="a function of the unknown.*PDE march takes one unknown"):
         pgdcli.solve(pgdcli.parse_spec(text, source="bad.yaml"))

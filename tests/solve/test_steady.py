@@ -1,4 +1,4 @@
-"""Steady problems (issue 6): no time coordinate, Dirichlet lift, against exact solutions and the
+"""Steady problems: no time coordinate, Dirichlet lift, against exact solutions and the
 independent collocation reference."""
 
 from __future__ import annotations

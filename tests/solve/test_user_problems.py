@@ -1,4 +1,4 @@
-"""Problems written as a new user would (issue 12), without node counts: accurate or honestly refused.
+"""Problems written as users write them, without node counts: accurate or honestly refused.
 
 Each codebook is either within its tolerance at 300 random points against solve_ivp (DOP853,
 rtol = atol = 1e-12, integrated here, sharing nothing with the solver), or refused (exit status 1 of

@@ -51,6 +51,11 @@ def test_cptensor_add_and_scale():
     np.testing.assert_allclose(x.scaled(-2.5).full(), -2.5 * x.full(), rtol=1e-14, atol=1e-15)
 
 
+def test_cptensor_size_counts_the_stored_floats():
+    x = CPTensor(np.ones(3), (np.ones((4, 3)), np.ones((5, 3))))
+    assert x.size == 3 + 4 * 3 + 5 * 3
+
+
 def test_cptensor_rank_zero_norm_is_zero():
     x = CPTensor(np.zeros(0), [np.zeros((3, 0)), np.zeros((4, 0))])
     assert x.norm() == 0.0

@@ -1,0 +1,99 @@
+"""Opening a Dask cluster: a scheduler at an address, or a ``LocalCluster`` on this machine.
+
+Imported only when a cluster is asked for (``--scheduler``, ``--workers``, ``PGD_SCHEDULER``), so that
+nothing else pays for Dask. :func:`connect` returns a :class:`pgdcli.executors.DaskExecutor`; a
+scheduler that cannot be reached, that has no workers, or whose workers lack this version of
+pgdcli is one :class:`~pgdcli.errors.ClusterError` before any work.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from .errors import ClusterError
+from .executors import DaskExecutor
+
+__all__ = ["connect", "CONNECT_TIMEOUT"]
+
+#: Seconds to reach a scheduler, and to wait for its first worker.
+CONNECT_TIMEOUT = 10.0
+
+
+def connect(address: str | None = None, workers: int | None = None, *, option: str = "--scheduler",
+            timeout: float | None = None) -> DaskExecutor:
+    """A :class:`DaskExecutor` on the scheduler at ``address``, or on a new ``LocalCluster`` of
+    ``workers`` processes (one thread each).
+
+    Parameters
+    ----------
+    address : str, optional
+        ``tcp://host:port`` (or ``host:port``) of a running ``dask scheduler``.
+    workers : int, optional
+        Worker processes of a local cluster (when no address is given).
+    option : str
+        How the user named the address, for messages (``--scheduler``, ``PGD_SCHEDULER``).
+    timeout : float, optional
+        Seconds to reach the scheduler and to wait for a worker (default :data:`CONNECT_TIMEOUT`).
+
+    Raises
+    ------
+    ClusterError
+        distributed is not installed; the scheduler cannot be reached, has no worker, or its workers
+        lack this version of pgdcli.
+    """
+    timeout = CONNECT_TIMEOUT if timeout is None else timeout
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise ClusterError(f"{option}: a Dask cluster needs the optional package distributed: "
+                           f"pip install 'pgdcli[dask]'") from None
+    if address is None:
+        if workers is None or int(workers) < 1:
+            raise ClusterError(f"--workers: expected a number of worker processes >= 1, got {workers!r}")
+        try:
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
+        except Exception as exc:  # noqa: BLE001 - the machine refused: ports, processes
+            raise ClusterError(f"--workers {workers}: cannot start a local Dask cluster "
+                               f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+        client = Client(cluster)
+        return DaskExecutor(client, cluster=cluster)
+    try:
+        client = Client(address, timeout=timeout)
+    except Exception as exc:  # noqa: BLE001 - unreachable, refused, malformed: one line
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ClusterError(f"{option} {address}: cannot reach a Dask scheduler there ({reason})") from None
+    executor = DaskExecutor(client, owns_client=True)
+    try:
+        _check_workers(client, address, option, timeout)
+    except BaseException:
+        executor.close()
+        raise
+    executor.refresh()
+    return executor
+
+
+def _check_workers(client, address: str, option: str, timeout: float) -> None:
+    """At least one worker, and every worker runs this version of pgdcli."""
+    from . import __version__
+
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except Exception:  # noqa: BLE001 - a timeout, in whichever class this version raises it
+        raise ClusterError(f"{option} {address}: the scheduler has no workers (start some with "
+                           f"'dask worker {address}')") from None
+    found = client.run(_worker_version, on_error="return")  # by reference: fails where pgdcli is missing
+    for worker, value in found.items():
+        if isinstance(value, BaseException):
+            raise ClusterError(f"{option} {address}: the worker {worker} cannot import pgdcli (install it where "
+                               f"the workers run: pip install 'pgdcli[dask]')")
+        if value != __version__:
+            raise ClusterError(f"{option} {address}: the worker {worker} runs pgdcli {value}, this is "
+                               f"{__version__} (install the same version on the workers)")
+
+
+def _worker_version() -> str:
+    """pgdcli's version where this runs."""
+    from . import __version__
+
+    return __version__
