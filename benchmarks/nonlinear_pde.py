@@ -256,7 +256,7 @@ def schemes():
             wall = time.perf_counter() - started
             err = 0.0
             for k, s in enumerate(out.states):
-                cores = s.cores
+                cores = s[0].cores  # the one species' train
                 left = np.einsum("pi,aib->pb", bases["x"].interpolation_matrix(x), cores[0])
                 right = None
                 for m, core in zip(system.modes[1:], cores[1:]):

@@ -1,9 +1,9 @@
-"""``pgd solve`` of a nonlinear PDE in one space coordinate: the exponential march into a codebook.
+"""``pgd solve`` of a reaction-diffusion system: the exponential march into a codebook.
 
 :func:`solve_pde_march` compiles the split system (:mod:`.pde_system`) on the codebook's nodes,
 marches it (:mod:`.pde_march`, ETDRK4) and joins the states at the time nodes into one tensor
-train over ``(time, x, parameters)`` (:func:`pgdcli.algorithms.march.join_and_round`), stored as a
-:class:`~pgdcli.tensors.tt.TT`. With ``solver.time_slabs: auto`` (the default) the time
+train per unknown over ``(time, x, [y], parameters)`` (:func:`pgdcli.algorithms.march.join_and_round`),
+each stored as a :class:`~pgdcli.tensors.tt.TT`. With ``solver.time_slabs: auto`` (the default) the time
 coordinate has one slab per accepted step, :data:`SLAB_NODES` Chebyshev-Lobatto nodes each (a
 degree-4 polynomial per step matches the scheme's order 4); with a number of slabs the steps land
 on the time coordinate's nodes. The error gate (:mod:`pgdcli.checks.check`) measures the codebook
@@ -31,7 +31,7 @@ SLAB_NODES = 5
 
 
 def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | None = None):
-    """March a nonlinear PDE in one space coordinate; see :func:`pgdcli.driver.solve`.
+    """March a reaction-diffusion system; see :func:`pgdcli.driver.solve`.
 
     ``learned``: as :func:`pgdcli.algorithms.march.solve_march`'s (nothing to carry here).
 
@@ -48,12 +48,12 @@ def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | No
     coords = coordinate_infos(problem, march=True)
     names = [c.name for c in coords]
     bases = {c.name: c.basis() for c in coords if c.name != problem.time}
-    system = compile_pde_system(problem, bases)
+    system = compile_pde_system(problem, bases, corner_tolerance=tolerance)
     tcoord = coords[names.index(problem.time)]
     auto = getattr(problem.solver, "time_slabs", "auto") == "auto" and tcoord.discretization == "chebyshev"
-    x = problem.coordinate(system.modes[0])
-    # the automatic resolution can add x nodes: stop an under-resolved march early (pde_march.TAIL_ABORT)
-    refinable = x.auto and x.nodes < problem.solver.max_nodes
+    # the automatic resolution can add space nodes: stop an under-resolved march early (pde_march.TAIL_ABORT)
+    refinable = [x for x in system.modes[:system.space]
+                 if problem.coordinate(x).auto and problem.coordinate(x).nodes < problem.solver.max_nodes]
     try:
         result = march_pde(system, tolerance, None if auto else tcoord.basis().nodes,
                            slab_nodes=SLAB_NODES if auto else None, max_steps=problem.solver.max_steps,
@@ -66,7 +66,8 @@ def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | No
         if isinstance(exc, UnderResolved):
             report["under_resolved"] = exc.coordinate  # pgdcli.adapt refines it and solves again
         order = tuple(names.index(m) for m in [problem.time] + system.modes)
-        fields = {problem.unknowns[0].name: TT(tuple(np.zeros((1, coords[j].nodes, 1)) for j in order), order)}
+        fields = {u.name: TT(tuple(np.zeros((1, coords[j].nodes, 1)) for j in order), order)
+                  for u in problem.unknowns}
         cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
                       description=problem.description)
         return SolveResult(cb, False, 3, message, np.array([np.inf]), np.zeros(0, dtype=int), wall)
@@ -79,16 +80,19 @@ def solve_pde_march(problem, tolerance: float, callback=None, learned: dict | No
                                    tuple(float(v) for v in bp))
         assert np.allclose(coords[k].basis().nodes, result.times, rtol=0, atol=1e-12 * max(1.0, abs(bp[-1])))
     size = float(np.prod(system.shape))
-    train = join_and_round([states], SPACE_TIME_FRACTION * tolerance * np.sqrt(size),
-                           np.random.default_rng(7), batched=False)[0]
     order = tuple(names.index(m) for m in [problem.time] + system.modes)
-    fields = {problem.unknowns[0].name: TT(train.cores, order)}
+    fields, ranks = {}, []
+    for s, sp in enumerate(system.species):
+        train = join_and_round([[per[s] for per in states]], SPACE_TIME_FRACTION * tolerance * np.sqrt(size),
+                               np.random.default_rng(7), batched=False)[0]
+        fields[sp.name] = TT(tuple(train.cores), order)
+        ranks.append(max(train.ranks, default=1))
     wall = _time.perf_counter() - started
     message = (f"converged: reached {problem.time} = {tcoord.domain[1]:.6g} in {result.steps} steps "
                f"({result.rejected} rejected)")
     report = {
         "converged": True, "status": 0, "message": message, "method": "pde march (ETDRK4)",
-        "modes": int(max(train.ranks, default=1)), "residual": float(tolerance), "tolerance": float(tolerance),
+        "modes": int(max(ranks)), "residual": float(tolerance), "tolerance": float(tolerance),
         "steps": int(result.steps), "rejected_steps": int(result.rejected),
         "step_sizes": np.array(result.step_sizes), "nonlinear_evaluations": int(result.evaluations),
         "max_state_rank": int(result.max_rank), "wall_time": wall, "pgdcli_version": __version__,

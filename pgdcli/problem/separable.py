@@ -19,7 +19,7 @@ from .terms import Func1D, SepTerm, join_signed, named_variable, normalize_terms
 from .trees import (evaluate_tree, leaf_names, map_leaves, num, render_text, t_add, t_mul, values_at,
                     values_by_name)
 
-__all__ = ["Joint", "Separable", "as_separable", "merge_to_function", "constant_tree_value", "joint_of",
+__all__ = ["Joint", "Separable", "TimeSplit", "as_separable", "merge_to_function", "constant_tree_value", "joint_of",
            "tree_coordinates"]
 
 
@@ -309,3 +309,49 @@ def joint_of(tree: tuple) -> Separable:
     if len(tree_coordinates(tree)) < 2:  # cannot happen for the parser's callers: kept as a guard
         raise ValueError(f"a joint function needs two or more coordinates: {tree}")
     return Separable((), (Joint(SepTerm(1.0), tree),))
+
+
+class TimeSplit:
+    """A coefficient at many times on fixed points: ``steady + sum_k f_k(t) g_k + joints(t)``.
+
+    The parts free of time (``steady`` and each ``g_k``, the terms sharing the time function
+    ``f_k`` summed) are evaluated once at the points; a call evaluates the ``f_k`` at one time and
+    only the non-separable parts that hold time (``sin(w*t)``) at every point again.
+
+    Parameters
+    ----------
+    sep : Separable
+    time : str
+        The time coordinate's name.
+    values : mapping of str to ndarray
+        The points (every coordinate of ``sep`` but time), broadcastable.
+    """
+
+    def __init__(self, sep: Separable, time: str, values: Mapping[str, np.ndarray]) -> None:
+        steady, timed = [], {}
+        for term in sep.terms:
+            factors = dict(term.factors)
+            f = factors.pop(time, None)
+            if f is None:
+                steady.append(term)
+            else:
+                timed.setdefault(f, []).append(SepTerm(term.coef, tuple(factors.items())))
+        self.values = dict(values)
+        self.time = time
+        self.steady = self._at(Separable(tuple(steady)))
+        self.timed = [(f, self._at(Separable(tuple(terms)))) for f, terms in timed.items()]
+        self.joints = [j for j in sep.joints if time in j.coordinates]
+        self.steady = self.steady + self._at(Separable((), tuple(j for j in sep.joints if time not in j.coordinates)))
+
+    def _at(self, sep: Separable) -> np.ndarray:
+        return np.asarray(sep.evaluate(**{k: self.values[k] for k in sep.coordinates}), dtype=float)
+
+    def __call__(self, t: float) -> np.ndarray:
+        """The coefficient at time ``t`` on the points (broadcast shape of what it depends on)."""
+        out = self.steady
+        for f, g in self.timed:
+            out = out + float(f(t)) * g
+        for joint in self.joints:
+            values = {**self.values, self.time: np.asarray(float(t))}
+            out = out + joint.evaluate(**{k: values[k] for k in joint.coordinates})
+        return out

@@ -111,6 +111,7 @@ def _with_tolerance(source, target, tolerance, relative_tolerance=None):
         f["report"].attrs["tolerance"] = tolerance
         if relative_tolerance is not None:
             f["report"].attrs["relative_tolerance"] = relative_tolerance
+    reseal(target)  # an intact file that claims another tolerance, not a corrupted one
     return target
 
 
