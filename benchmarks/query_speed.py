@@ -246,7 +246,7 @@ def unchunked_evaluation(cb, points):
     for c, basis, modes in zip(cb.coordinates, cb._bases, cb._stacked):
         vals = basis.interpolation_matrix(points[c.name]) @ modes
         product = vals if product is None else product * vals
-    return {u: product[:, cb._slices[u]] @ cb.fields[u].alphas for u in cb.unknown_names}
+    return {u: product[:, cb._slices[u]] @ cb.fields[u].weights for u in cb.unknown_names}
 
 
 def measure_cli(name: str, path: Path, rows: list, quick: bool, workdir: Path) -> None:

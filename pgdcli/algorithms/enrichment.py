@@ -33,7 +33,8 @@ import numpy as np
 
 from ..discretization.linear import Discretization
 from ..progress import EnrichmentStep, emit
-from ..tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, sweep_order, sweep_step
+from ..tensors.cp import CPTensor, SeparatedOperator
+from ..tensors.cp_sweep import khatri_rao_rows, sweep_order, sweep_step
 from .enrichment_state import EnrichmentState
 from .mode_update import update_mode
 from .outcome import Status

@@ -84,7 +84,8 @@ def _message(status: Status, residual: float, target: float, max_modes: int, ran
 def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.ndarray], report: dict):
     """Assemble the codebook of a solved problem: lift terms + PGD terms per unknown."""
     from .. import __version__
-    from ..codebook.codebook import Codebook, FieldModes
+    from ..codebook.codebook import Codebook
+    from ..tensors.cp import CPTensor
 
     coords = coordinate_infos(problem, march=False)
     nodal = disc.nodal_factors(factors)
@@ -96,7 +97,7 @@ def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.n
         # unknown carries nothing for it
         j = 0 if disc.time is None else [c.name for c in coords].index(disc.time)
         keep = np.any(modes[j] != 0.0, axis=0) & (alphas != 0.0)
-        fields[u] = FieldModes(
+        fields[u] = CPTensor(
             np.concatenate([lift.weights, alphas[keep]]),
             tuple(np.hstack([lf, nf[:, keep]]) for lf, nf in zip(lift.factors, modes)),
         )

@@ -33,7 +33,7 @@ def field_order(problem, system: NonlinearSystem) -> tuple[int, ...]:
 def failed_result(problem, system: NonlinearSystem, failure, region: str, tolerance: float, steps: int,
                   wall: float) -> SolverOutcome:
     """A not-converged outcome whose message names where (time, region) the march stopped."""
-    from ..codebook.codebook import Codebook, FieldTT
+    from ..codebook.codebook import Codebook
     from .. import __version__
 
     coords = coordinate_infos(problem, march=True)
@@ -50,7 +50,7 @@ def failed_result(problem, system: NonlinearSystem, failure, region: str, tolera
               "pgdcli_version": __version__}
     if failure.blowup_time is not None:
         report["blowup_time"] = float(failure.blowup_time)
-    fields = {u: FieldTT(tuple(np.zeros((1, c.nodes, 1)) for c in [coords[j] for j in order]), order)
+    fields = {u: TT(tuple(np.zeros((1, c.nodes, 1)) for c in [coords[j] for j in order]), order)
               for u in system.unknowns}
     cb = Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
                   description=problem.description)
@@ -66,7 +66,7 @@ def converged_result(problem, system: NonlinearSystem, result, trains: list[TT],
     of that march (``pgdcli.algorithms.march``'s report of the tensor-train march, or the grid and
     cross marches' entries).
     """
-    from ..codebook.codebook import Codebook, FieldTT
+    from ..codebook.codebook import Codebook
     from .. import __version__
 
     coords = march_coordinates(problem, result)
@@ -76,7 +76,7 @@ def converged_result(problem, system: NonlinearSystem, result, trains: list[TT],
         cores = train.cores
         if system.params == [SINGLE_POINT]:  # fold the virtual one-node mode into the time core
             cores = (np.tensordot(cores[0], cores[1][:, 0, :], axes=(2, 0)),)
-        fields[u] = FieldTT(cores, order)
+        fields[u] = TT(cores, order)
     estimate = result.error_estimate + SPACE_TIME_FRACTION * tolerance  # + the space-time rounding
     message = (f"converged: reached t = {system.time_basis.nodes[-1]:.6g} in {result.steps} steps "
                f"({result.rejected} rejected), error estimate {estimate:.3g} (tolerance {tolerance:.3g})")

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..blas import one_blas_thread
 from ..discretization.basis import chebyshev_unit_nodes
 from ..errors import SolverError
 from ..progress import MarchStep, emit
@@ -150,15 +151,13 @@ def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = No
     callback : callable, optional
         After every accepted step: a :class:`~pgdcli.progress.MarchStep`.
     """
-    from threadpoolctl import threadpool_limits
-
     if scheme not in SCHEMES:
         raise SolverError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
     # small dense products (SVD of the supercore, m x m products): one BLAS thread. Measured on fisher.yaml
     # (x 33, D 9, r 9) on the shared 2-core machine: 15 step attempts in 47 s with the default threads, 1086
     # steps in 33 s with one
     watched = list(system.modes[:system.space]) if tail_limit is True else list(tail_limit or [])
-    with threadpool_limits(1):
+    with one_blas_thread():
         return _march(system, tolerance, times, {"etdrk4": _etdrk4, "lawson4": _lawson4}[scheme], slab_nodes,
                       max_steps, callback, fixed_step, dense, watched)
 

@@ -3,7 +3,7 @@
 :func:`solve_pde_march` compiles the split system (:mod:`.pde_system`) on the codebook's nodes,
 marches it (:mod:`.pde_march`, ETDRK4) and joins the states at the time nodes into one tensor
 train per unknown over ``(time, x, [y], parameters)`` (:func:`pgdcli.algorithms.space_time.join_and_round`),
-each stored as a :class:`~pgdcli.codebook.fields.FieldTT`. With ``solver.time_slabs: auto`` (the default) the time
+each stored as a :class:`~pgdcli.tensors.tt.TT`. With ``solver.time_slabs: auto`` (the default) the time
 coordinate has one slab per accepted step, :data:`SLAB_NODES` Chebyshev-Lobatto nodes each (a
 degree-4 polynomial per step matches the scheme's order 4); with a number of slabs the steps land
 on the time coordinate's nodes. The error gate (:mod:`pgdcli.checks.check`) measures the codebook
@@ -18,6 +18,7 @@ import numpy as np
 
 from ..discretization.coordinates import coordinate_infos
 from ..errors import SolverError
+from ..tensors.tt import TT
 from .march_codebook import SPACE_TIME_FRACTION, march_coordinates, steps_text
 from .outcome import Learned, SolverOutcome, Status
 from .space_time import join_and_round
@@ -98,10 +99,9 @@ def _codebook(problem, system, coords, cores: dict, report: dict):
     """The codebook of unknown name -> the cores of its train over ``(time, space..., parameters)``."""
     from .. import __version__
     from ..codebook.codebook import Codebook
-    from ..codebook.fields import FieldTT
 
     names = [c.name for c in coords]
     order = tuple(names.index(m) for m in [problem.time] + system.modes)
     report["pgdcli_version"] = __version__
-    return Codebook(coords, {name: FieldTT(c, order) for name, c in cores.items()}, name=problem.name,
+    return Codebook(coords, {name: TT(c, order) for name, c in cores.items()}, name=problem.name,
                     spec_text=problem.source_text, report=report, description=problem.description)

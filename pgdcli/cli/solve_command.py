@@ -11,8 +11,21 @@ from pathlib import Path
 import click
 
 from .cluster_options import cluster_options, open_executor
-from .group import Failed, cli, run_command, stderr_console, warn
+from .formats import SOLVE
+from .group import Failed, cli, format_option, run_command, stderr_console, warn
 from .text import human_size, nodes_chosen_text, short_where
+
+
+@SOLVE.register("text", "summary table on stderr")
+def write_nothing(summary: dict | list) -> None:
+    """Nothing on stdout: the table is printed on stderr (none with --quiet)."""
+
+
+@SOLVE.register("json", "the summary as JSON on stdout (several specs: a list, one row per spec)")
+def write_json(summary: dict | list) -> None:
+    """The summary of one spec, or the rows of several (:func:`~pgdcli.cli.solve_family.solve_family`)."""
+    click.echo(json.dumps(summary, indent=2))
+
 
 @cli.command()
 @click.argument("specs", metavar="SPEC...", nargs=-1, required=True, type=click.Path(path_type=Path))
@@ -27,8 +40,7 @@ from .text import human_size, nodes_chosen_text, short_where
 @click.option("--keep-inaccurate", is_flag=True,
               help="Write the codebook even when its measured error exceeds the tolerance (marked as such in "
                    "the file; the exit status is still 1).")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text: summary table on stderr; json: the summary as JSON on stdout.")
+@format_option(SOLVE)
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary on stderr.")
 @cluster_options("the cross march's batches of trajectories and the reference's chunks (several specs: one task "
                  "each)")
@@ -96,8 +108,7 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
         summary["size_bytes"] = target.stat().st_size
     if console is not None:
         console.print(_summary_table(summary))
-    if fmt == "json":
-        click.echo(json.dumps(summary, indent=2))
+    SOLVE.writer(fmt)(summary)
     if not result.converged:
         written = (f"written anyway to {target}, marked inaccurate (--keep-inaccurate)" if keep
                    else f"no codebook written to {target}")
@@ -117,7 +128,7 @@ def _solve_with_progress(console, problem, solve_problem, overrides):
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
     from ..algorithms.outcome import Status
-    from ..codebook.fields import FieldTT
+    from ..tensors.tt import TT
     from ..codebook.summary import coordinate_ratios
 
     cb = result.codebook
@@ -150,7 +161,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "tolerance": float(rep["tolerance"]),
         # march: the largest tensor-train rank
         "modes": None if placeholder else {u: fm.rank for u, fm in cb.fields.items()},
-        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if isinstance(fm, FieldTT)},
+        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if isinstance(fm, TT)},
         "coordinates": {c.name: c.nodes for c in cb.coordinates},
         "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
         "wall_time": float(result.wall_time),

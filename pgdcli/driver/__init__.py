@@ -17,6 +17,7 @@ from __future__ import annotations
 from typing import Callable
 
 from .. import executors
+from ..blas import one_blas_thread
 from ..algorithms.grid_march import check_forced_grid
 from ..algorithms.outcome import Status
 from ..algorithms.result import SolveResult
@@ -30,17 +31,6 @@ from .methods import choose_method
 from .refinement import solve_rounds
 
 __all__ = ["solve", "check_solvable", "SolveResult", "Status"]
-
-
-def _blas_single_thread():
-    # Small dense products here run several times faster on one BLAS thread.
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a declared dependency
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def solve(problem, *, tolerance: float | None = None, relative_tolerance: float | None = None,
@@ -84,7 +74,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     check_solvable(problem, settings.tolerance, settings.relative_tolerance, settings.max_modes)
     choice = choose_method(problem)
     emit(callback, PhaseStarted("solve", f"method {choice.methods[0].name} ({choice.reason})", 1))
-    with _blas_single_thread(), executors.using(executor):
+    with one_blas_thread(), executors.using(executor):  # small dense products: faster on one BLAS thread
         result, _ = solve_rounds(problem, choice, settings, callback)
     rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
     if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info

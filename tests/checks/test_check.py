@@ -20,7 +20,7 @@ import pgdcli
 from pgdcli import load_spec, parse_spec
 from pgdcli.checks import check, sampling
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, FieldTT
+from pgdcli.codebook.codebook import Codebook, TT
 from pgdcli.driver.methods import MARCH_SAFETY
 
 
@@ -115,7 +115,7 @@ def test_a_wrong_codebook_is_measured_wrong(solved):
     fm = cb.fields["u"]
     cores = list(fm.cores)
     cores[-1] = cores[-1] * (1.0 + 1e-4)  # the whole field 1e-4 too large
-    wrong = Codebook(cb.coordinates, {"u": FieldTT(tuple(cores), fm.mode_order)}, name="wrong")
+    wrong = Codebook(cb.coordinates, {"u": TT(tuple(cores), fm.mode_order)}, name="wrong")
     measured = check.check_codebook(problem, wrong)
     points, _ = sampling.check_sample(problem, cb)
     t = cb.coordinate("t").basis().nodes

@@ -300,7 +300,7 @@ def _solver_space_solution(problem, cb):
     for s, u in enumerate(disc.unknowns):
         fm = cb.fields[u]
         lift = disc.lift[u].rank
-        time_modes = fm.modes[jt]
+        time_modes = fm.factors[jt]
         # lift columns are constant in time; PGD columns vanish at t0 (v(t0) = 0)
         assert np.all(time_modes[:, :lift] == 1.0)
         assert np.all(time_modes[0, lift:] == 0.0)
@@ -308,9 +308,9 @@ def _solver_space_solution(problem, cb):
         block = np.zeros((q * (nt - 1), r))
         block[s * (nt - 1):(s + 1) * (nt - 1)] = time_modes[1:, lift:]
         state.append(block)
-        weights.append(fm.alphas[lift:])
+        weights.append(fm.weights[lift:])
         for c in disc.names[1:]:
-            params[c].append(fm.modes[coords.index(c)][:, lift:])
+            params[c].append(fm.factors[coords.index(c)][:, lift:])
     factors = [np.hstack(state)] + [np.hstack(params[c]) for c in disc.names[1:]]
     return disc, CPTensor(np.concatenate(weights), factors)
 
@@ -392,8 +392,8 @@ def test_solve_accepts_a_path_and_is_deterministic(solved):
     again = solve(PROBLEMS / "relaxation.yaml")
     first = solved("relaxation").codebook
     for u in first.fields:
-        np.testing.assert_array_equal(again.codebook.fields[u].alphas, first.fields[u].alphas)
-        for a, b in zip(again.codebook.fields[u].modes, first.fields[u].modes):
+        np.testing.assert_array_equal(again.codebook.fields[u].weights, first.fields[u].weights)
+        for a, b in zip(again.codebook.fields[u].factors, first.fields[u].factors):
             np.testing.assert_array_equal(a, b)
 
 
