@@ -153,9 +153,8 @@ def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = No
     """
     if scheme not in SCHEMES:
         raise SolverError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
-    # small dense products (SVD of the supercore, m x m products): one BLAS thread. Measured on fisher.yaml
-    # (x 33, D 9, r 9) on the shared 2-core machine: 15 step attempts in 47 s with the default threads, 1086
-    # steps in 33 s with one
+    # small dense products (SVD of the supercore, m x m products): one BLAS thread; threads competing
+    # for the cores make each step many times slower on small trains (benchmarks/nonlinear_pde.py)
     watched = list(system.modes[:system.space]) if tail_limit is True else list(tail_limit or [])
     with one_blas_thread():
         return _march(system, tolerance, times, {"etdrk4": _etdrk4, "lawson4": _lawson4}[scheme], slab_nodes,
