@@ -92,7 +92,7 @@ def test_a_method_that_stalls_falls_back_to_the_next_of_the_choice_and_the_repor
     assert result.codebook.report["method_fallback"] == "stalling stalled (stagnated at 0.5): pgd"
     assert "stalling stalled (stagnated at 0.5): pgd" in [e.describe() for e in seen if isinstance(e, PhaseStarted)]
     for u in alone.codebook.fields:  # the same solve, once the stalling method gave up
-        np.testing.assert_array_equal(result.codebook.fields[u].alphas, alone.codebook.fields[u].alphas)
+        np.testing.assert_array_equal(result.codebook.fields[u].weights, alone.codebook.fields[u].weights)
     # without a method to fall back to, the stalled outcome is the result
     failed, _ = solve_rounds(problem, MethodChoice((_Stalls(alone.codebook),), "test"), settings)
     assert failed.status is Status.STAGNATED and not failed.converged and failed.message.endswith("at 0.5")
