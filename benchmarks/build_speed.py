@@ -586,7 +586,7 @@ def with_nodes(path: Path, old: int, new: int, tolerance: float | None = None, t
 def build_split(problem):
     """``solve(problem)`` (1 BLAS thread, one run) and the seconds spent inside the march's parts."""
     import pgdcli
-    import pgdcli.algorithms.dop853_stepper as stepper
+    import pgdcli.algorithms.train_steps as stepper
     import pgdcli.algorithms.march as march
     import pgdcli.algorithms.polynomial_rhs as rhs
 

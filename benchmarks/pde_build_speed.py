@@ -71,7 +71,7 @@ def main() -> int:
             err_pgd = max(err_pgd, float(np.max(np.abs(cb(x=X, y=Y, t=t, kappa=k, g=g, q=q)["u"] - truth))))
     p = {c.name: rng.uniform(*c.domain, 20000) for c in cb.coordinates}
     err_random = float(np.max(np.abs(cb(**p)["u"] - exact(p["x"], p["y"], p["t"], p["kappa"], p["g"], p["q"]))))
-    floats = sum(m.size for m in cb.fields["u"].modes) + cb.fields["u"].alphas.size
+    floats = sum(m.size for m in cb.fields["u"].factors) + cb.fields["u"].weights.size
     grid_values = nodes["x"].size * nodes["y"].size * nodes["t"].size * n_grid
     rows = [
         ("build: solve(heat2d.yaml), median of 3", f"{build:.2f} s", f"MOL sweep over {n_grid} grid points: "

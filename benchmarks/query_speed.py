@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _machine import cell, published  # benchmarks/ is on sys.path when a script runs
+from _machine import cell, median_seconds, published  # benchmarks/ is on sys.path when a script runs
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {"spring": ROOT / "problems" / "spring.yaml", "relaxation": ROOT / "problems" / "relaxation.yaml"}
@@ -62,15 +62,7 @@ def per_call(func, calls: int, blocks: int) -> float:
     return statistics.median(times)
 
 
-def once(func, repeats: int) -> float:
-    """Median wall time of ``func()`` over ``repeats`` runs, after one warm-up (seconds)."""
-    func()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+once = median_seconds  # median wall time of func() over repeats runs, after one warm-up (seconds)
 
 
 def interleaved(commands: dict[str, list[str]], runs: int, env: dict, stdin_path=None) -> dict[str, float]:
@@ -246,7 +238,7 @@ def unchunked_evaluation(cb, points):
     for c, basis, modes in zip(cb.coordinates, cb._bases, cb._stacked):
         vals = basis.interpolation_matrix(points[c.name]) @ modes
         product = vals if product is None else product * vals
-    return {u: product[:, cb._slices[u]] @ cb.fields[u].alphas for u in cb.unknown_names}
+    return {u: product[:, cb._slices[u]] @ cb.fields[u].weights for u in cb.unknown_names}
 
 
 def measure_cli(name: str, path: Path, rows: list, quick: bool, workdir: Path) -> None:

@@ -117,8 +117,7 @@ def measure(driver, name: str, path: Path, pages: Path) -> tuple:
     errors = len(driver.execute_script("return window.pgdView.errors"))
     errors += len([e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")])
     py_least, py_median = python_curves(cb, axis, {k: v for k, v in point.items() if k != axis})
-    numbers = sum(fm.size if hasattr(fm, "cores") else fm.alphas.size + sum(m.size for m in fm.modes)
-                  for fm in cb.fields.values())
+    numbers = sum(fm.size for fm in cb.fields.values())
     least, curves = bench["curvesLeast"], bench["curves"]
     return (name, f"{len(cb.coordinates)} / {len(cb.unknown_names)}", f"{numbers:,}", f"{size:.1f} MiB",
             f"{load:.2f} s", str(errors), f"{_ms(least)} / {_ms(curves)} ms",

@@ -20,9 +20,10 @@ from typing import TYPE_CHECKING
 __version__ = "0.1.0"
 
 __all__ = ["__version__", "load_spec", "parse_spec", "solve", "verify", "fit", "Codebook", "Problem",
-           "SolveResult", "VerifyReport", "FitResult", "PgdError"]
+           "SolveResult", "Status", "VerifyReport", "FitResult", "PgdError"]
 
 if TYPE_CHECKING:  # the names below, for type checkers and the API reference (imported lazily at run time)
+    from .algorithms.outcome import Status
     from .checks.verify import VerifyReport, verify
     from .codebook.codebook import Codebook
     from .driver import SolveResult, solve
@@ -36,6 +37,7 @@ _LAZY = {
     "Problem": ("problem.spec", "Problem"),
     "solve": ("driver", "solve"),
     "SolveResult": ("driver", "SolveResult"),
+    "Status": ("algorithms.outcome", "Status"),
     "Codebook": ("codebook.codebook", "Codebook"),
     "verify": ("checks.verify", "verify"),
     "VerifyReport": ("checks.verify", "VerifyReport"),

@@ -1,9 +1,10 @@
-"""Automatic resolution and the error gate: solve until the measured error meets the tolerance.
+"""The automatic resolution: which coordinates get more nodes after a measured error, and why a refusal.
 
 A tolerance is a promise about the codebook, not about the solver: every solve is
 followed by a measurement of its error against an independent reference
-(:mod:`pgdcli.checks.check`). :func:`solve_to_tolerance` turns that measurement into
-decisions:
+(:mod:`pgdcli.checks.check`). The driver's refinement loop (:mod:`pgdcli.driver.refinement`)
+first lowers the solver's own error at the nodes (a tighter march, a smaller residual);
+:class:`Resolution` then turns the measurement of the codebook it kept into a decision:
 
 * the error within the tolerance (``ratio <= 1``): done;
 * too large at points off the nodes of a coordinate whose nodes the solver chooses
@@ -11,30 +12,30 @@ decisions:
   which keeps Chebyshev-Lobatto nodes nested) or, for a parameter whose error does
   not fall geometrically with its nodes, more elements where the error is
   (hp-refinement), and the problem is solved again, up to ``solver.max_nodes`` nodes
-  in all per coordinate; the solver's own error at the nodes is the business of the
-  method's driver (a tighter march, a smaller residual), which ran before this;
-* otherwise a refusal: the result is marked inaccurate (``converged`` False,
-  ``status`` :data:`INACCURATE`) with one line saying how large the error is, where,
-  and which coordinate lacks resolution. The CLI writes nothing then (exit 1) unless
-  asked to keep it, and the codebook's report says so.
+  in all per coordinate;
+* otherwise a refusal (:func:`refusal`): one clause saying how large the error is, where,
+  and which coordinate lacks resolution; the driver marks the result inaccurate
+  (status :data:`INACCURATE`), and the CLI writes nothing then (exit 1) unless asked to keep it.
 
 The report records the nodes tried per coordinate, the measured ratio of each
-round, and why the last round ended.
+round, and why the last round ended (:meth:`Resolution.report_entries`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time as _time
+from dataclasses import dataclass
 
 import numpy as np
 
+from .algorithms.outcome import Status
 from .checks.resolution import chebyshev_decay
 
-__all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "solve_to_tolerance", "refined_nodes", "initial_nodes"]
+__all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "Resolution", "Verdict", "refusal", "refined_nodes",
+           "initial_nodes", "total_nodes", "split_elements"]
 
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
-INACCURATE = 4
+INACCURATE = Status.INACCURATE
 #: Most solves of one problem by the automatic resolution.
 MAX_ROUNDS = 8
 #: Nodes per element beyond which a parameter coordinate is split into elements instead.
@@ -216,9 +217,8 @@ def _largest_off_node(problem, check, march: bool) -> list[str]:
     """The automatic coordinates with the largest off-node errors, when none is too large alone.
 
     The parts of the error add up: the solver's at the nodes and each coordinate's
-    interpolation (on a pendulum, 1.7 x the tolerance off the nodes of th0 where the
-    nodes alone had 0.9 x). The coordinates with at least half the largest off-node
-    ratio are refined.
+    interpolation, each within the tolerance alone and not together. The coordinates
+    with at least half the largest off-node ratio are refined.
     """
     ratios = {c.name: check.coordinate_ratio.get(c.name, 0.0) for c in problem.coordinates
               if c.auto and total_nodes(c) < problem.solver.max_nodes and not (march and c.role == "time")}
@@ -228,75 +228,95 @@ def _largest_off_node(problem, check, march: bool) -> list[str]:
     return [n for n, r in ratios.items() if r > 0 and r >= 0.5 * top]
 
 
-def solve_to_tolerance(problem, solve_once, *, march: bool):
-    """Solve, measure, refine automatic coordinates, and mark the result accurate or not.
+@dataclass(frozen=True)
+class Verdict:
+    """The end of the automatic resolution: the measured error meets the tolerance (``accurate`` True), misses it
+    (False, ``reason`` says where and what would reduce it) or could not be measured (None)."""
 
-    Parameters
-    ----------
-    problem : pgdcli.problem.spec.Problem
-    solve_once : callable
-        ``solve_once(problem) -> SolveResult`` with ``.check`` set (a
-        :class:`~pgdcli.checks.check.CheckResult`) when it converged.
-    march : bool
-        The method is the time march (its time nodes are not refined here).
+    accurate: bool | None
+    reason: str
 
-    Returns
-    -------
-    pgdcli.driver.SolveResult
-        ``accurate`` True (within the tolerance), False (``converged`` False,
-        ``status`` :data:`INACCURATE`) or None (the reference could not check it).
+
+class Resolution:
+    """The automatic resolution of one problem: its current nodes and the rounds so far.
+
+    One round is the solves at one set of nodes; after each, :meth:`judge` either refines
+    the automatic coordinates (the problem at the new nodes is :attr:`problem`) or ends
+    with a :class:`Verdict`. It writes its own report entries (:meth:`report_entries`).
     """
-    started = _time.perf_counter()
-    problem = initial_nodes(problem, march)
-    auto = [c.name for c in problem.coordinates if c.auto]
-    rounds = []
-    history: dict = {}
-    pending = False  # a refinement was chosen that the rounds left no solve for
-    for round_ in range(MAX_ROUNDS if auto else 1):
-        result = solve_once(problem)
-        if not result.converged:
-            lacking = result.codebook.report.get("under_resolved")  # a march stopped early for lack of nodes
-            if lacking and round_ < MAX_ROUNDS - 1:
-                refined = refined_nodes(problem, [lacking])
-                if total_nodes(refined.coordinate(lacking)) > total_nodes(problem.coordinate(lacking)):
-                    rounds.append([total_nodes(c) for c in problem.coordinates] + [float("inf")])  # stopped early
-                    problem = refined
-                    continue
-            return result
-        check = result.check
-        rounds.append([total_nodes(c) for c in problem.coordinates] + [check.ratio])
+
+    def __init__(self, problem, marches: bool):
+        self.problem = initial_nodes(problem, marches)
+        self.marches = marches  # the method's time nodes follow its steps: they are not refined here
+        self.auto = [c.name for c in self.problem.coordinates if c.auto]
+        self.rounds: list[list[float]] = []  # per round: the nodes of each coordinate, then the measured ratio
+        self.history: dict = {}  # per coordinate: its refinements, ("p" or "h", ratio, nodes before)
+
+    def _record(self, ratio: float) -> None:
+        self.rounds.append([total_nodes(c) for c in self.problem.coordinates] + [ratio])
+
+    def more_nodes_for(self, lacking: str | None) -> bool:
+        """A solve stopped early for lack of nodes along ``lacking``: refine it, if the rounds and the cap allow."""
+        if not lacking or len(self.rounds) >= MAX_ROUNDS - 1:
+            return False
+        refined = refined_nodes(self.problem, [lacking])
+        if total_nodes(refined.coordinate(lacking)) <= total_nodes(self.problem.coordinate(lacking)):
+            return False
+        self._record(float("inf"))  # stopped early
+        self.problem = refined
+        return True
+
+    def judge(self, check, codebook, stopped: str | None = None, limited: bool = False,
+              solver: str = "enrichment") -> Verdict | None:
+        """The verdict on a round's codebook, or None when automatic coordinates were refined (solve again).
+
+        ``stopped``: the solver could not lower its own error at the nodes further (why); ``limited``:
+        that error did not fall with the solver's target (the time and space discretization);
+        ``solver``: what the refusal calls the method ("enrichment", "tensor-train solver").
+        """
+        this_round = len(self.rounds)
+        self._record(check.ratio)
         if not check.checked:
-            return _finish(result, problem, rounds, None, "not checked", started)
+            return Verdict(None, "not checked")
         if check.passed:
-            return _finish(result, problem, rounds, True, "the measured error meets the tolerance", started)
-        limited = result.codebook.report.get("discretization_limited", 0)
-        # an enrichment stopped short of the residual the nodes ask for: its error at the nodes is not
-        # the discretization's, and only the coordinates that lack nodes between them are refined
-        stopped = result.codebook.report.get("enrichment_stopped") and check.node_ratio > 1.0
-        refine, stuck = _to_refine(problem, check, march, limited)
-        if not refine and not stuck and not stopped:
-            refine = _largest_off_node(problem, check, march)
-        if not refine:
-            break
-        refined, stuck = _refine(problem, check, refine, history, chebyshev_decay(result.codebook))
-        if stuck == refine:
-            break
-        if round_ == MAX_ROUNDS - 1:
-            pending = True
-            break
-        problem = refined
-    reason = _refusal(problem, check, march, result.codebook.report)
-    if pending:
-        reason = f"still refining after {MAX_ROUNDS} solves: {reason}"
-    return _finish(result, problem, rounds, False, reason, started)
+            return Verdict(True, "the measured error meets the tolerance")
+        # a solver stopped short of the target the nodes ask for: its error at the nodes is not the
+        # discretization's, and only the coordinates that lack nodes between them are refined
+        stopping = bool(stopped) and check.node_ratio > 1.0
+        refine, stuck = _to_refine(self.problem, check, self.marches, limited)
+        if not refine and not stuck and not stopping:
+            refine = _largest_off_node(self.problem, check, self.marches)
+        pending = False
+        if refine:
+            refined, stuck = _refine(self.problem, check, refine, self.history, chebyshev_decay(codebook))
+            if stuck != refine and this_round < MAX_ROUNDS - 1:
+                self.problem = refined
+                return None
+            pending = stuck != refine  # a refinement was chosen that the rounds left no solve for
+        reason = refusal(self.problem, check, self.marches, stopped, limited, solver)
+        return Verdict(False, f"still refining after {MAX_ROUNDS} solves: {reason}" if pending else reason)
+
+    def report_entries(self, reason: str) -> dict:
+        """The codebook report's ``resolution_*`` entries: rounds, automatic coordinates, elements, reason."""
+        coords = self.problem.coordinates
+        return {
+            "resolution_rounds": np.array(self.rounds, dtype=float),  # (rounds, coordinates + 1): nodes, ratio
+            "resolution_auto": ",".join(c.name for c in coords if c.auto),
+            "resolution_elements": ",".join(f"{c.name}:{len(c.breakpoints) - 1}" for c in coords
+                                            if len(c.breakpoints) > 2),
+            "resolution_reason": reason,
+        }
 
 
-def _refusal(problem, check, march: bool, report) -> str:
-    """Why the error is too large and what would reduce it, in one clause."""
-    stopped = report.get("enrichment_stopped") if check.node_ratio > 1.0 else None
-    refine, stuck = _to_refine(problem, check, march, report.get("discretization_limited", 0))
+def refusal(problem, check, marches: bool, stopped: str | None = None, limited: bool = False,
+            solver: str = "enrichment") -> str:
+    """Why the error is too large and what would reduce it, in one clause.
+
+    ``stopped`` and ``limited`` as :meth:`Resolution.judge`'s.
+    """
+    stopped = stopped if check.node_ratio > 1.0 else None
+    refine, stuck = _to_refine(problem, check, marches, limited)
     names = refine + stuck
-    solver = "tensor-train solver" if report.get("method") == "amen" else "enrichment"
     if stopped and not any(_lacks_nodes(check, n) for n in names):
         return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the {solver} could not "
                 f"lower its residual further: {stopped}")
@@ -309,7 +329,7 @@ def _refusal(problem, check, march: bool, report) -> str:
         ratio = share(worst)
         measured = check.coordinate_ratio.get(worst, 0.0) >= check.tail_ratio.get(worst, 0.0)
         # the larger of the two says it: the error measured off the coordinate's nodes, or the estimate
-        # from its Chebyshev tail (a 7-coordinate kinetics model: tail 7.3x, measured 0.95x, overall 4.1x)
+        # from its Chebyshev tail (the tail can exceed what was measured many times over)
         seen = "error between its nodes" if measured else "its Chebyshev tail estimates an error between its nodes of"
         if c.auto and total_nodes(c) >= problem.solver.max_nodes:
             need = f"it reached solver.max_nodes = {problem.solver.max_nodes}"
@@ -323,75 +343,11 @@ def _refusal(problem, check, march: bool, report) -> str:
         return (f"the error at the nodes did not fall with the residual: coordinate {worst!r} may lack resolution "
                 f"({need})")
     if check.method.startswith("method of lines"):
-        # measured: 7.7e-10 between heat1d's reference and a codebook 1.3e-13 off the exact solution
+        # the method-of-lines reference's own error, not the codebook's, can be what is measured
         return ("the error did not fall with the residual nor with nodes; note that the method-of-lines "
                 "reference of problems with space coordinates is itself accurate to about 1e-9, so a tighter "
                 "tolerance cannot be checked (--keep-inaccurate keeps the codebook)")
     if check.node_ratio > 1.0:
-        what = "march" if march else solver
+        what = "march" if marches else solver
         return f"the {what} did not reach the tolerance at the nodes ({check.node_ratio:.2g} x the tolerance)"
     return "the error between the nodes exceeds the tolerance, in no one coordinate alone"
-
-
-def _finish(result, problem, rounds, accurate, reason, started):
-    from .checks.check import points_text
-
-    check = result.check
-    cb = result.codebook
-    rep = cb.report
-    rep.update(_check_report(check))
-    rep["accurate"] = -1 if accurate is None else int(accurate)
-    rep["resolution_rounds"] = np.array(rounds, dtype=float)  # (rounds, coordinates + 1): nodes, ratio
-    rep["resolution_auto"] = ",".join(c.name for c in problem.coordinates if c.auto)
-    rep["resolution_elements"] = ",".join(f"{c.name}:{len(c.breakpoints) - 1}" for c in problem.coordinates
-                                          if len(c.breakpoints) > 2)
-    rep["resolution_reason"] = reason
-    rep["wall_time"] = _time.perf_counter() - started
-    where = ", ".join(f"{k}={v:.6g}" for k, v in check.where.items())
-    warnings = list(result.warnings)
-    tol = _tolerance_text(check)
-    if accurate is None:
-        measured = f"not checked against scipy ({tol}; see the warnings)"
-    else:
-        measured = (f"max abs error {check.error:.3g} at {points_text(check.points)} against scipy "
-                    f"({check.ratio:.2g} x {tol})")
-    solved = rep.get("solver_message", result.message.removeprefix("converged: "))
-    if len(rounds) > 1:
-        solved += f", nodes chosen in {len(rounds)} solves"
-    if accurate is False:
-        message = (f"tolerance not met: max abs error {check.error:.3g} ({check.ratio:.2g} x {tol}) at {where}; "
-                   f"{reason}")
-        rep.update(converged=False, status=INACCURATE, message=message)
-        return dataclasses.replace(result, converged=False, status=INACCURATE, message=message, warnings=warnings,
-                                   accurate=False, wall_time=rep["wall_time"])
-    message = f"converged: {solved}, {measured}"
-    rep["message"] = message
-    return dataclasses.replace(result, message=message, warnings=warnings, accurate=accurate,
-                               wall_time=rep["wall_time"])
-
-
-def _tolerance_text(check) -> str:
-    if check.relative_tolerance:
-        return f"tolerance {check.tolerance:.3g} + {check.relative_tolerance:.3g} |u|"
-    return f"tolerance {check.tolerance:.3g}"
-
-
-def _finite(value) -> float:
-    return float(value) if value is not None else float("nan")
-
-
-def _check_report(check) -> dict:
-    names = sorted(check.coordinate_ratio)
-    return {
-        "check_error": _finite(check.error),
-        "check_node_error": _finite(check.node_error),
-        "check_between_error": _finite(check.between_error),
-        "check_ratio": _finite(check.ratio),
-        "check_points": int(check.points),
-        "check_failed": int(check.failed),
-        "check_where": ", ".join(f"{k}={v!r}" for k, v in check.where.items()),
-        "check_method": check.method,
-        "check_coordinates": ",".join(names),
-        "check_coordinate_ratio": np.array([check.coordinate_ratio[n] for n in names], dtype=float),
-        "relative_tolerance": float(check.relative_tolerance),
-    }

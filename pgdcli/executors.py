@@ -28,8 +28,8 @@ killed :data:`ALLOWED_FAILURES` workers, or a scheduler gone away, is a
 
 The executor in effect, :func:`current`, is set for a block by :func:`using`; :func:`pgdcli.solve`
 sets it from its ``executor`` argument, so the layers below reach it without every signature
-between them carrying it. Imports nothing of the package but its errors (a leaf every layer may use),
-and Dask only inside the methods of a DaskExecutor.
+between them carrying it. Imports nothing of the package but its errors and its BLAS limiter (a leaf
+every layer may use), and Dask only inside the methods of a DaskExecutor.
 """
 
 from __future__ import annotations
@@ -41,10 +41,11 @@ from collections import OrderedDict, deque
 from concurrent.futures import CancelledError, Future
 from typing import Callable, Iterable, Iterator
 
+from .blas import one_blas_thread
 from .errors import ClusterError
 
 __all__ = ["Executor", "SerialExecutor", "ProcessExecutor", "DaskExecutor", "current", "using", "as_executor",
-           "pool_context", "one_blas_thread"]
+           "pool_context"]
 
 #: Times a cancelled task is submitted again.
 RESUBMITS = 3
@@ -198,16 +199,10 @@ class ProcessExecutor(Executor):
             self._pool = None
 
 
-def one_blas_thread():
-    """A context in which BLAS runs on one thread: the workers are the parallelism, and a task computes
-    the same floats wherever it runs (:func:`pgdcli.solve` runs on one BLAS thread too)."""
-    from threadpoolctl import threadpool_limits
-
-    return threadpool_limits(limits=1, user_api="blas")
-
-
 def _one_blas_thread(fn: Callable, *args):
-    """A task in a worker: ``fn(*args)`` on one BLAS thread."""
+    """A task in a worker: ``fn(*args)`` on one BLAS thread (:func:`pgdcli.blas.one_blas_thread`): the
+    workers are the parallelism, and a task computes the same floats wherever it runs
+    (:func:`pgdcli.solve` runs on one BLAS thread too)."""
     with one_blas_thread():
         return fn(*args)
 

@@ -71,6 +71,20 @@ def codebook_points(cb, n: int, seed: int, corners: bool = True) -> dict:
     return random_points({c.name: c.domain for c in cb.coordinates}, n, seed, corners)
 
 
+def nodal_points(cb, size: int, seed: int, special: float = 0.25) -> dict:
+    """``size`` uniform points in the codebook's domain, a share ``special`` of each coordinate's values
+    on its nodes (slab breakpoints and the domain's ends among them). Returns name -> 1D array."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for c in cb.coordinates:
+        nodes = c.basis().nodes
+        x = rng.uniform(*c.domain, size)
+        hit = rng.random(size) < special
+        x[hit] = nodes[rng.integers(0, nodes.size, int(hit.sum()))]
+        out[c.name] = x
+    return out
+
+
 def max_abs_error(cb, exact, points) -> dict:
     values = cb(**points)
     ref = exact(points)

@@ -40,7 +40,10 @@ LEAVES = {
     "pages": (),  # arrays in memory pages of a chosen size
     "names": (),  # what a name may be; text safe for a terminal
     "limits": ("pgdcli.errors",),  # the documented limits and their environment overrides
-    "executors": ("pgdcli.errors",),  # where independent tasks run: here, a pool, a Dask cluster
+    "progress": (),  # the typed progress events of a solve
+    "blas": (),  # BLAS on one thread while a block of work runs: the one limiter
+    "tuning": ("pgdcli.errors",),  # the machine-specific tuning constants and their environment overrides
+    "executors": ("pgdcli.errors", "pgdcli.blas"),  # where independent tasks run: here, a pool, a Dask cluster
     "cluster": ("pgdcli.errors", "pgdcli.executors"),  # opening a Dask cluster
 }
 

@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..codebook.codebook import Codebook, FieldTT
+from ..codebook.codebook import Codebook
+from ..progress import AmenSweep, emit
 from ..discretization.coefficients import separation_report_text
 from ..discretization.coordinates import coordinate_infos
 from ..discretization.linear import Discretization, discretize
@@ -118,7 +119,7 @@ def solve_amen(problem, target: float, *, max_rank: int, callback=None, toleranc
     max_rank : int
         Cap on every tensor-train rank (``solver.max_rank``).
     callback : callable, optional
-        Called after each sweep with ``{"sweep", "residual", "target", "ranks", "seconds"}``.
+        Receives a :class:`~pgdcli.progress.AmenSweep` after each sweep.
     tolerance : float, optional
         The codebook's tolerance: non-separable coefficients are separated to a share of it,
         and the codebook's trains rounded to another.
@@ -147,8 +148,7 @@ def solve_amen(problem, target: float, *, max_rank: int, callback=None, toleranc
 
     def each_sweep(info: dict):
         info = dict(info, target=target)
-        if callback is not None:
-            callback(info)
+        emit(callback, AmenSweep(info["sweep"], info["residual"], target, list(info["ranks"])))
         return stop(info) if stop is not None else None
 
     if start is not None:  # rounded to the target: an interpolated start need not carry all its ranks
@@ -280,7 +280,7 @@ def _codebook(problem, disc: Discretization, modes: list[str], solution: TT, rep
 
     coords = coordinate_infos(problem, march=False)
     trains, order = field_trains(disc, modes, solution, absolute)
-    fields = {u: FieldTT(tuple(t.cores), order) for u, t in trains.items()}
+    fields = {u: TT(tuple(t.cores), order) for u, t in trains.items()}
     report = dict(report, pgdcli_version=__version__)
     return Codebook(coords, fields, name=problem.name, spec_text=problem.source_text, report=report,
                     description=problem.description)

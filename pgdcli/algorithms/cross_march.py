@@ -30,10 +30,13 @@ from itertools import product
 import numpy as np
 
 from .. import executors
+from ..progress import CrossSweep
 from ..tensors.fiber_cross import vector_cross
 from ..tensors.tt import TT, tt_round_shared
-from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, Schedule, advance, initial_values, replay
+from .grid_steps import GridMarchFailure, GridRhs, NodeFunctions, advance, initial_values, replay_batch
+from .march_loop import Schedule
 from .polynomial_rhs import NonlinearSystem
+from .stepping import Stepper
 
 __all__ = ["CrossMarchResult", "march_by_cross", "PILOT_POINTS", "CROSS_SHARE"]
 
@@ -46,8 +49,8 @@ PILOT_CORNERS = 1024
 CROSS_SHARE = 0.1
 #: The cross's largest difference there, as a share of the tolerance.
 CROSS_LARGEST = 0.5
-#: Nodes marched together at most: their stages stay in the cache (8192-16384 nodes: 2x faster per node
-#: than 65536, benchmarks/README.md).
+#: Nodes marched together at most: their stages stay in the cache (per node, batches of this size were
+#: measured twice as fast as four times larger ones).
 REPLAY_POINTS = 16384
 #: Times the pilot is marched again with the nodes where its steps overflowed.
 RETRIES = 2
@@ -88,7 +91,7 @@ class CrossMarchResult:
 
 def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, max_rank: int = 400,
                    max_steps: int = 20000, callback=None, slab_nodes: int | None = None,
-                   budget: int | None = None) -> CrossMarchResult:
+                   budget: int | None = None, stepper: Stepper | None = None) -> CrossMarchResult:
     """Pilot march, cross of the trajectories, split and round (module docstring).
 
     Parameters
@@ -101,12 +104,14 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
     max_rank : int
     max_steps : int
     callback : callable, optional
-        After every accepted pilot step (``{"time", "end", "ranks", "steps"}``) and every half sweep of
-        the cross (``{"cross", "residual", "target", "ranks", "trajectories"}``).
+        After every accepted pilot step (a :class:`~pgdcli.progress.MarchStep`) and every half sweep of
+        the cross (a :class:`~pgdcli.progress.CrossSweep`).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
     budget : int, optional
         Trajectories the cross may ask for (``converged`` False beyond them).
+    stepper : Stepper, optional
+        The pilot's (and so the trajectories') stepper; default DOP853.
 
     Raises
     ------
@@ -121,7 +126,7 @@ def march_by_cross(system: NonlinearSystem, tolerance: float, delta: float, *, m
         try:
             schedule = advance(system, GridRhs(system, pilot, functions), initial_values(system, pilot, functions),
                                tolerance, lambda values: None, max_steps=max_steps, callback=callback,
-                               slab_nodes=slab_nodes)
+                               slab_nodes=slab_nodes, stepper=stepper)
         except GridMarchFailure as failure:
             failure.indices = pilot
             raise
@@ -154,11 +159,11 @@ class _Overflow(Exception):
 
 
 def _sweep_progress(callback, target: float):
-    """The cross's half sweeps as progress: ``{"cross", "residual", "target", "ranks", "trajectories"}``."""
+    """The cross's half sweeps as progress: a :class:`~pgdcli.progress.CrossSweep` each."""
     if callback is None:
         return None
-    return lambda info: callback({"cross": info["sweep"], "residual": info["error"], "target": target,
-                                  "ranks": info["ranks"], "trajectories": info["evaluations"]})
+    return lambda info: callback(CrossSweep(info["sweep"], info["error"], target, info["evaluations"],
+                                            info["ranks"]))
 
 
 def _pilot_indices(shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
@@ -186,8 +191,7 @@ class _Trajectories:
         return _Trajectories, (self.system, self.schedule)
 
     def _replayed(self, chosen: np.ndarray) -> np.ndarray:  # (times, m, P), finite
-        system, functions = self.system, self.functions
-        values = replay(GridRhs(system, chosen, functions), initial_values(system, chosen, functions), self.schedule)
+        values = replay_batch(self.schedule, self.functions, chosen)
         _refuse_overflow(chosen, values)
         return values
 

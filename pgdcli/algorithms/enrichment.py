@@ -32,9 +32,12 @@ from functools import partial
 import numpy as np
 
 from ..discretization.linear import Discretization
-from ..tensors.cp import CPTensor, SeparatedOperator, khatri_rao_rows, sweep_order, sweep_step
+from ..progress import EnrichmentStep, emit
+from ..tensors.cp import CPTensor, SeparatedOperator
+from ..tensors.cp_sweep import khatri_rao_rows, sweep_order, sweep_step
 from .enrichment_state import EnrichmentState
 from .mode_update import update_mode
+from .outcome import Status
 from .rank_one import enrich, solve_small
 
 __all__ = ["EnrichmentState", "enrich", "project_alphas", "update_mode", "residual_norm", "run_enrichment",
@@ -144,13 +147,25 @@ def predicted_modes(history: list[float], tol: float) -> float:
 
 
 def run_enrichment(disc: Discretization, opts, tol: float, nmax: int, callback):
+    """Enrich until the relative residual is ``tol`` or below, ``nmax`` terms, or stagnation.
+
+    Returns
+    -------
+    state : EnrichmentState
+    history : list of float
+        Relative residual before the first term and after each.
+    iterations : list of int
+        Fixed-point iterations of each term.
+    status : Status
+        CONVERGED, MAX_MODES or STAGNATED.
+    """
     state = EnrichmentState.empty(disc.operator, disc.source)
     source_norm = disc.source.norm()
     history = [1.0 if source_norm > 0 else 0.0]
     iterations: list[int] = []
     if source_norm == 0.0:
-        return state, history, iterations, 0
-    status = 1
+        return state, history, iterations, Status.CONVERGED
+    status = Status.MAX_MODES
     for _ in range(nmax):
         res_w, res_f = state.residual()
         factors, its = None, 0
@@ -167,7 +182,7 @@ def run_enrichment(disc: Discretization, opts, tol: float, nmax: int, callback):
             if min(norms) > 0.0 and np.all(np.isfinite(norms)):
                 break
         else:
-            status = 2
+            status = Status.STAGNATED
             break
         state.append([f / nf for f, nf in zip(factors, norms)], float(np.prod(norms)))
         if opts.update and opts.formulation == "minres":
@@ -177,13 +192,12 @@ def run_enrichment(disc: Discretization, opts, tol: float, nmax: int, callback):
         rel = res / source_norm
         history.append(rel)
         iterations.append(its)
-        if callback is not None:
-            callback({"mode": state.rank, "residual": rel, "iterations": its})
+        emit(callback, EnrichmentStep(state.rank, rel, its, tol, nmax))
         if rel <= tol:
-            status = 0
+            status = Status.CONVERGED
             break
         if len(history) > STAGNATION_WINDOW and history[-1] > 0.99 * history[-1 - STAGNATION_WINDOW]:
-            status = 2
+            status = Status.STAGNATED
             break
         if len(history) > PREDICTION_AFTER and predicted_modes(history, tol) > PREDICTION_MARGIN * nmax:
             break  # status 1: it would run into max_modes first

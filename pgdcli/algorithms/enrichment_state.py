@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..tensors.cp import CPTensor, SeparatedOperator, separated_norm
+from ..tensors.cp import CPTensor, SeparatedOperator
+from ..tensors.cp_sweep import separated_norm
 
 __all__ = ["EnrichmentState"]
 

@@ -34,7 +34,7 @@ from ..tensors.tt import TT
 
 __all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries", "underflow_hint"]
 
-#: Functions whose derivatives jump: DOP853's error control needs ever smaller steps where their
+#: Functions whose derivatives jump: the march's error control needs ever smaller steps where their
 #: argument crosses its kink at some node of the parameter grid (every node marches with one step).
 NON_SMOOTH = ("abs",)
 

@@ -5,7 +5,7 @@ with 20-40 nodes each, six with 8) every separated operation of the tensor-train
 (:mod:`pgdcli.algorithms.march`: roundings, QR, crosses) costs more than the
 whole array does: one right-hand side on the array is a few elementwise products.
 There the state is kept as the array of its values at all grid nodes, advanced by
-the same DOP853 pair and step control, stored at the same time nodes, and the
+the same stepper and step control, stored at the same time nodes, and the
 space-time array of each unknown is compressed once by TT-SVD (measured randomized ranges,
 :mod:`pgdcli.tensors.tt_svd`) to the same share of the tolerance as the train march's
 space-time rounding; a long march by runs of at most :data:`CHUNK_FLOATS` floats, joined at
@@ -16,7 +16,7 @@ is about that of one vectorized ``solve_ivp`` over the grid plus the TT-SVD
 The error control is the train march's: the embedded estimate of each unknown in the
 root-mean-square norm over the grid nodes may be ``LOCAL_FRACTION * tolerance * h / span``
 (the local errors add up to that share of the tolerance); the user's tolerance, a max abs
-error, is enforced by the error gate after the march (``pgdcli.driver._checked_march``).
+error, is enforced by the error gate after the march (:mod:`pgdcli.driver.refinement`).
 
 :data:`GRID_LIMIT` decides which march a problem gets (:func:`fits_grid`).
 """
@@ -32,19 +32,19 @@ from ..tensors.tt_svd import tt_from_full_sketched
 from ..tensors.tt import TT
 from .grid_steps import GridMarchFailure, GridRhs, advance, initial_values
 from .polynomial_rhs import SINGLE_POINT, NonlinearSystem
+from .stepping import Stepper
 from .space_time import join_and_round
 
 __all__ = ["GRID_LIMIT", "GRID_MAX", "CHUNK_FLOATS", "fits_grid", "check_forced_grid", "GridRhs", "GridMarchResult", "march_on_grid",
            "grid_region", "GridMarchFailure"]
 
 #: Largest number of state values (grid nodes x unknowns) marched as one array; 0 sends every problem to
-#: the train march. Measured (benchmarks/README.md, 'grid march'): faster than the train march on
-#: coupled.yaml (8000 x 3 values: 4x) and on the rigid body with 8 nodes per IC (1.6e6 values: 2.1x, peak
-#: memory ~1 GB); with 10 nodes (6e6 values) still 1.2x, but at 2.9 GB: the limit stops below that.
+#: the train march. Up to it the grid march is faster than the train march on the shipped problems, and
+#: its memory (~20 arrays of the state) stays near a gigabyte (benchmarks/build_speed.py).
 GRID_LIMIT = 2 ** 21
 
 
-#: Most state values ``solver.march: grid`` accepts: the march holds ~20 arrays of the state (its 16
+#: Most state values ``solver.march: grid`` accepts: the march holds ~20 arrays of the state (DOP853's 16
 #: stages among them), ~5 GB at this size; above it the error names ``solver.march``.
 GRID_MAX = 2 ** 25
 
@@ -137,8 +137,9 @@ class _Store:
 
 
 def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, max_steps: int = 20000,
-                  callback=None, slab_nodes: int | None = None) -> GridMarchResult:
-    """March the whole grid array with DOP853 to the end of the time domain; compress it to trains.
+                  callback=None, slab_nodes: int | None = None,
+                  stepper: Stepper | None = None) -> GridMarchResult:
+    """March the whole grid array with a stepper to the end of the time domain; compress it to trains.
 
     Parameters
     ----------
@@ -149,9 +150,11 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, ma
         Frobenius bound of the compression of each unknown's space-time array.
     max_steps : int
     callback : callable, optional
-        After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep` (ranks empty).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
+    stepper : Stepper, optional
+        Default DOP853.
 
     Raises
     ------
@@ -160,7 +163,7 @@ def march_on_grid(system: NonlinearSystem, tolerance: float, delta: float, *, ma
     rhs = GridRhs(system)
     store = _Store(system.shape, delta)
     schedule = advance(system, rhs, initial_values(system), tolerance, store.extend, max_steps=max_steps,
-                       callback=callback, slab_nodes=slab_nodes)
+                       callback=callback, slab_nodes=slab_nodes, stepper=stepper)
     trains = store.trains()
     return GridMarchResult(trains, np.array(schedule.times), len(schedule.steps), schedule.rejected,
                            float(np.max(schedule.local_sum)), schedule.step_sizes,

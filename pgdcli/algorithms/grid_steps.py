@@ -1,31 +1,29 @@
-"""DOP853 on arrays of parameter nodes: the adaptive march and its replay on other nodes.
+"""Arrays of parameter nodes as the march's state: the adaptive march and its replay on other nodes.
 
 The state is the array ``Y`` of shape (unknowns, P) of the unknowns at P parameter nodes: every
 node of the grid (:mod:`pgdcli.algorithms.grid_march`) or a batch of chosen multi-indices
-(:mod:`pgdcli.algorithms.cross_march`). :func:`advance` marches it with scipy's DOP853 pair and
-the train march's step control (the embedded estimate of each unknown in the root-mean-square
-norm over the nodes may be ``LOCAL_FRACTION * tolerance * h / span``) and hands the values at the
-time nodes to a ``keep`` callable; it returns the :class:`Schedule` of its accepted steps.
+(:mod:`pgdcli.algorithms.cross_march`). :func:`advance` marches it with a stepper
+(:data:`pgdcli.algorithms.steppers.METHODS`) and the train march's step control (the embedded
+estimate of each unknown in the root-mean-square norm over the nodes may be
+``LOCAL_FRACTION * tolerance * h / span``) and hands the values at the time nodes to a ``keep``
+callable; it returns the :class:`~pgdcli.algorithms.march_loop.Schedule` of its accepted steps.
 :func:`replay` marches other nodes with that schedule, step for step (no step control): on nodes
 drawn from the same grid it computes what :func:`advance` would have computed there.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
-from scipy.integrate import DOP853
 
 from ..tensors.cross import tt_point_function, tt_values_at
-from .blowup import BlowupWatch
-from .dop853_stepper import dense_weights
-from .general_rhs import underflow_hint
+from .march_loop import Schedule, march_steps
 from .polynomial_rhs import NonlinearSystem
-from .step_control import LOCAL_FRACTION, MAX_GROWTH_OF_NORM, StepControl, output_times, step_refusal
+from .stepping import Stepper, Trial
+from .step_control import LOCAL_FRACTION
+from .steppers import stepper as named_stepper
 
-__all__ = ["GridRhs", "NodeFunctions", "GridMarchFailure", "Schedule", "advance", "replay", "initial_values", "trial_step",
-           "dense_values", "extra_stages"]
+__all__ = ["GridRhs", "NodeFunctions", "GridMarchFailure", "ArraySpace", "Schedule", "advance", "replay",
+           "replay_batch", "initial_values"]
 
 
 class GridMarchFailure(Exception):
@@ -57,6 +55,7 @@ class NodeFunctions:
     """
 
     def __init__(self, system: NonlinearSystem):
+        self.system = system
         self.coefficients: dict = {}
         for s, monomials in enumerate(system.rhs):
             for m, (coef, _) in enumerate(monomials):
@@ -146,36 +145,86 @@ def initial_values(system: NonlinearSystem, indices: np.ndarray | None = None,
     return np.stack([tt_values_at(u, indices) for u in system.initial])
 
 
-@dataclass
-class Schedule:
-    """The accepted steps of :func:`advance`: ``(t, h, t_new, outs)`` each (``outs``: the stored times in
-    ``(t, t_new]``), and what the march did."""
+class ArraySpace:
+    """The array (unknowns, P) of nodal values as the state of a stepper
+    (:class:`pgdcli.algorithms.stepping.StateSpace`), in one buffer ``[y, y_new, K_0 ...]``.
 
-    steps: list = field(default_factory=list)
-    times: list = field(default_factory=list)  # every stored time, the initial one first
-    rejected: int = 0
-    local_sum: np.ndarray | None = None  # per unknown: the accepted local error estimates added up
-    weights: dict = field(default_factory=dict, repr=False)  # step -> its dense-output weights (replays)
+    Nothing is rounded. The buffer holds the state between steps (``buffer[0]``), every trial's new
+    state (``buffer[1]``, written by :meth:`state`) and the stages, so the dense output at a step's
+    nodes is one matrix product. Norms are maxima of absolute values; error norms root-mean-squares
+    over the nodes.
+    """
 
-    @property
-    def step_sizes(self) -> list[float]:
-        return [h for _, h, _, _ in self.steps]
+    failure = GridMarchFailure
+    kind = "the grid's array of nodal values"
 
-    def output_weights(self, k: int) -> np.ndarray:
-        """The dense-output weights (nodes strictly inside, 18) of step ``k``, computed once for all replays."""
-        if k not in self.weights:
-            t, h, t_new, outs = self.steps[k]
-            self.weights[k] = _output_weights(t, h, t_new, outs)
-        return self.weights[k]
+    def __init__(self, rhs: GridRhs, y: np.ndarray, slots: int):
+        self.rhs, self.system, self.stats = rhs, rhs.system, rhs.stats
+        self.buffer = np.empty((2 + slots,) + y.shape)
+        self.buffer[0] = y
 
-    def breakpoints(self) -> np.ndarray:
-        """The start and the end of every step: the slabs' breakpoints (automatic slabs)."""
-        return np.array([self.times[0]] + [t_new for _, _, t_new, _ in self.steps])
+    def start(self, y: np.ndarray) -> np.ndarray:
+        return self.buffer[0]
+
+    def stages(self, f: np.ndarray, slots: int) -> np.ndarray:
+        K = self.buffer[2:]
+        K[0] = f
+        return K
+
+    def stage(self, y: np.ndarray, K: np.ndarray, a: np.ndarray, h: float) -> np.ndarray:
+        return y + h * _combination(a, K)
+
+    def state(self, y: np.ndarray, K: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
+        return np.add(y, h * _combination(b, K), out=self.buffer[1])
+
+    def norm(self, y: np.ndarray) -> float:
+        return float(np.max(np.abs(y)))
+
+    largest = norm
+
+    def error_norms(self, K: np.ndarray, count: int, weights: list[np.ndarray]) -> list[np.ndarray]:
+        return [np.sqrt(np.mean(np.tensordot(w, K[:count], axes=1) ** 2, axis=1)) for w in weights]
+
+    def dense(self, y: np.ndarray, y_new: np.ndarray, K: np.ndarray, W: np.ndarray | None, count: int,
+              out: np.ndarray | None = None) -> np.ndarray:
+        """All rows of ``W`` in one product with the buffer (``y_new`` is ``buffer[1]``, :meth:`state`)."""
+        out = np.empty((count,) + y.shape) if out is None else out
+        inside = 0 if W is None else len(W)
+        if inside:
+            with np.errstate(all="ignore"):  # an overflowed node: the caller refuses its values
+                np.matmul(W, self.buffer.reshape(len(self.buffer), -1), out=out[:inside].reshape(inside, -1))
+        out[inside:] = y_new
+        return out
+
+    def accept(self, trial: Trial, copy: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """The accepted state, into ``buffer[0]``, and ``f`` there (a copy: a rejected trial overwrites
+        the stages before the next one reads it; a replay rejects none)."""
+        self.buffer[0] = trial.y_new
+        return self.buffer[0], trial.f_new.copy() if copy else trial.f_new
+
+    def rounding(self, h: float) -> float:
+        return 0.0
+
+    def after_stage_noise(self, h: float) -> float:
+        """No roundings to tighten: halve the step."""
+        return 0.5 * h
+
+    def check(self, trial: Trial, t: float, y: np.ndarray) -> None:
+        pass
+
+    def ranks(self, y: np.ndarray) -> list:
+        return []
+
+
+def _combination(weights: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """``sum_s weights[s] K[s]`` for stages K of shape (s, unknowns, P): one matrix-vector product."""
+    return (weights @ K[:len(weights)].reshape(len(weights), -1)).reshape(K.shape[1:])
 
 
 def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: float, keep, *,
-            max_steps: int = 20000, callback=None, slab_nodes: int | None = None, largest=None) -> Schedule:
-    """March ``y`` (unknowns, P) to the end of the time domain with DOP853 and step control.
+            max_steps: int = 20000, callback=None, slab_nodes: int | None = None,
+            stepper: Stepper | None = None) -> Schedule:
+    """March ``y`` (unknowns, P) to the end of the time domain with a stepper and step control.
 
     Parameters
     ----------
@@ -190,163 +239,51 @@ def advance(system: NonlinearSystem, rhs: GridRhs, y: np.ndarray, tolerance: flo
         state first).
     max_steps : int
     callback : callable, optional
-        After every accepted step: ``{"time", "end", "ranks", "steps"}`` (ranks empty).
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep` (ranks empty).
     slab_nodes : int, optional
         Automatic slabs (see :func:`pgdcli.algorithms.march.march`).
-    largest : callable, optional
-        ``largest(y) -> float``, the blow-up watch's measure of the state (default max abs).
+    stepper : Stepper, optional
+        Default DOP853.
 
     Raises
     ------
     GridMarchFailure
     """
-    nodes = system.time_basis.nodes
-    t, t_final = float(nodes[0]), float(nodes[-1])
-    span = t_final - t
-    scale0 = max(1.0, float(np.max(np.abs(y))))
-    control = StepControl(span, LOCAL_FRACTION * tolerance)
-    stats = rhs.stats  # "cross_nonfinite": right-hand sides not finite at finite stage values (underflow_hint)
-    f = rhs(t, y)
-    keep([y])
-    schedule = Schedule(times=[t], local_sum=np.zeros(len(y)))
-    h = 0.1 * span
-    watch = BlowupWatch(system, y, t_final, largest=largest or _largest)
-    buffer = _step_buffer(y)  # [y, y_new, K_0 .. K_15]
-    y = buffer[0]
-    while t < t_final:
-        h = min(h, t_final - t)
-        refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
-                               lambda: underflow_hint(system.general, stats))
-        if refusal:
-            raise GridMarchFailure(refusal, t, y)
-        y_new, K, local = trial_step(rhs, t, y, f, h, stages=buffer[2:])
-        error = float(np.max(local)) if local is not None else np.inf
-        ratio = control.ratio(error, h)
-        if ratio > 1.0:
-            schedule.rejected += 1
-            # None means stage-rounding noise in the train march; without roundings, halve the step
-            h = control.rejected(t, h, ratio) or 0.5 * h
-            continue
-        if float(np.max(np.abs(y_new))) > MAX_GROWTH_OF_NORM * scale0:
-            raise GridMarchFailure("the solution blows up", t, y)
-        t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
-        outs = output_times(t, h, t_new, nodes, schedule.times[-1], slab_nodes)
-        buffer[1] = y_new
-        keep(list(dense_values(rhs, t, h, buffer, outs, t_new)))
-        schedule.times.extend(outs)
-        schedule.steps.append((t, h, t_new, outs))
-        schedule.local_sum += local
-        y[:] = y_new  # buffer[0]
-        t, f = t_new, K[DOP853.n_stages].copy()  # a copy: a rejected trial overwrites the stages
-        h = control.accepted(h, ratio)
-        if callback is not None:
-            callback({"time": t, "end": t_final, "ranks": [], "steps": len(schedule.steps)})
-        if t < t_final:
-            blowup = watch(t, schedule.step_sizes, y)
-            if blowup is not None:
-                raise GridMarchFailure("the solution blows up", t, y, blowup)
-    return schedule
+    stepper = stepper or named_stepper()
+    return march_steps(ArraySpace(rhs, y, stepper.slots), stepper, y, system.time_basis.nodes,
+                       LOCAL_FRACTION * tolerance, keep, max_steps=max_steps, callback=callback,
+                       slab_nodes=slab_nodes)
 
 
 def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
     """March ``y`` (unknowns, P) with the accepted steps of ``schedule``: the stored states.
 
-    The same arithmetic as :func:`advance`, in one buffer ``[y, y_new, K_0 .. K_15]`` whose dense output
-    at a step's nodes is one matrix product written into the result.
+    The same arithmetic as :func:`advance`, whose dense output at a step's nodes is one matrix
+    product written into the result.
 
     Returns
     -------
     ndarray, shape (stored times, unknowns, P)
         Non-finite where a node's march overflowed (the caller refuses it).
     """
+    stepper = schedule.stepper
     out = np.empty((len(schedule.times),) + y.shape)
     out[0] = y
-    buffer = _step_buffer(y)
-    stages = buffer[2:]
+    space = ArraySpace(rhs, y, stepper.slots)
     f = rhs(schedule.times[0], y)
+    y = space.start(y)
     j = 1
     for k, (t, h, t_new, outs) in enumerate(schedule.steps):
-        buffer[1], _, _ = trial_step(rhs, t, buffer[0], f, h, estimate=False, stages=stages)
-        dense_values(rhs, t, h, buffer, outs, t_new, out=out[j:j + len(outs)], weights=schedule.output_weights(k))
+        trial = stepper.step(space, t, y, f, h, estimate=False)
+        stepper.dense_output(space, t, h, y, trial, outs, t_new, out=out[j:j + len(outs)],
+                             weights=schedule.output_weights(k))
         j += len(outs)
-        buffer[0] = buffer[1]
-        f = stages[DOP853.n_stages]  # the next trial copies it into its first stage before overwriting it
+        y, f = space.accept(trial, copy=False)  # the next trial copies f into its first stage first
     return out
 
 
-def _step_buffer(y: np.ndarray) -> np.ndarray:
-    """``[y, y_new, K_0 .. K_15]`` for states like ``y`` (unknowns, P), ``y`` in the first row."""
-    buffer = np.empty((2 + DOP853.n_stages + 1 + len(DOP853.C_EXTRA),) + y.shape)
-    buffer[0] = y
-    return buffer
-
-
-def _largest(y: np.ndarray) -> float:
-    return float(np.max(np.abs(y)))
-
-
-def _combination(weights: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """``sum_s weights[s] K[s]`` for stages K of shape (s, unknowns, P): one matrix-vector product."""
-    return (weights @ K[:len(weights)].reshape(len(weights), -1)).reshape(K.shape[1:])
-
-
-def trial_step(rhs: GridRhs, t: float, y: np.ndarray, f: np.ndarray, h: float, estimate: bool = True,
-               stages: np.ndarray | None = None):
-    """One DOP853 trial step: ``(y_new, K, local)``; K holds the 12 stages and f(t + h, y_new), local
-    the elementwise error estimate (None after a non-finite value, or when ``estimate`` is False).
-    ``stages``: an array of shape (16, unknowns, P) to hold K (else a new one)."""
-    A, B, C, E3, E5, n = DOP853.A, DOP853.B, DOP853.C, DOP853.E3, DOP853.E5, DOP853.n_stages
-    K = np.empty((n + 1 + len(DOP853.C_EXTRA),) + y.shape) if stages is None else stages
-    K[0] = f
-    with np.errstate(all="ignore"):
-        for s in range(1, n):
-            K[s] = rhs(t + C[s] * h, y + h * _combination(A[s, :s], K))
-        y_new = y + h * _combination(B, K)
-        K[n] = rhs(t + h, y_new)  # the next step's first stage, and the dense output's
-        if not estimate or not np.all(np.isfinite(y_new)):
-            return y_new, K, None
-        # scipy's DOP853 estimate per unknown from the root-mean-square over the nodes (the train march's norm)
-        e5 = np.sqrt(np.mean(np.tensordot(E5, K[:n + 1], axes=1) ** 2, axis=1))
-        e3 = np.sqrt(np.mean(np.tensordot(E3, K[:n + 1], axes=1) ** 2, axis=1))
-        if not (np.all(np.isfinite(e5)) and np.all(np.isfinite(e3))):  # stages overflowed: far too long a step
-            return y_new, K, None
-        denom = np.sqrt(e5 * e5 + 0.01 * e3 * e3)
-        local = np.where(denom > 0.0, h * e5 * e5 / np.where(denom > 0.0, denom, 1.0), 0.0)
-    return y_new, K, local if np.all(np.isfinite(local)) else None
-
-
-def dense_values(rhs: GridRhs, t: float, h: float, buffer: np.ndarray, outs: list[float], t_new: float,
-                 out: np.ndarray | None = None, weights: np.ndarray | None = None) -> np.ndarray:
-    """The states at the times ``outs`` inside ``(t, t_new]``: scipy's order-7 dense output of DOP853.
-
-    Parameters
-    ----------
-    buffer : ndarray, shape (18, unknowns, P)
-        ``[y, y_new, K_0 .. K_15]`` after a step (three extra stages are computed into it when a node lies
-        strictly inside the step).
-    out : ndarray, shape (len(outs), unknowns, P), optional
-        Where to write them (else a new array).
-    weights : ndarray, optional
-        The step's dense-output weights (:meth:`Schedule.output_weights`), else computed here.
-    """
-    out = np.empty((len(outs),) + buffer.shape[1:]) if out is None else out
-    inside = sum(1 for tn in outs if tn < t_new)
-    if inside:  # all the step's nodes in one product: weights (nodes, 18) of [y, y_new, K_0 .. K_15]
-        extra_stages(rhs, t, h, buffer[0], buffer[2:])
-        w = _output_weights(t, h, t_new, outs) if weights is None else weights
-        with np.errstate(all="ignore"):  # an overflowed node: the caller refuses its values
-            np.matmul(w, buffer.reshape(len(buffer), -1), out=out[:inside].reshape(inside, -1))
-    out[inside:] = buffer[1]
-    return out
-
-
-def _output_weights(t: float, h: float, t_new: float, outs: list[float]) -> np.ndarray:
-    """Weights (nodes strictly inside the step, 18) of ``[y, y_new, K_0 .. K_15]`` at those nodes."""
-    return np.array([dense_weights((tn - t) / h, h, DOP853.D) for tn in outs if tn < t_new]).reshape(-1, 18)
-
-
-def extra_stages(rhs: GridRhs, t: float, h: float, y: np.ndarray, K: np.ndarray) -> None:
-    """The three stages of DOP853's dense output, into ``K[13:16]`` (after a step's 13)."""
-    with np.errstate(all="ignore"):
-        for s, (a, c) in enumerate(zip(DOP853.A_EXTRA, DOP853.C_EXTRA), start=DOP853.n_stages + 1):
-            K[s] = rhs(t + c * h, y + h * _combination(a[:s], K))
+def replay_batch(schedule: Schedule, functions: NodeFunctions, indices: np.ndarray) -> np.ndarray:
+    """The stored states (times, unknowns, P) at the grid multi-indices ``indices`` (P, d), marched with
+    the steps of ``schedule``: a function of its arguments only, to be mapped over batches of nodes."""
+    system = functions.system
+    return replay(GridRhs(system, indices, functions), initial_values(system, indices, functions), schedule)

@@ -3,9 +3,9 @@
 For equations polynomial in the unknowns (``der(u1) + u2*u3 = 1``), the state
 ``u(t_n; p)`` is kept as a function of the non-time coordinates ``p`` (initial
 conditions, parameters) in tensor-train form (:mod:`pgdcli.tensors.tt`) and advanced
-with the explicit Dormand-Prince 8(5,3) Runge-Kutta scheme (the coefficients
-of :class:`scipy.integrate.DOP853`), whose embedded estimate controls the step
-size. The right-hand side is evaluated in separated form: products of
+with an explicit embedded Runge-Kutta pair (``solver.integrator``; by default
+Dormand-Prince 8(5,3), the coefficients of :class:`scipy.integrate.DOP853`), whose
+embedded estimate controls the step size. The right-hand side is evaluated in separated form: products of
 unknowns are Hadamard products of tensor trains, and every stage value is
 recompressed once by SVD-based rounding with an absolute Frobenius bound, so
 ranks stay near those of the solution instead of growing as N^2. Above a small
@@ -29,11 +29,12 @@ does not include the growth of errors through the dynamics (the Lipschitz
 factor), and the worst point of the grid can be 5-20 times the RMS: the user's
 tolerance is a max abs error, measured against scipy after the march and
 enforced by repeating it with a tighter RMS target (:mod:`pgdcli.checks.check`,
-``pgdcli.driver._checked_march``).
+:mod:`pgdcli.driver.refinement`).
 
-The pieces: the compiled right-hand side (:mod:`.polynomial_rhs`), the Runge-Kutta stages on
-trains (:mod:`.dop853_stepper`), the step control (:mod:`.step_control`), the blow-up
-prediction (:mod:`.blowup`) and the codebook's space-time train (:mod:`.space_time`).
+The pieces: the compiled right-hand side (:mod:`.polynomial_rhs`), the arithmetic of trains
+(:mod:`.train_steps`), the steppers (:mod:`.steppers`), the march loop (:mod:`.march_loop`) with
+its step control (:mod:`.step_control`) and blow-up prediction (:mod:`.blowup`), and the
+codebook's space-time train (:mod:`.space_time`).
 """
 
 from __future__ import annotations
@@ -43,17 +44,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..progress import MarchStep, emit
 from ..tensors.tt import TT, tt_round_many
-from .blowup import WATCH_AGREE, BlowupWatch, blowup_region
-from .dop853_stepper import Dop853OnTrains, TrialStep
-from .general_rhs import report_entries, underflow_hint
+from .blowup import WATCH_AGREE, blowup_region
+from .general_rhs import report_entries
 from .polynomial_rhs import NonlinearSystem, compile_system, evaluate_rhs, round_terms
 from .space_time import join_and_round
 from .cross_march import march_by_cross
 from .grid_march import GridMarchFailure, check_forced_grid, fits_grid, grid_region, march_on_grid
 from .march_codebook import SPACE_TIME_FRACTION, converged_result, failed_result
-from .step_control import (LOCAL_FRACTION, MAX_GROWTH_OF_NORM, STAGE_FRACTION, STATE_FRACTION, StepControl,
-                           output_times, step_refusal)
+from .march_loop import march_steps
+from .outcome import Learned, SolverOutcome
+from .stepping import Stepper
+from .step_control import LOCAL_FRACTION, STAGE_FRACTION, STATE_FRACTION
+from .steppers import stepper as named_stepper
+from .train_steps import MarchFailure, TrainSpace
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "evaluate_rhs", "round_terms",
            "march", "join_and_round", "solve_march", "WATCH_AGREE"]
@@ -62,35 +67,13 @@ __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "
 #: (:mod:`pgdcli.algorithms.cross_march`) rather than the tensor-train march.
 CROSS_BY_DEFAULT = True
 #: From this many state values (grid nodes x unknowns) on, ``auto`` tries the cross march first on a grid the
-#: grid march could take, with a budget of ``CROSS_BUDGET`` trajectories per grid node (measured,
-#: benchmarks/README.md: the cross is 1.5x faster on coupled.yaml at 40^3 nodes, 7.5x on a 5-D pendulum at
-#: 16^5; it needs more trajectories than the grid has nodes on the rigid body at 8^6 and 1e-6). A
-#: trajectory of the cross costs a fifth to a sixth of a node of the grid march (rigid body 4.3 against
-#: 21 us, a Lotka-Volterra model 56 against 367 us): the budget stops the cross about where it has cost
-#: what the grid march will (that model's cross converges at 5.1 a node, 157 s against 200 s).
+#: grid march could take, with a budget of ``CROSS_BUDGET`` trajectories per grid node: on large grids the cross
+#: needs far fewer trajectories than the grid has nodes, but some problems need more (the rigid body at 8^6
+#: nodes and 1e-6). A trajectory of the cross costs a fifth to a sixth of a node of the grid march, so the
+#: budget stops an unconverged cross about where it has cost what the grid march will
+#: (benchmarks/build_speed.py measures both marches).
 CROSS_FIRST_VALUES = 2 ** 17
 CROSS_BUDGET = 5
-
-
-class MarchFailure(Exception):
-    """The march could not continue (blow-up, step size underflow, caps).
-
-    Attributes
-    ----------
-    time : float
-        Time reached.
-    state : list of TT or None
-        The last accepted state (to locate the failure in the domain).
-    blowup_time : float or None
-        The predicted blow-up time, when the march stopped on that prediction.
-    """
-
-    def __init__(self, message: str, time: float, state: list | None = None, blowup_time: float | None = None):
-        super().__init__(message)
-        self.time = time
-        self.state = state
-        self.blowup_time = blowup_time
-
 
 
 @dataclass
@@ -109,12 +92,11 @@ class MarchResult:
 
 
 def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max_steps: int = 20000,
-          callback=None, slab_nodes: int | None = None) -> MarchResult:
-    """Advance the separated state over the time domain with DOP853 and dense output.
+          callback=None, slab_nodes: int | None = None, stepper: Stepper | None = None) -> MarchResult:
+    """Advance the separated state over the time domain with a stepper and its dense output.
 
-    Steps are chosen by the embedded error estimate (not by the time nodes);
-    the state at every time node inside a step comes from the scheme's
-    order-7 dense output (three extra stages per step that contains nodes).
+    Steps are chosen by the embedded error estimate (not by the time nodes); the state at every
+    time node inside a step comes from the stepper's dense output.
 
     Parameters
     ----------
@@ -125,212 +107,183 @@ def march(system: NonlinearSystem, tolerance: float, *, max_rank: int = 400, max
     max_rank, max_steps : int
         Caps; exceeding them raises :class:`MarchFailure`.
     callback : callable, optional
-        Called after every accepted step with ``{"time", "end", "ranks", "steps"}``.
+        Called after every accepted step with a :class:`~pgdcli.progress.MarchStep`.
     slab_nodes : int, optional
         Automatic time slabs: every accepted step is a slab and the state is
-        stored at its ``slab_nodes`` Chebyshev-Lobatto nodes (from 8 on, the
+        stored at its ``slab_nodes`` Chebyshev-Lobatto nodes (from 8 on, DOP853's
         dense output, a polynomial of degree 7, is reproduced exactly by the
         codebook's interpolation). Without it, the nodes of the time basis.
+    stepper : Stepper, optional
+        Default DOP853.
 
     Raises
     ------
     MarchFailure
         With the time where the march stopped.
     """
+    stepper = stepper or named_stepper()
     nodes = system.time_basis.nodes
-    t, t_final = float(nodes[0]), float(nodes[-1])
-    span = t_final - t
+    span = float(nodes[-1]) - float(nodes[0])
     # tolerance is a root-mean-square error over the parameter grid; the tensor
     # arithmetic works with Frobenius norms, sqrt(grid size) times larger
     frobenius = tolerance * np.sqrt(float(np.prod(system.shape)))
     state_delta = STATE_FRACTION * frobenius
     stats = {"exact": 0, "sketched": 0, "redone": 0, "stage_tightenings": 0}  # roundings, for the report
     # the randomized roundings: same spec, same codebook
-    stepper = Dop853OnTrains(system, STAGE_FRACTION * frobenius, max_rank, np.random.default_rng(20240607), stats)
-    control = StepControl(span, LOCAL_FRACTION * frobenius)
+    space = TrainSpace(system, STAGE_FRACTION * frobenius, state_delta, span, max_rank, np.random.default_rng(20240607),
+                       stats)
     y = tt_round_many(system.initial, absolute=state_delta, max_rank=max_rank)
-    scale0 = max(1.0, max(u.norm() for u in y))
-    f = stepper.rhs(t, y)
-    states, times, breakpoints, sizes = [y], [t], [t], []
-    h = min(t_final - t, 0.1 * (t_final - t))
-    steps = rejected = 0
-    error_estimate = 0.0
-    watch = BlowupWatch(system, y, t_final)
-    while t < t_final:
-        h = min(h, t_final - t)
-        refusal = step_refusal(steps, rejected, max_steps, h, span, lambda: underflow_hint(system.general, stats))
-        if refusal:
-            raise MarchFailure(refusal, t, y)
-        # the state's rounding budget is per unit step too: it adds up to STATE_FRACTION * tolerance
-        trial = stepper.step(t, y, f, h, state_delta * h / span)
-        ratio = control.ratio(trial.error, h)
-        if ratio > 1.0:
-            rejected += 1
-            h_next = control.rejected(t, h, ratio)
-            if h_next is None:  # stiff: round the stages tighter and retry the same step
-                stepper.stage_delta /= 10.0
-                stats["stage_tightenings"] += 1
-            else:
-                h = h_next
-            continue
-        _check_caps(trial, max_rank, MAX_GROWTH_OF_NORM * scale0, t, y)
-        t_new = t_final if abs(t + h - t_final) <= 1e-14 * max(1.0, abs(t_final)) else t + h
-        outs = output_times(t, h, t_new, nodes, times[-1], slab_nodes)
-        if slab_nodes:
-            breakpoints.append(t_new)
-        states.extend(stepper.dense_output(t, h, y, trial, outs, t_new, state_delta))
-        times.extend(outs)
-        t, y, f = t_new, trial.state, trial.rhs
-        steps += 1
-        sizes.append(h)
-        error_estimate += trial.error + state_delta * h / span
-        h = control.accepted(h, ratio)
-        if callback is not None:
-            callback({"time": t, "end": t_final, "ranks": [u.ranks for u in y], "steps": steps})
-        if t < t_final:
-            blowup = watch(t, sizes, y)
-            if blowup is not None:
-                raise MarchFailure("the solution blows up", t, y, blowup)
+    states: list = []
+    schedule = march_steps(space, stepper, y, nodes, LOCAL_FRACTION * frobenius, states.extend, max_steps=max_steps,
+                           callback=callback, slab_nodes=slab_nodes)
     ranks = [[u.ranks for u in st] for st in states]
-    error_estimate += state_delta  # the rounding of the values at the time nodes (once)
+    error_estimate = schedule.estimate + state_delta  # the rounding of the values at the time nodes (once)
     rms = error_estimate / np.sqrt(float(np.prod(system.shape)))
-    return MarchResult(states, steps, rejected, rms, ranks, sizes, np.array(times),
-                       np.array(breakpoints) if slab_nodes else None, stats)
+    return MarchResult(states, len(schedule.steps), schedule.rejected, rms, ranks, schedule.step_sizes,
+                       np.array(schedule.times), schedule.breakpoints() if slab_nodes else None, stats)
 
 
-def _check_caps(trial: TrialStep, max_rank: int, max_norm: float, t: float, y: list[TT]) -> None:
-    """Refuse an accepted step whose ranks reached the cap or whose state blew up."""
-    if max(max(u.ranks, default=0) for u in trial.state) >= max_rank:
-        # a capped rounding breaks the error bound: say so rather than report a wrong estimate
-        raise MarchFailure(f"a tensor-train rank reached solver.max_rank={max_rank} (raise it, or loosen "
-                           f"the tolerance)", t, y)
-    if trial.norm > max_norm:
-        raise MarchFailure("the solution blows up", t, y)
-
-
-def solve_march(problem, tolerance: float, callback=None, learned: dict | None = None):
+def solve_march(problem, tolerance: float, callback=None, learned: Learned = Learned()) -> SolverOutcome:
     """Solve a (nonlinear) problem by the separated time march; see :func:`pgdcli.driver.solve`.
 
-    ``learned`` (updated) carries what one solve of the automatic resolution learned to the next
-    on a finer grid: ``"cross_abandoned"``, the message of a cross march that ran past its budget
-    of trajectories. A finer grid asks the cross for more trajectories a node, not fewer (an unseen
-    Lotka-Volterra model: 3.6 a node at 65^3 nodes, 5.1 at 129 x 65^2), so from then on the grid
-    march takes any grid it can hold at once.
+    ``solver.march`` chooses the state: the grid's whole array (:mod:`.grid_march`), the cross of
+    trajectories (:mod:`.cross_march`) or a tensor train (:func:`march`); ``auto`` takes the grid
+    when it fits, the cross first on a large grid. ``learned.cross_abandoned``: a cross ran past
+    its budget of trajectories in an earlier solve; a finer grid asks it for more trajectories a
+    node, not fewer, so the grid march takes any grid it can hold at once.
 
     Returns
     -------
-    pgdcli.driver.SolveResult
-        ``converged`` is False, with a message naming the time (and the
-        region of the domain) where the march failed, when it could not reach
-        the end of the time domain.
+    SolverOutcome
+        Status ``FAILED``, with a message naming the time (and the region of the domain) where
+        the march failed, when it could not reach the end of the time domain;
+        ``cross_abandoned`` says why a cross was given up in this solve.
     """
     opts = problem.solver
     started = _time.perf_counter()
     separations: list = []
     system = compile_system(problem, tolerance, separations)
-    last: dict = {}
-
-    def progress(info):
-        last["state"] = info
-        if callback is not None:
-            callback(info)
-
-    auto = getattr(opts, "time_slabs", "auto") == "auto"
-    if auto and problem.time_coordinate.discretization != "chebyshev":
-        auto = False  # linear time elements: the nodes are the slabs already
-    slab_nodes = problem.time_coordinate.nodes if auto else None
+    run = _Run(problem, system, tolerance, separations, callback, started)
     march_state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
     check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
     nodes = int(np.prod(system.shape))
     fits, first = fits_grid(system), nodes * len(system.unknowns) >= CROSS_FIRST_VALUES
-    abandoned = (learned or {}).get("cross_abandoned")
-    if abandoned and fits and march_state == "auto":
-        last["cross_abandoned"] = f"in an earlier solve of the automatic resolution: {abandoned}"
+    abandoned = None
+    if learned.cross_abandoned and fits and march_state == "auto":
+        run.cross_note = f"in an earlier solve of the automatic resolution: {learned.cross_abandoned}"
     elif march_state == "cross" or (march_state == "auto" and CROSS_BY_DEFAULT and (first or not fits)):
         # auto on a grid the grid march could take: the cross gets a budget, and the grid march what it left
-        budget = CROSS_BUDGET * nodes if march_state == "auto" and fits else None
-        found = _solve_by_cross(problem, system, tolerance, separations, progress, slab_nodes, started, last, budget)
+        found = _solve_by_cross(run, CROSS_BUDGET * nodes if march_state == "auto" and fits else None)
         if found is not None:
             return found
-        if learned is not None:
-            learned["cross_abandoned"] = last["cross_abandoned"]
+        abandoned = run.cross_note
     if march_state == "grid" or (march_state == "auto" and fits):
-        return _solve_on_grid(problem, system, tolerance, separations, progress, slab_nodes, started, last)
-    failure = None
+        outcome = _solve_on_grid(run)
+    else:
+        outcome = _solve_by_train(run)
+    outcome.cross_abandoned = abandoned
+    return outcome
+
+
+class _Run:
+    """One :func:`solve_march`: its problem, compiled system and settings, and what its marches tell.
+
+    Passes the marches' progress events on, and keeps the steps of the last march step for the report
+    of a march that fails (0 after a sweep of the cross).
+    """
+
+    def __init__(self, problem, system: NonlinearSystem, tolerance: float, separations: list, callback,
+                 started: float):
+        self.problem, self.system, self.tolerance, self.separations = problem, system, tolerance, separations
+        self.callback, self.started = callback, started
+        self.steps = 0
+        self.cross_note: str | None = None  # why the cross was given up (the grid march's report says it)
+        auto = getattr(problem.solver, "time_slabs", "auto") == "auto"
+        # linear time elements: the nodes are the slabs already
+        auto = auto and problem.time_coordinate.discretization == "chebyshev"
+        self.slab_nodes = problem.time_coordinate.nodes if auto else None
+        self.space_time_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+
+    def __call__(self, event) -> None:
+        self.steps = event.steps if isinstance(event, MarchStep) else 0
+        emit(self.callback, event)
+
+    def wall(self) -> float:
+        return _time.perf_counter() - self.started
+
+    def failed(self, failure, region: str, steps: int | None = None) -> SolverOutcome:
+        return failed_result(self.problem, self.system, failure, region, self.tolerance,
+                             self.steps if steps is None else steps, self.wall())
+
+    def converged(self, result, trains: list[TT], report: dict) -> SolverOutcome:
+        return converged_result(self.problem, self.system, result, trains, report, self.tolerance, self.separations,
+                                self.wall())
+
+
+def _solve_by_train(run: _Run) -> SolverOutcome:
+    """:func:`solve_march` with the state a tensor train: :func:`march`."""
+    opts, system = run.problem.solver, run.system
     try:
-        result = march(system, tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=progress,
-                       slab_nodes=slab_nodes)
-    except MarchFailure as exc:
-        failure = exc
-    wall = _time.perf_counter() - started
-    if failure is not None:
-        state = failure.state
-        region = blowup_region(system, state) if state is not None else ""
-        return failed_result(problem, system, failure, region, tolerance,
-                              int(last.get("state", {}).get("steps", 0)), wall)
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+        result = march(system, run.tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=run,
+                       slab_nodes=run.slab_nodes, stepper=named_stepper(opts.integrator))
+    except MarchFailure as failure:
+        return run.failed(failure, blowup_region(system, failure.state) if failure.state is not None else "")
     # one unknown at a time: batching would give every unknown the largest ranks of all
-    trains = join_and_round([[st[i] for st in result.states] for i in range(len(system.unknowns))], st_delta,
-                            np.random.default_rng(7), batched=False, stats=result.roundings)
+    trains = join_and_round([[st[i] for st in result.states] for i in range(len(system.unknowns))],
+                            run.space_time_delta, np.random.default_rng(7), batched=False, stats=result.roundings)
     ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)
-    report = _march_report(result.roundings, ranks)
-    return converged_result(problem, system, result, trains, report, tolerance, separations, wall)
+    return run.converged(result, trains, _march_report(result.roundings, ranks))
 
 
-def _solve_on_grid(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
-                   started: float, last: dict):
+def _solve_on_grid(run: _Run) -> SolverOutcome:
     """:func:`solve_march` on a small grid: :func:`pgdcli.algorithms.grid_march.march_on_grid`."""
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    system = run.system
     try:
-        result = march_on_grid(system, tolerance, st_delta, max_steps=problem.solver.max_steps, callback=progress,
-                               slab_nodes=slab_nodes)
+        result = march_on_grid(system, run.tolerance, run.space_time_delta, max_steps=run.problem.solver.max_steps,
+                               callback=run, slab_nodes=run.slab_nodes,
+                               stepper=named_stepper(run.problem.solver.integrator))
     except GridMarchFailure as failure:
-        return failed_result(problem, system, failure, grid_region(system, failure.values), tolerance,
-                              int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
+        return run.failed(failure, grid_region(system, failure.values))
     trains = result.trains
-    cap = problem.solver.max_rank
+    cap = run.problem.solver.max_rank
     if max(max(train.ranks[1:], default=0) for train in trains) >= cap:  # the train march's cap, on the codebook
         failure = GridMarchFailure(f"a tensor-train rank reached solver.max_rank={cap} (raise it, or loosen the "
                                    f"tolerance)", float(result.times[-1]), np.zeros((len(trains), 0)))
-        return failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+        return run.failed(failure, "", result.steps)
     # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
     bonds = [list(train.ranks[1:]) for train in trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "grid",
               "grid_chunks": int(result.chunks)}  # no roundings, crosses or products to count
-    if "cross_abandoned" in last:  # auto tried the cross march first
-        report["cross_abandoned"] = last["cross_abandoned"]
-    return converged_result(problem, system, result, trains, report, tolerance, separations,
-                             _time.perf_counter() - started)
+    if run.cross_note is not None:  # auto tried the cross march first
+        report["cross_abandoned"] = run.cross_note
+    return run.converged(result, trains, report)
 
 
-def _solve_by_cross(problem, system: NonlinearSystem, tolerance: float, separations: list, progress, slab_nodes,
-                    started: float, last: dict, budget: int | None = None):
+def _solve_by_cross(run: _Run, budget: int | None = None) -> SolverOutcome | None:
     """:func:`solve_march` on a large grid: :func:`pgdcli.algorithms.cross_march.march_by_cross`.
 
     With a ``budget`` (trajectories; the grid march can take the grid), a cross that does not converge
-    within it returns None: the caller marches the whole grid instead.
+    within it returns None, with the reason in ``run.cross_note``: the caller marches the whole grid instead.
     """
-    st_delta = SPACE_TIME_FRACTION * tolerance * np.sqrt(float(np.prod(system.shape)))
+    system, opts = run.system, run.problem.solver
     try:
-        result = march_by_cross(system, tolerance, st_delta, max_rank=problem.solver.max_rank,
-                                max_steps=problem.solver.max_steps, callback=progress, slab_nodes=slab_nodes,
-                                budget=budget)
+        result = march_by_cross(system, run.tolerance, run.space_time_delta, max_rank=opts.max_rank,
+                                max_steps=opts.max_steps, callback=run, slab_nodes=run.slab_nodes, budget=budget,
+                                stepper=named_stepper(opts.integrator))
     except GridMarchFailure as failure:
-        return failed_result(problem, system, failure, grid_region(system, failure.values, failure.indices),
-                              tolerance, int(last.get("state", {}).get("steps", 0)), _time.perf_counter() - started)
+        return run.failed(failure, grid_region(system, failure.values, failure.indices))
     if not result.converged and budget is not None:
-        last["cross_abandoned"] = result.message  # for the grid march's report
+        run.cross_note = result.message
         return None
     if not result.converged:
         failure = GridMarchFailure(f"the cross of the trajectories did not converge: {result.message}",
                                    float(result.times[-1]), np.zeros((len(system.unknowns), 0)))
-        return failed_result(problem, system, failure, "", tolerance, result.steps, _time.perf_counter() - started)
+        return run.failed(failure, "", result.steps)
     bonds = [list(train.ranks[1:]) for train in result.trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "cross",
               "cross_trajectories": int(result.evaluations), "cross_sweeps": int(result.sweeps),
               "cross_error": float(result.cross_error), "pilot_points": int(result.pilot_points)}
-    return converged_result(problem, system, result, result.trains, report, tolerance, separations,
-                             _time.perf_counter() - started)
+    return run.converged(result, result.trains, report)
 
 
 def _march_report(stats: dict, node_ranks: np.ndarray) -> dict:

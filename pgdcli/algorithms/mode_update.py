@@ -20,9 +20,9 @@ __all__ = ["update_mode", "CG_ITERATIONS", "CG_RTOL"]
 
 # The update's conjugate gradients stop after CG_ITERATIONS steps, or once the preconditioned
 # residual has fallen by CG_RTOL: the fixed point repeats the update after every enrichment, so
-# inexact solves suffice. Measured on the shipped problems (heat2d, spring, relaxation,
-# heat2d_source): 40 steps and rtol 0 give the same modes and residuals (within one or two modes)
-# for up to 1.4x the build time.
+# inexact solves suffice: on the shipped linear problems (heat2d, spring, relaxation,
+# heat2d_source) exact solves give the same modes and residuals (within one or two modes) at a
+# higher build cost (benchmarks/build_speed.py).
 CG_ITERATIONS = 10
 CG_RTOL = 1e-4
 

@@ -35,8 +35,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..blas import one_blas_thread
 from ..discretization.basis import chebyshev_unit_nodes
 from ..errors import SolverError
+from ..progress import MarchStep, emit
 from .pde_operators import DenseOperators
 from .pde_system import PdeSystem, compile_pde_system
 
@@ -146,16 +148,15 @@ def march_pde(system: PdeSystem, tolerance: float, times: np.ndarray | None = No
     tail_limit : bool or list of str
         Stop with :class:`UnderResolved` once the Chebyshev tail of ``u`` along a space coordinate (those
         named, or all with True) exceeds :data:`TAIL_ABORT` x ``tolerance`` (whole-grid march only).
+    callback : callable, optional
+        After every accepted step: a :class:`~pgdcli.progress.MarchStep`.
     """
-    from threadpoolctl import threadpool_limits
-
     if scheme not in SCHEMES:
         raise SolverError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
-    # small dense products (SVD of the supercore, m x m products): one BLAS thread. Measured on fisher.yaml
-    # (x 33, D 9, r 9) on the shared 2-core machine: 15 step attempts in 47 s with the default threads, 1086
-    # steps in 33 s with one
+    # small dense products (SVD of the supercore, m x m products): one BLAS thread; threads competing
+    # for the cores make each step many times slower on small trains (benchmarks/nonlinear_pde.py)
     watched = list(system.modes[:system.space]) if tail_limit is True else list(tail_limit or [])
-    with threadpool_limits(1):
+    with one_blas_thread():
         return _march(system, tolerance, times, {"etdrk4": _etdrk4, "lawson4": _lawson4}[scheme], slab_nodes,
                       max_steps, callback, fixed_step, dense, watched)
 
@@ -204,8 +205,7 @@ def _march(system, tolerance, times, step, slab_nodes, max_steps, callback, fixe
                 if slab_nodes:
                     states.append(ops.states(w, state_delta))
                     out_times.append(t)
-                if callback is not None:
-                    callback({"time": t, "end": t1, "steps": steps, "ranks": [[max_rank]] * len(system.species)})
+                emit(callback, MarchStep(t, t1, steps, [[max_rank]] * len(system.species), t0))  # ranks per unknown
             elif not np.isfinite(err):
                 rejected += 1
                 h *= 0.2

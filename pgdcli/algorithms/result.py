@@ -1,4 +1,4 @@
-"""The outcome of a solve, whatever the method: codebook, status, message, convergence history."""
+"""The result of :func:`pgdcli.solve`, whatever the method: codebook, status, message, convergence history."""
 
 from __future__ import annotations
 
@@ -6,7 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SolveResult"]
+from .outcome import Status
+
+__all__ = ["SolveResult", "Status"]
 
 
 @dataclass
@@ -18,9 +20,9 @@ class SolveResult:
     codebook : pgdcli.codebook.codebook.Codebook
     converged : bool
         True when the solver converged and the measured error meets the tolerance.
-    status : int
-        0 converged, 1 ``max_modes`` reached, 2 stagnated, 3 the march failed,
-        4 the measured error exceeds the tolerance (:data:`pgdcli.adapt.INACCURATE`).
+    status : Status
+        An ``IntEnum``: 0 converged, 1 ``max_modes`` reached, 2 stagnated, 3 the march failed,
+        4 the measured error exceeds the tolerance.
     message : str
     residuals : ndarray, shape (n_modes + 1,)
         Relative residual before the first mode and after each enrichment.
@@ -40,7 +42,7 @@ class SolveResult:
 
     codebook: object
     converged: bool
-    status: int
+    status: Status
     message: str
     residuals: np.ndarray
     iterations: np.ndarray

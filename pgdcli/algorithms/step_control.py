@@ -1,7 +1,8 @@
 """Step-size control of the separated time march: error per unit step, rejections, stiffness.
 
-All errors are Frobenius norms of tensor trains (the root-mean-square over the parameter
-grid times the square root of its size). The local Runge-Kutta error of a step of length
+All errors are in the norm of the march's state: the root-mean-square over the nodes of the
+parameter grid (the grid's array), or the Frobenius norm of tensor trains (that times the square
+root of the grid size). The local Runge-Kutta error of a step of length
 ``h`` may be ``LOCAL_FRACTION * tolerance * h / span``: the local errors of all steps add up
 to at most that share of the tolerance.
 """
@@ -16,9 +17,8 @@ __all__ = ["StepControl", "MAX_GROWTH", "SAFETY", "LOCAL_FRACTION", "STATE_FRACT
            "MIN_STEP", "MAX_GROWTH_OF_NORM", "MAX_STAGE_TIGHTENINGS", "output_times", "step_refusal"]
 
 # Step-size control. The error per unit step grows along these solutions, so the
-# usual safety factor 0.9 made every other step a rejection (12 wasted stages);
-# 0.8 removed them on the shipped problems (measured: 5 steps, 0 rejections on
-# coupled.yaml against 5 + 2).
+# usual safety factor 0.9 made every other step a rejection; 0.8 removes them on the
+# shipped problems.
 MAX_GROWTH = 3.0
 SAFETY = 0.8
 # Shares of the tolerance: local Runge-Kutta error, state rounding per step,
@@ -28,28 +28,37 @@ LOCAL_FRACTION, STATE_FRACTION, STAGE_FRACTION = 0.3, 0.02, 0.05
 # by MAX_GROWTH_OF_NORM, ends the march (near a finite-time singularity the steps
 # shrink geometrically, so waiting for a floating-point underflow costs hundreds of steps).
 MIN_STEP = 1e-7
+# Below this order an explicit pair's small steps may be its accuracy, not its stability (step_refusal).
+LOW_ORDER = 5
 MAX_GROWTH_OF_NORM = 1e6
 # Stiff problems: a rounding error dY of a stage value reaches the error estimate as J dY, which
 # no step size reduces; each time that is detected the stage rounding is made 10x tighter, at
 # most this many times (then the step-size floor ends the march: 'blows up or is stiff').
 MAX_STAGE_TIGHTENINGS = 4
-# The embedded error of DOP853 is O(h^8) per step, O(h^7) per unit step.
-ORDER_PER_UNIT_STEP = 7.0
+# A shorter step that did not halve the error estimate shows rounding noise when an error of the
+# method's order would have fallen about twelvefold: at NOISE_STEP h for an order-7 estimate per
+# unit step, at NOISE_STEP^(7/p) h for order p.
+NOISE_STEP = 0.7
 
 
 class StepControl:
-    """Accepts or rejects trial steps of an order-8 embedded pair and proposes the next step.
+    """Accepts or rejects trial steps of an embedded pair and proposes the next step.
 
     Parameters
     ----------
     span : float
         Length of the time domain.
     local_tol : float
-        Frobenius bound of the local errors added up over the march.
+        Bound of the local errors added up over the march (in the state space's norm).
+    order : int
+        The embedded estimate's order ``p`` (scipy's ``error_estimator_order``): the local error
+        is O(h^(p+1)) per step, O(h^p) per unit step.
     """
 
-    def __init__(self, span: float, local_tol: float):
+    def __init__(self, span: float, local_tol: float, order: int):
         self.span, self.local_tol = span, local_tol
+        self.exponent = -1.0 / order
+        self.noise_step = NOISE_STEP ** (7.0 / order)
         self.just_rejected = False
         self.last_rejection: tuple[float, float, float] | None = None  # (t, h, ratio) of the last rejected step
         self.tightenings = 0
@@ -63,23 +72,23 @@ class StepControl:
         roundings must be made 10x tighter and the same step retried."""
         self.just_rejected = True
         last = self.last_rejection
-        if (ratio < float("inf") and last is not None and last[0] == t and h <= 0.7 * last[1]
+        if (ratio < float("inf") and last is not None and last[0] == t and h <= self.noise_step * last[1]
                 and ratio >= 0.5 * last[2] and self.tightenings < MAX_STAGE_TIGHTENINGS):
-            # a shorter step did not lower the estimate, as an order-8 error would (h^7 per unit
-            # step): it is the stage roundings' noise, amplified by a stiff Jacobian (dK = J dY).
+            # a shorter step did not lower the estimate, as an error of the method's order would:
+            # it is the stage roundings' noise, amplified by a stiff Jacobian (dK = J dY).
             self.tightenings += 1
             self.last_rejection = None
             return None
         self.last_rejection = (t, h, ratio)
         # an overflowed trial step (ratio inf) was far too long for a stiff or fast problem:
         # shrink it as much as allowed (a blow-up shows in the accepted steps, BlowupWatch)
-        return h * max(0.2, SAFETY * ratio ** (-1.0 / ORDER_PER_UNIT_STEP))
+        return h * max(0.2, SAFETY * ratio ** self.exponent)
 
     def accepted(self, h: float, ratio: float) -> float:
         """After an accepted step of length ``h``: the next trial step (growth capped, since a
-        rejected step costs 12 stages, and none right after a rejection)."""
+        rejected step costs all its stages, and none right after a rejection)."""
         if not self.just_rejected or ratio < 0.5:
-            h *= MAX_GROWTH if ratio == 0.0 else min(MAX_GROWTH, max(0.2, SAFETY * ratio ** (-1.0 / ORDER_PER_UNIT_STEP)))
+            h *= MAX_GROWTH if ratio == 0.0 else min(MAX_GROWTH, max(0.2, SAFETY * ratio ** self.exponent))
         self.just_rejected = False
         return h
 
@@ -95,14 +104,21 @@ def output_times(t: float, h: float, t_new: float, nodes: np.ndarray, last_store
     return [float(x) for x in nodes if last_stored < x <= t_new]
 
 
-def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: float, hint) -> str | None:
-    """Why a march cannot try another step (the caps), or None; ``hint()`` adds to a step-size underflow."""
+def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: float, hint,
+                 method: str = "DOP853", order: int = 8) -> str | None:
+    """Why a march cannot try another step (the caps), or None; ``hint()`` adds to a step-size underflow,
+    ``method`` and ``order`` name the explicit method."""
     if steps + rejected >= max_steps:
         # an explicit method on a stiff problem steps at its stability limit, whatever the tolerance:
         # say so when the steps are that small, so the user knows what raising max_steps buys
+        if h * max_steps < span and order < LOW_ORDER:
+            return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain; "
+                    f"the {method} pair of order {order} needs steps this small for this tolerance, or on a "
+                    "stiff problem for its stability: use solver.integrator: dop853, loosen the tolerance or "
+                    "raise solver.max_steps)")
         if h * max_steps < span:
             return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain; "
-                    "steps this small on a smooth solution are the stability limit of the explicit DOP853 "
+                    f"steps this small on a smooth solution are the stability limit of the explicit {method} "
                     "on a stiff problem: raise solver.max_steps or shorten the time domain)")
         return f"max_steps={max_steps} reached"
     if h < MIN_STEP * span:

@@ -4,7 +4,7 @@ A user who writes ``tolerance: 1e-6`` reads it as a bound on the error of the
 values ``pgd query`` returns, anywhere in the domain. Neither solver controls
 that directly: the enrichment stops on a relative residual, the march on an RMS
 of its local errors. So after every solve :func:`pgdcli.solve` *measures* the
-error (this module) and the gate in :mod:`pgdcli.adapt` decides.
+error (this module) and the refinement loop of :mod:`pgdcli.driver.refinement` decides.
 
 The tolerance has solve_ivp's meaning: at every checked point the error must
 satisfy ``|u - u_ref| <= atol + rtol * |u_ref|`` (``solver.tolerance`` is atol,
@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..progress import ReferenceProgress
 from .compare import codebook_at_samples, codebook_on_space_grid
 from .sampling import BETWEEN, CORNER_LINES, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
 
@@ -107,10 +108,32 @@ class CheckResult:
         """The measured error is within the tolerance (False when unchecked)."""
         return self.checked and self.ratio <= 1.0
 
+    def report_entries(self) -> dict:
+        """The codebook report's entries of this check (``check_*`` and ``relative_tolerance``): the one writer
+        of those keys. NaN where the error is unknown."""
+        names = sorted(self.coordinate_ratio)
+        return {
+            "check_error": _finite(self.error),
+            "check_node_error": _finite(self.node_error),
+            "check_between_error": _finite(self.between_error),
+            "check_ratio": _finite(self.ratio),
+            "check_points": int(self.points),
+            "check_failed": int(self.failed),
+            "check_where": ", ".join(f"{k}={v!r}" for k, v in self.where.items()),
+            "check_method": self.method,
+            "check_coordinates": ",".join(names),
+            "check_coordinate_ratio": np.array([self.coordinate_ratio[n] for n in names], dtype=float),
+            "relative_tolerance": float(self.relative_tolerance),
+        }
+
     def worst_coordinate(self) -> str | None:
         """The coordinate whose off-node points show the largest error ratio (None if none)."""
         finite = {k: v for k, v in self.coordinate_ratio.items() if np.isfinite(v)}
         return max(finite, key=finite.get) if finite else None
+
+
+def _finite(value) -> float:
+    return float(value) if value is not None else float("nan")
 
 
 def unchecked(reason: str = "", tolerance: float = float("nan"), relative_tolerance: float = 0.0) -> CheckResult:
@@ -130,25 +153,30 @@ def ordinal(n: int) -> str:
     return f"{n}{suffix}"
 
 
-def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float):
+def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float, progress=None):
     """Reference values ``{unknown: (S, T)}`` and a success mask ``(S,)``.
 
-    One vectorized DOP853 call with output at ``times`` (its dense output at
-    rtol 1e-13 agrees with node-to-node integration at 1e-12 to ~3e-12, and costs a
-    tenth); if that call fails (a sample blows up), the node-to-node integration of
+    One vectorized DOP853 call with output at ``times`` (its dense output agrees with
+    node-to-node integration to the reference's own accuracy, at a fraction of the cost);
+    if that call fails (a sample blows up), the node-to-node integration of
     :func:`pgdcli.checks.reference.solve_reference`, which isolates the failing samples.
+    ``progress`` receives :class:`~pgdcli.progress.ReferenceProgress` events.
     """
     from .reference import solve_reference, solve_reference_vectorized
 
-    values = solve_reference_vectorized(problem, points, S, times, rtol=rtol, atol=atol)
+    t0, span = float(times[0]), float(times[-1] - times[0])
+    in_time = None if progress is None else (lambda t: progress(ReferenceProgress(t - t0, span, "time")))
+    values = solve_reference_vectorized(problem, points, S, times, rtol=rtol, atol=atol, progress=in_time)
     if values is not None:
         return values, np.ones(S, dtype=bool)
-    ref = solve_reference(problem, points, times, method="DOP853", rtol=max(rtol, 1e-12), atol=max(atol, 1e-12))
+    in_points = None if progress is None else (lambda done: progress(ReferenceProgress(done, S)))
+    ref = solve_reference(problem, points, times, method="DOP853", rtol=max(rtol, 1e-12), atol=max(atol, 1e-12),
+                          progress=in_points)
     return ref.values, np.asarray(ref.success, dtype=bool)
 
 
 def check_codebook(problem, codebook, *, tolerance: float | None = None, relative_tolerance: float = 0.0,
-                   seed: int = 0, rtol: float = 1e-13, atol: float = 1e-13) -> CheckResult:
+                   seed: int = 0, rtol: float = 1e-13, atol: float = 1e-13, progress=None) -> CheckResult:
     """Error of a codebook of an ODE problem against scipy's DOP853 at the check sample.
 
     Parameters
@@ -161,6 +189,8 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     seed : int
     rtol, atol : float
         Tolerances of the reference integration.
+    progress : callable, optional
+        Called with :class:`~pgdcli.progress.ReferenceProgress` events as the reference integrates.
 
     Returns
     -------
@@ -176,7 +206,7 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     time = problem.time
     times, time_node = nodes_and_midpoints(codebook, time)
     S = group.size if names else 1
-    reference, ok = _reference(problem, points, S, times, rtol, atol)
+    reference, ok = _reference(problem, points, S, times, rtol, atol, progress)
     unknowns = [u.name for u in problem.unknowns]
     approx = codebook_at_samples(codebook, points, time, times, unknowns)
     err, ratio, per_unknown = error_and_ratio(reference, approx, ok, tol, relative_tolerance)
@@ -260,21 +290,22 @@ PDE_TIMES = 4
 
 
 def check_codebook_pde(problem, codebook, *, tolerance: float | None = None, relative_tolerance: float = 0.0,
-                       seed: int = 0) -> CheckResult:
+                       seed: int = 0, progress=None) -> CheckResult:
     """Error of a codebook with space coordinates (or steady) against the method-of-lines reference.
 
     The reference of ``pgd verify`` (:func:`pgdcli.checks.verify.verify`) at the corners
     of the parameter box and :data:`PDE_SAMPLES` Sobol points, on every space node of the
     codebook plus random space points, at the time nodes plus random times. Per
     coordinate, the off-node share is estimated from the Chebyshev tails
-    (:func:`pgdcli.checks.resolution.resolution_tails`) relative to the tolerance.
+    (:func:`pgdcli.checks.resolution.resolution_tails`) relative to the tolerance. ``progress``
+    receives a :class:`~pgdcli.progress.ReferenceProgress` after each parameter point's reference.
 
     Returns
     -------
     CheckResult
     """
     tol = problem.solver.tolerance if tolerance is None else float(tolerance)
-    report, values = _pde_reference(problem, codebook, seed)
+    report, values = _pde_reference(problem, codebook, seed, progress)
     ok = np.array([np.isfinite(report.reference[u]).all(axis=tuple(range(1, report.reference[u].ndim)))
                    for u in report.reference]).all(axis=0)
     err, ratio, per_unknown = error_and_ratio(report.reference, values, ok, tol, relative_tolerance)
@@ -297,7 +328,7 @@ def check_codebook_pde(problem, codebook, *, tolerance: float | None = None, rel
 _PDE_REFERENCES: dict = {}
 
 
-def _pde_reference(problem, codebook, seed: int):
+def _pde_reference(problem, codebook, seed: int, progress=None):
     """verify's report at the check sample (reused for the same nodes) and the codebook's values there."""
     from .verify import verify
 
@@ -305,8 +336,9 @@ def _pde_reference(problem, codebook, seed: int):
     report = _PDE_REFERENCES.get(key)
     if report is not None:
         return report, on_report_grid(codebook, report)
+    points = None if progress is None else (lambda done, total: progress(ReferenceProgress(done, total)))
     report = verify(codebook, samples=PDE_SAMPLES, seed=seed, times=PDE_TIMES, max_corners=PDE_CORNERS, jobs=1,
-                    rtol=1e-12, atol=1e-12, space_nodes=reference_space_nodes(codebook))
+                    rtol=1e-12, atol=1e-12, space_nodes=reference_space_nodes(codebook), progress=points)
     _PDE_REFERENCES.clear()
     _PDE_REFERENCES[key] = report
     return report, report.codebook_values

@@ -14,6 +14,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from .. import executors
+from ..blas import one_blas_thread
 from ..errors import SolverError
 
 __all__ = ["METHODS", "PDE_METHODS", "ReferenceResult", "ReferenceBudgetExceeded", "ReferenceTimeUp", "time_budget",
@@ -170,7 +171,7 @@ def run_in_chunks(n_samples: int, chunk_size: int, executor, progress, values: n
 
     items = ((sample_subset(params, rows), rows.size) for rows in chunks)
     if task is None or isinstance(executor, executors.SerialExecutor) or len(chunks) == 1:
-        with executors.one_blas_thread():
+        with one_blas_thread():
             for k, (rows, item) in enumerate(zip(chunks, items)):
                 try:
                     store(rows, solve_here(item))

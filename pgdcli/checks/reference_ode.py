@@ -7,7 +7,7 @@ from __future__ import annotations
 import functools
 import math
 from functools import partial
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -367,13 +367,14 @@ def solve_reference_ode(problem, params, times, *, method, rtol, atol, jobs, chu
 
 
 def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int, times: np.ndarray, *,
-                               rtol: float = 1e-13, atol: float = 1e-13,
-                               max_evaluations: int = 200_000) -> dict[str, np.ndarray] | None:
+                               rtol: float = 1e-13, atol: float = 1e-13, max_evaluations: int = 200_000,
+                               progress: Callable[[float], None] | None = None) -> dict[str, np.ndarray] | None:
     """All samples of an ODE problem in one DOP853 call with output at ``times``, or None.
 
     The fast path of :func:`solve_reference`: no failure isolation, so None when any
     sample fails (a blow-up, a singular ``der()`` coefficient, the evaluation budget);
-    the caller then falls back to :func:`solve_reference`.
+    the caller then falls back to :func:`solve_reference`. ``progress(t)`` is told the
+    time the integration reached, every hundredth of the time domain.
 
     Returns
     -------
@@ -388,7 +389,8 @@ def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int
             y0 = system.initial(problem, params)
             if system.bad.any() or not np.isfinite(y0).all():
                 return None
-            sol = solve_ivp(system, (float(times[0]), float(times[-1])), y0.reshape(-1), method="DOP853",
+            fun = system if progress is None else _reporting(system, float(times[0]), float(times[-1]), progress)
+            sol = solve_ivp(fun, (float(times[0]), float(times[-1])), y0.reshape(-1), method="DOP853",
                             rtol=rtol, atol=atol, t_eval=times)
     except (ReferenceBudgetExceeded, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError):
         return None
@@ -396,3 +398,17 @@ def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int
         return None
     values = sol.y.reshape(S, len(names), times.size)
     return {u: values[:, i, :] for i, u in enumerate(names)}
+
+
+def _reporting(system, t0: float, t1: float, progress: Callable[[float], None]):
+    """``system`` as a right-hand side that tells ``progress`` the time reached, every hundredth of [t0, t1]."""
+    every = 0.01 * (t1 - t0)
+    told = [t0]
+
+    def fun(t, y):
+        if t >= told[0] + every:
+            told[0] = t
+            progress(t)
+        return system(t, y)
+
+    return fun

@@ -8,7 +8,6 @@ are one path, kept in one module.
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass, field
 import functools
 import math
@@ -17,6 +16,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from ..blas import one_blas_thread
 from ..errors import SolverError
 from .collocation import PdeModel, PdeSystem
 from .reference_base import (DEFAULT_MAX_EVALUATIONS, DEFAULT_SPACE_NODES, PDE_ATOL, PDE_METHODS, PDE_RTOL,
@@ -160,26 +160,10 @@ def _pde_model(text: str, source: str, nodes: tuple) -> PdeModel:
     return PdeModel(parse_cached(text, source), dict(nodes))
 
 
-@contextlib.contextmanager
-def _one_blas_thread():
-    """BLAS limited to one thread while the method of lines runs (its LU factorizations).
-
-    Threaded LAPACK spins when another process holds a core: on 2 busy cores the LU of the
-    2-D heat example (1444 unknowns) is several times slower with 2 threads than with one.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        yield
-        return
-    with threadpool_limits(limits=1, user_api="blas"):
-        yield
-
-
 def _pde_chunk_worker(spec_text, source, nodes, settings, chunk):
     """A worker's task: parse the spec again, build the grid, integrate one chunk ``(params, samples)``."""
     model = _pde_model(spec_text, source, nodes)
-    with _one_blas_thread():
+    with one_blas_thread():  # the method of lines' LU factorizations (see pgdcli.blas)
         return _solve_group_pde(model, *chunk, *settings)
 
 

@@ -26,9 +26,9 @@ from functools import partial
 from typing import Mapping
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from .. import executors
+from ..blas import one_blas_thread
 from ..errors import SolverError
 from ..problem.general import has_general
 from .collocation import barycentric_matrix, chebyshev_weights
@@ -118,9 +118,9 @@ def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
         return J.toarray() if size <= DENSE_JACOBIAN else J
 
     # solve_ivp's t_eval is read from the same dense output: keeping it changes nothing in accuracy. Radau's
-    # LU factorizations (n^2 values in two space coordinates) on one BLAS thread: several times faster
-    # than threads competing on the shared machine (a 529-unknown complex LU: 0.12 s against 0.75 s)
-    with threadpool_limits(1):
+    # LU factorizations (n^2 values in two space coordinates) on one BLAS thread: small factorizations
+    # lose more to threads competing for the cores than they gain from them
+    with one_blas_thread():
         sol = solve_ivp(model.rhs, (t0, t_end), model.initial(problem), method="Radau", dense_output=True,
                         rtol=rtol, atol=atol, jac=jac)
     if sol.status != 0 or not np.isfinite(sol.y).all():

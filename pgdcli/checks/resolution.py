@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..tensors.cp import orthogonal_sweep
+from ..tensors.cp_sweep import orthogonal_sweep
 from ..tensors.tt import tt_centre_cores
 
 __all__ = ["resolution_tails", "chebyshev_decay"]
@@ -60,7 +60,7 @@ def _row_norms(codebook, matrices) -> dict[str, dict[str, np.ndarray | None]]:
     dict
         ``{unknown: {coordinate: (m_j,) ndarray or None}}``.
     """
-    from ..codebook.codebook import FieldTT
+    from ..tensors.tt import TT
 
     coords = codebook.coordinates
     sizes = [c.nodes for c in coords]
@@ -68,14 +68,14 @@ def _row_norms(codebook, matrices) -> dict[str, dict[str, np.ndarray | None]]:
     out: dict[str, dict] = {}
     for name, fm in codebook.fields.items():
         res: dict = {c.name: None for c in coords}
-        if isinstance(fm, FieldTT):
+        if isinstance(fm, TT):
             centres = tt_centre_cores(fm.cores)
             for core, j in zip(centres, fm.mode_order):
                 if matrices[j] is not None:
                     coef = np.einsum("kn,anb->akb", matrices[j], core)
                     res[coords[j].name] = np.sqrt(np.sum(coef * coef, axis=(0, 2)) / (total / sizes[j]))
         else:
-            a = fm.alphas
+            a = fm.weights
             for j, c in enumerate(coords):
                 if matrices[j] is None:
                     continue
@@ -85,9 +85,9 @@ def _row_norms(codebook, matrices) -> dict[str, dict[str, np.ndarray | None]]:
                 # norms over the other coordinates through an orthogonal sweep, not Gram products:
                 # a tail far below the terms (a lift cancelled by the modes) would drown in the
                 # sqrt(eps) cancellation error of w @ G @ w
-                others = [m for k, m in enumerate(fm.modes) if k != j]
+                others = [m for k, m in enumerate(fm.factors) if k != j]
                 z = orthogonal_sweep(others) if others else np.ones((1, a.size))
-                coef = z @ (a[:, None] * (matrices[j] @ fm.modes[j]).T)  # (r, rows)
+                coef = z @ (a[:, None] * (matrices[j] @ fm.factors[j]).T)  # (r, rows)
                 res[c.name] = np.linalg.norm(coef, axis=0) / np.sqrt(total / sizes[j])
         out[name] = res
     return out

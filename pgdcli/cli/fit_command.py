@@ -2,12 +2,46 @@
 
 from __future__ import annotations
 
+import csv
+import json
 import sys
 from pathlib import Path
 
 import click
 
-from .group import Failed, cli
+from .formats import FIT
+from .group import Failed, cli, format_option
+
+
+@FIT.register("plain", "'name estimate stderr' per free coordinate")
+def write_estimate(stream, result) -> None:
+    """One line per free coordinate, ``name estimate stderr`` (full precision)."""
+    for name, value in result.estimate.items():
+        stream.write(f"{name} {value!r} {result.stderr[name]!r}\n")
+
+
+@FIT.register("csv", "the fitted curve")
+def write_curve(stream, result) -> None:
+    """The fitted curve, one row per data row: the data's coordinate columns, then for every unknown
+    its fitted value and, when observed, ``<u>_data``."""
+    columns, values = [], []
+    for name, col in result.fitted.items():
+        columns.append(name)
+        values.append(col)
+        if name in result.data:
+            columns.append(f"{name}_data")
+            values.append(result.data[name])
+    writer = csv.writer(stream, lineterminator="\n")
+    writer.writerow(columns)
+    for row in zip(*values):
+        writer.writerow([repr(float(v)) for v in row])
+
+
+@FIT.register("json", "everything")
+def write_everything(stream, result) -> None:
+    """:meth:`~pgdcli.inference.fitting.FitResult.to_dict` as JSON."""
+    stream.write(json.dumps(result.to_dict(), indent=2) + "\n")
+
 
 def _assignments(values, option: str) -> dict:
     """``NAME=VALUE`` options (repeatable, or comma lists) -> {name: float}."""
@@ -34,8 +68,7 @@ def _assignments(values, option: str) -> dict:
               help="Local solves: the box centre, then N-1 scrambled Sobol points.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Sobol scrambling seed.")
 @click.option("--no-check", is_flag=True, help="Skip the re-solve at the estimate by the independent reference.")
-@click.option("--format", "fmt", type=click.Choice(["plain", "csv", "json"]), default="plain", show_default=True,
-              help="plain: 'name estimate stderr' per free coordinate; csv: the fitted curve; json: everything.")
+@format_option(FIT)
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE.png",
               help="Draw the data and the fit (.png or .svg).")
 @click.option("-q", "--quiet", is_flag=True, help="No summary line on stderr.")
@@ -58,7 +91,7 @@ def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_pa
       pgd fit codebooks/coupled.h5 trajectory.csv --sigma u1=1e-3 --format json
     """
     from ..inference.fitting import fit
-    from ..inference.report import plot_fit, summary, write_result
+    from ..inference.report import plot_fit, summary
 
     if plot_path is not None:
         from ..plot.options import require_matplotlib
@@ -67,7 +100,7 @@ def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_pa
     label = "DATA (stdin)" if data.name == "<stdin>" else str(data.name)
     result = fit(codebook, data, fix=_assignments(fix, "--fix"), sigma=_assignments(sigma, "--sigma"),
                  starts=starts, seed=seed, check=not no_check, label=label)
-    write_result(sys.stdout, result, fmt)
+    FIT.writer(fmt)(sys.stdout, result)
     if plot_path is not None:
         plot_fit(result, plot_path)
     if not quiet:

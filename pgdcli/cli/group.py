@@ -148,6 +148,13 @@ class Failed(Exception):
         self.warning = warning
 
 
+def format_option(formats):
+    """The ``--format`` option of a command: its choices, default and help from its registry
+    (:mod:`pgdcli.cli.formats`)."""
+    return click.option("--format", "fmt", type=click.Choice(formats.names), default=formats.default,
+                        show_default=True, help=formats.help())
+
+
 def run_command(func, *args, **kwargs):
     """``func(*args, **kwargs)``; a :class:`Failed` it raises ends the command with exit 1 (in the group)."""
     return func(*args, **kwargs)

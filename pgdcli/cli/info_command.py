@@ -8,43 +8,31 @@ from pathlib import Path
 import click
 
 from ..errors import CodebookError
-from .group import cli
+from .formats import INFO
+from .group import cli, format_option
 from .text import human_size, nodes_chosen_text, short_where
 
 
-@cli.command()
-@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text: a readable summary; json: every figure as JSON.")
-@click.option("--spec", "show_spec", is_flag=True,
-              help="Print the problem spec stored in CODEBOOK (YAML, as it was solved) instead.")
-def info(codebook, fmt, show_spec):
-    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time.
-
-    \b
-      pgd info codebooks/coupled.h5
-      pgd info codebooks/coupled.h5 --format json
-      pgd info codebooks/coupled.h5 --spec > coupled.yaml    # solve it again: pgd solve coupled.yaml
-    """
-    from ..codebook.codebook import Codebook
-
-    cb = Codebook.load(codebook)
-    if show_spec:
-        if not cb.spec_text.strip():
-            raise CodebookError(f"{codebook}: the codebook holds no problem spec")
-        click.echo(cb.spec_text, nl=not cb.spec_text.endswith("\n"))
-        return
-    summary = cb.info(codebook)
-    if fmt == "json":  # JSON escapes control characters itself
-        click.echo(json.dumps(summary, indent=2))
-        return
+@INFO.register("text", "a readable summary")
+def write_text(summary: dict) -> None:
+    """The summary as rich text: what the codebook holds, then how it was made."""
     from rich.console import Console
-    from rich.table import Table
 
     summary = _shown(summary)
-    from ..checks.check import points_text
-
     console = Console(highlight=False, soft_wrap=True)
+    _print_contents(console, summary)
+    _print_solve(console, summary)
+
+
+@INFO.register("json", "every figure as JSON")
+def write_json(summary: dict) -> None:
+    click.echo(json.dumps(summary, indent=2))  # JSON escapes control characters itself
+
+
+def _print_contents(console, summary: dict) -> None:
+    """Name, coordinates, modes, rate unknowns and separated coefficients."""
+    from rich.table import Table
+
     console.print(f"[bold]{summary['name']}[/]  {summary['description']}".rstrip())
     coords = Table(title="coordinates", title_justify="left")
     for col in ("name", "role", "domain", "nodes", "discretization"):
@@ -63,6 +51,12 @@ def info(codebook, fmt, show_spec):
     if summary.get("method_reason"):  # escaped for rich by _shown, as every string of the summary
         name = "tensor-train solver (amen)" if summary["method"] == "amen" else "enrichment (pgd)"
         console.print(f"method: {name}: {summary['method_reason']}")
+
+
+def _print_solve(console, summary: dict) -> None:
+    """The solve: its check, the nodes chosen, steps or residual, the march, time, size and format."""
+    from ..checks.check import points_text
+
     state = "converged" if summary["converged"] else "NOT converged"
     label = "error estimate (RMS)" if summary.get("method") == "march" else "residual"
     if summary.get("accurate") is False:
@@ -117,3 +111,27 @@ def _shown(value):
     if isinstance(value, list):
         return [_shown(v) for v in value]
     return value
+
+
+@cli.command()
+@click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
+@format_option(INFO)
+@click.option("--spec", "show_spec", is_flag=True,
+              help="Print the problem spec stored in CODEBOOK (YAML, as it was solved) instead.")
+def info(codebook, fmt, show_spec):
+    """Describe CODEBOOK: coordinates, domains, nodes, modes, residual, size, solve time.
+
+    \b
+      pgd info codebooks/coupled.h5
+      pgd info codebooks/coupled.h5 --format json
+      pgd info codebooks/coupled.h5 --spec > coupled.yaml    # solve it again: pgd solve coupled.yaml
+    """
+    from ..codebook.codebook import Codebook
+
+    cb = Codebook.load(codebook)
+    if show_spec:
+        if not cb.spec_text.strip():
+            raise CodebookError(f"{codebook}: the codebook holds no problem spec")
+        click.echo(cb.spec_text, nl=not cb.spec_text.endswith("\n"))
+        return
+    INFO.writer(fmt)(cb.info(codebook))

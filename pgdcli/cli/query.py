@@ -22,10 +22,12 @@ import os
 import sys
 
 from ..errors import QueryError
+from . import stream  # registers the query's output formats
+from .formats import QUERY
+from .stream import check_grid_size
 
 __all__ = ["run", "UsageProblem", "one_line_error"]
 
-FORMATS = ("plain", "csv", "json")
 _VALUE_OPTIONS = ("--format", "--field", "--points")
 _CLICK_ONLY = ("--output", "--scheduler", "--workers")  # a query into a file, on a cluster: the click command
 
@@ -84,8 +86,6 @@ def parse_values(name: str, text: str):
     """
     import numpy as np
 
-    from .stream import check_grid_size
-
     text = text.strip()
     try:
         if ":" in text:
@@ -106,8 +106,6 @@ def parse_values(name: str, text: str):
 
 def grid_axes(args: list[str], cb) -> list:
     """The coordinates' values (1-D arrays, codebook order), checked: domain, and the grid's size."""
-    from .stream import check_grid_size
-
     given = parse_coordinate_args(args, cb)
     lists = [parse_values(c.name, given[c.name]) for c in cb.coordinates]
     for c, v in zip(cb.coordinates, lists):
@@ -189,8 +187,6 @@ def point_chunks(cb, points: str | None, rest: list[str], stdin=None):
 
     Grid arguments are parsed and checked (domain, size) here, before any output.
     """
-    from . import stream
-
     if points is None:
         return stream.grid_points(grid_axes(rest, cb)), None
     if points == "-" and stdin is not None:
@@ -260,7 +256,7 @@ def _split(args: list[str]):
                     value = args[i]
                     i += 1
                 if name == "--format":
-                    if value not in FORMATS:
+                    if value not in QUERY.names:
                         return None
                     fmt = value
                 elif name == "--field":
@@ -292,7 +288,6 @@ def run(argv: list[str]) -> int | None:
     recorder = handle = None
     try:
         from ..codebook.codebook import Codebook
-        from .stream import Writer
 
         if os.path.isdir(codebook):
             return None
@@ -303,7 +298,7 @@ def run(argv: list[str]) -> int | None:
         if points == "-":
             recorder = _Recorder(getattr(sys.stdin, "buffer", None) or sys.stdin, sys.stdin)
         chunks, handle = point_chunks(cb, points, rest, stdin=recorder)
-        writer = Writer(sys.stdout, fmt, cb, selected)
+        writer = stream.Writer(sys.stdout, fmt, cb, selected)
         first = next(chunks, None)
         text = "" if first is None else writer.text(first)
     except KeyboardInterrupt:

@@ -7,14 +7,14 @@ from pathlib import Path
 
 import click
 
+from . import stream  # registers the query's output formats
 from .cluster_options import cluster_options, open_executor, scheduler_given
-from .group import cli
+from .formats import QUERY
+from .group import cli, format_option
 
 @cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(["plain", "csv", "json"]), default="plain", show_default=True,
-              help="plain: values separated by spaces, one line per point; csv: header + coordinates and "
-                   "values; json: a list of objects.")
+@format_option(QUERY)
 @click.option("--field", "fields", multiple=True, metavar="NAME",
               help="Unknown to print (repeatable) [default: all, in declared order].")
 @click.option("--points", metavar="FILE",
@@ -43,7 +43,6 @@ def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
     # plain `pgd query` runs without click (see main): both paths print the same bytes
     from . import query as _query
     from ..codebook.codebook import Codebook
-    from .stream import Writer
 
     cb = Codebook.load(codebook, evaluation_only=True)
     selected = list(fields) if fields else cb.unknown_names
@@ -60,7 +59,7 @@ def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
         return _to_file(ctx, cb, points, output, selected, scheduler, workers)
     chunks, handle = _usage(_query.point_chunks, cb, points, ctx.args)
     try:
-        Writer(sys.stdout, fmt, cb, selected).run(chunks)
+        stream.Writer(sys.stdout, fmt, cb, selected).run(chunks)
     finally:
         if handle is not None:
             handle.close()

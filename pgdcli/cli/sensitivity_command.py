@@ -9,7 +9,8 @@ from pathlib import Path
 
 import click
 
-from .group import cli
+from .formats import SENSITIVITY
+from .group import cli, format_option
 
 
 def _at(values, cb) -> dict:
@@ -40,25 +41,37 @@ def parse_densities(values) -> dict:
     return out
 
 
-def write_sensitivity(stream, result, fmt: str) -> None:
-    """``plain``: a header and one aligned row per (unknown, time), 6 digits; ``csv``: the same columns
-    at full precision; ``json``: :meth:`SensitivityResult.to_dict`."""
-    if fmt == "json":
-        stream.write(json.dumps(result.to_dict(), indent=2) + "\n")
-        return
-    rows = result.rows()
-    header = list(rows[0]) if rows else ["unknown"]
-    if fmt == "csv":
-        writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow(header)
-        for row in rows:
-            writer.writerow([v if isinstance(v, str) else repr(v) for v in row.values()])
-        return
+@SENSITIVITY.register("plain", "an aligned table (6 digits)")
+def write_table(stream, result) -> None:
+    """A header and one aligned row per (unknown, time), 6 digits."""
+    header, rows = _columns(result)
     cells = [header] + [[v if isinstance(v, str) else f"{v:.6g}" for v in row.values()] for row in rows]
     widths = [max(len(r[k]) for r in cells) for k in range(len(header))]
     for r in cells:
         stream.write("  ".join(c.ljust(w) if k == 0 else c.rjust(w) for k, (c, w) in enumerate(zip(r, widths))).rstrip()
                      + "\n")
+
+
+@SENSITIVITY.register("csv", "the same columns, full precision")
+def write_csv(stream, result) -> None:
+    """The plain table's columns, one row per (unknown, time), at full precision."""
+    header, rows = _columns(result)
+    writer = csv.writer(stream, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        writer.writerow([v if isinstance(v, str) else repr(v) for v in row.values()])
+
+
+@SENSITIVITY.register("json", "everything")
+def write_json(stream, result) -> None:
+    """:meth:`~pgdcli.codebook.sensitivity.SensitivityResult.to_dict` as JSON."""
+    stream.write(json.dumps(result.to_dict(), indent=2) + "\n")
+
+
+def _columns(result) -> tuple[list, list]:
+    """The table's header and its rows (:meth:`~pgdcli.codebook.sensitivity.SensitivityResult.rows`)."""
+    rows = result.rows()
+    return (list(rows[0]) if rows else ["unknown"]), rows
 
 
 @cli.command("sensitivity")
@@ -72,8 +85,7 @@ def write_sensitivity(stream, result, fmt: str) -> None:
                    "domain); repeatable.")
 @click.option("--second-order", is_flag=True, help="Also the second-order index of every pair of inputs.")
 @click.option("--field", "fields", multiple=True, metavar="NAME", help="Unknown (repeatable) [default: all].")
-@click.option("--format", "fmt", type=click.Choice(["plain", "csv", "json"]), default="plain", show_default=True,
-              help="plain: an aligned table (6 digits); csv: the same columns, full precision; json: everything.")
+@format_option(SENSITIVITY)
 @click.option("-q", "--quiet", is_flag=True, help="No summary line on stderr.")
 def sensitivity_command(codebook, at, times, density, second_order, fields, fmt, quiet):
     """Mean, variance and Sobol indices of CODEBOOK's unknowns over its parameters.
@@ -105,7 +117,7 @@ def sensitivity_command(codebook, at, times, density, second_order, fields, fmt,
                                      param_hint="'--times'") from None
     result = cb.sensitivity(times=values, at=_at(at, cb), densities=parse_densities(density), second_order=second_order,
                             fields=list(fields) or None)
-    write_sensitivity(sys.stdout, result, fmt)
+    SENSITIVITY.writer(fmt)(sys.stdout, result)
     if not quiet:
         where = f" at {len(result.times)} times" if result.time is not None else ""
         click.echo(f"sensitivity: {len(result.unknowns)} unknown(s), {len(result.inputs)} input(s) "

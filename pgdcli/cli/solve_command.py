@@ -11,8 +11,21 @@ from pathlib import Path
 import click
 
 from .cluster_options import cluster_options, open_executor
-from .group import Failed, cli, run_command, stderr_console, warn
+from .formats import SOLVE
+from .group import Failed, cli, format_option, run_command, stderr_console, warn
 from .text import human_size, nodes_chosen_text, short_where
+
+
+@SOLVE.register("text", "summary table on stderr")
+def write_nothing(summary: dict | list) -> None:
+    """Nothing on stdout: the table is printed on stderr (none with --quiet)."""
+
+
+@SOLVE.register("json", "the summary as JSON on stdout (several specs: a list, one row per spec)")
+def write_json(summary: dict | list) -> None:
+    """The summary of one spec, or the rows of several (:func:`~pgdcli.cli.solve_family.solve_family`)."""
+    click.echo(json.dumps(summary, indent=2))
+
 
 @cli.command()
 @click.argument("specs", metavar="SPEC...", nargs=-1, required=True, type=click.Path(path_type=Path))
@@ -27,8 +40,7 @@ from .text import human_size, nodes_chosen_text, short_where
 @click.option("--keep-inaccurate", is_flag=True,
               help="Write the codebook even when its measured error exceeds the tolerance (marked as such in "
                    "the file; the exit status is still 1).")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text: summary table on stderr; json: the summary as JSON on stdout.")
+@format_option(SOLVE)
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary on stderr.")
 @cluster_options("the cross march's batches of trajectories and the reference's chunks (several specs: one task "
                  "each)")
@@ -85,7 +97,7 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
         if console is None:
             result = solve_problem(problem, **overrides)
         else:
-            result = _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides)
+            result = _solve_with_progress(console, problem, solve_problem, overrides)
     for warning in result.warnings:
         warn(warning)
     keep = result.converged or (keep_inaccurate and result.accurate is False)
@@ -96,59 +108,27 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
         summary["size_bytes"] = target.stat().st_size
     if console is not None:
         console.print(_summary_table(summary))
-    if fmt == "json":
-        click.echo(json.dumps(summary, indent=2))
+    SOLVE.writer(fmt)(summary)
     if not result.converged:
         written = (f"written anyway to {target}, marked inaccurate (--keep-inaccurate)" if keep
                    else f"no codebook written to {target}")
         raise Failed(f"{spec}: {result.message}; {written}")
 
 
-def _solve_with_progress(console, problem, tol, nmax, solve_problem, overrides):
-    """Enrichment: residual decades reached / decades asked; march: time reached / time domain."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+def _solve_with_progress(console, problem, solve_problem, overrides):
+    """The solve with its progress on stderr (:mod:`pgdcli.cli.progress_view`)."""
+    from .progress_view import solve_progress
 
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[status]}"),
-               TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=False) as progress:
-        span = -math.log10(tol)
-        task = progress.add_task(f"solving {problem.name}", total=span, status="starting")
-
-        def callback(info):
-            if "time" in info:  # separated time march
-                t0 = problem.time_coordinate.domain[0]
-                frac = (info["time"] - t0) / (info["end"] - t0)
-                # the grid march has no trains while it marches (ranks: empty)
-                rank = f"  max rank {max(max(r) for r in info['ranks'] if r)}" if any(info["ranks"]) else ""
-                progress.update(task, completed=span * frac,
-                                status=f"t = {info['time']:.4g}/{info['end']:.4g}  {info['steps']} steps{rank}")
-                return
-            r = info["residual"]
-            if "cross" in info:  # the cross march's half sweeps, after its pilot march
-                done = span * min(1.0, math.log10(max(r, 1e-300)) / math.log10(info["target"]))
-                progress.update(task, completed=max(done, 0.0),
-                                status=f"cross sweep {info['cross']}: {info['trajectories']:,} trajectories, "
-                                       f"difference {r:.2e} (target {info['target']:.0e}), max rank {max(info['ranks'])}")
-                return
-            if "sweep" in info:  # the tensor-train solver: an absolute residual against its own target
-                done = span * min(1.0, math.log10(max(r, 1e-300)) / math.log10(info["target"])) if r < 1 else 0.0
-                progress.update(task, completed=max(done, 0.0),
-                                status=f"tensor-train sweep {info['sweep']}: residual {r:.2e} (target "
-                                       f"{info['target']:.0e}), max rank {max(info['ranks'], default=1)}")
-                return
-            done = min(span, -math.log10(r) if r > 0 else span)
-            progress.update(task, completed=max(done, 0.0),
-                            status=f"{info['mode']}/{nmax} modes  residual {r:.2e} (tolerance {tol:.0e})")
-
+    with solve_progress(console, problem.name) as view:
         executor = overrides.get("executor")
         if executor is not None:  # the tasks the cluster finished
-            tasks = progress.add_task("tasks on the cluster", total=None, status="")
-            executor.progress = lambda done: progress.update(tasks, status=f"{done:,} finished")
-        return solve_problem(problem, callback=callback, **overrides)
+            view.count_tasks(executor)
+        return solve_problem(problem, callback=view, **overrides)
 
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
-    from ..codebook.fields import FieldTT
+    from ..algorithms.outcome import Status
+    from ..tensors.tt import TT
     from ..codebook.summary import coordinate_ratios
 
     cb = result.codebook
@@ -156,7 +136,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
     march = rep.get("method") == "march"
     pde_march = str(rep.get("method", "")).startswith("pde march")  # its step control has no residual
     # a march that failed holds no solution: its fields are placeholders, not ranks to report
-    placeholder = (march or pde_march) and result.status == 3
+    placeholder = (march or pde_march) and result.status == Status.FAILED
     return {
         "problem": problem.name,
         "method": "march" if march else "pde march" if pde_march else "amen" if rep.get("method") == "amen" else "pgd",
@@ -183,7 +163,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "tolerance": float(rep["tolerance"]),
         # march: the largest tensor-train rank
         "modes": None if placeholder else {u: fm.rank for u, fm in cb.fields.items()},
-        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if isinstance(fm, FieldTT)},
+        "ranks": None if placeholder else {u: list(fm.ranks) for u, fm in cb.fields.items() if isinstance(fm, TT)},
         "coordinates": {c.name: c.nodes for c in cb.coordinates},
         "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
         "wall_time": float(result.wall_time),

@@ -9,13 +9,13 @@ when every codebook was written, 2 when a spec was invalid or failed, else 1.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import click
 
 from ..errors import PgdError
+from .formats import SOLVE
 from .group import Failed, stderr_console, warn
 
 __all__ = ["family_specs", "solve_family"]
@@ -68,8 +68,7 @@ def solve_family(specs: list[Path], output, tolerance, relative_tolerance, max_m
     if console is not None:
         for renderable in _family_table(rows):
             console.print(renderable)
-    if fmt == "json":
-        click.echo(json.dumps(rows, indent=2))
+    SOLVE.writer(fmt)(rows)
     failed = [row for row in rows if row["status"] != "written"]
     if failed:
         listed = ", ".join(f"{row['spec']} ({row['status']})" for row in failed)

@@ -20,9 +20,10 @@ from __future__ import annotations
 import os
 
 from ..errors import QueryError
+from .formats import QUERY
 
 __all__ = ["CHUNK", "DEFAULT_MAX_POINTS", "MAX_LINE_BYTES", "max_points", "check_grid_size", "grid_points",
-           "read_points", "format_chunk", "closing", "Writer"]
+           "read_points", "format_chunk", "closing", "Writer", "PlainRows", "CsvRows", "JsonRows"]
 
 CHUNK = 4096  # points evaluated and printed at a time
 DEFAULT_MAX_POINTS = 10_000_000  # a grid query's largest product of axes (PGD_QUERY_MAX_POINTS)
@@ -172,29 +173,62 @@ def _values(cb, names: list[str], selected: list[str], points: list[tuple]) -> l
     return rows
 
 
+@QUERY.register("plain", "values separated by spaces, one line per point")
+class PlainRows:
+    """Each point's values, full precision, separated by spaces."""
+
+    @staticmethod
+    def chunk(names: list[str], selected: list[str], points: list[tuple], rows: list[list[float]],
+              first: bool) -> str:
+        return "".join(" ".join(map(repr, r)) + "\n" for r in rows)
+
+    @staticmethod
+    def closing(names: list[str], selected: list[str], wrote: bool) -> str:
+        return ""
+
+
+@QUERY.register("csv", "header + coordinates and values")
+class CsvRows:
+    """A header (coordinates, then unknowns), then each point's coordinates and values."""
+
+    @staticmethod
+    def chunk(names: list[str], selected: list[str], points: list[tuple], rows: list[list[float]],
+              first: bool) -> str:
+        head = ",".join(names + selected) + "\n" if first else ""
+        return head + "".join(",".join(map(repr, p + tuple(r))) + "\n" for p, r in zip(points, rows))
+
+    @staticmethod
+    def closing(names: list[str], selected: list[str], wrote: bool) -> str:
+        return "" if wrote else ",".join(names + selected) + "\n"  # an empty output still has its header
+
+
+@QUERY.register("json", "a list of objects")
+class JsonRows:
+    """One list of ``{coordinate: value, ..., unknown: value, ...}`` objects, written chunk by chunk."""
+
+    @staticmethod
+    def chunk(names: list[str], selected: list[str], points: list[tuple], rows: list[list[float]],
+              first: bool) -> str:
+        import json  # only when asked for (the lean query path)
+
+        keys = names + selected
+        text = ", ".join(json.dumps(dict(zip(keys, p + tuple(r)))) for p, r in zip(points, rows))
+        return ("[" if first else ", ") + text
+
+    @staticmethod
+    def closing(names: list[str], selected: list[str], wrote: bool) -> str:
+        return "]\n" if wrote else "[]\n"
+
+
 def format_chunk(fmt: str, cb, selected: list[str], points: list[tuple], first: bool) -> str:
     """The text of one chunk of points (``first``: the csv header / the json list's opening)."""
     names = cb.coordinate_names
-    rows = _values(cb, names, selected, points)
-    if fmt == "plain":
-        return "".join(" ".join(map(repr, r)) + "\n" for r in rows)
-    if fmt == "csv":
-        head = ",".join(names + selected) + "\n" if first else ""
-        return head + "".join(",".join(map(repr, p + tuple(r))) + "\n" for p, r in zip(points, rows))
-    import json
-
-    keys = names + selected
-    text = ", ".join(json.dumps(dict(zip(keys, p + tuple(r)))) for p, r in zip(points, rows))
-    return ("[" if first else ", ") + text
+    return QUERY.writer(fmt).chunk(names, selected, points, _values(cb, names, selected, points), first)
 
 
 def closing(fmt: str, cb, selected: list[str], wrote: bool) -> str:
     """What ends the output: the csv header of an empty output, the json list's end."""
-    if fmt == "csv":
-        return "" if wrote else ",".join(cb.coordinate_names + selected) + "\n"
-    if fmt == "json":
-        return "]\n" if wrote else "[]\n"
-    return ""
+    return QUERY.writer(fmt).closing(cb.coordinate_names, selected, wrote)
 
 
 class Writer:

@@ -10,7 +10,8 @@ import click
 
 from ..limits import DEFAULT_CHECK_SECONDS
 from .cluster_options import cluster_options, open_executor, scheduler_given
-from .group import Failed, cli, run_command, stderr_console
+from .formats import VERIFY
+from .group import Failed, cli, format_option, run_command, stderr_console
 
 
 class _MethodChoice(click.Choice):
@@ -22,6 +23,16 @@ class _MethodChoice(click.Choice):
 
 
 VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.reference.METHODS (no numpy import here)
+
+
+@VERIFY.register("text", "table on stderr")
+def write_nothing(report) -> None:
+    """Nothing on stdout: the tables are printed on stderr with the progress (none with --quiet)."""
+
+
+@VERIFY.register("json", "the report as JSON on stdout (keys in docs/verify.md)")
+def write_json(report) -> None:
+    click.echo(json.dumps(report.to_dict(), indent=2))
 
 
 @cli.command("verify")
@@ -56,8 +67,7 @@ VERIFY_METHODS = ("DOP853", "RK45", "Radau", "BDF", "LSODA")  # pgdcli.checks.re
               show_default=True, metavar="S",
               help="Time budget of the reference integrations: at S seconds the check stops, the points not "
                    "integrated yet are reported as not checked, and the exit status is 1.")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text: table on stderr; json: the report as JSON on stdout (keys in docs/verify.md).")
+@format_option(VERIFY)
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or table on stderr.")
 @cluster_options("the reference's chunks of parameter points")
 @click.pass_context
@@ -109,8 +119,7 @@ def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, at
         report = _verify_with_progress(console, codebook, verify_codebook, options)
         for renderable in _verify_tables(report, max_error, max_rel_error):
             console.print(renderable)
-    if fmt == "json":
-        click.echo(json.dumps(report.to_dict(), indent=2))
+    VERIFY.writer(fmt)(report)
     reasons = report.violations(max_error, max_rel_error)
     if reasons:
         raise Failed(f"{codebook}: verification failed: " + "; ".join(reasons))

@@ -44,25 +44,12 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from ..discretization.basis import barycentric_columns
+from ..tuning import BLOCK_BYTES, MAX_BLOCK, MAX_PAIR_VALUES, MIN_BLOCK, SECONDS_PER_BLOCK, SECONDS_PER_MADD
 
 __all__ = ["TTBatch"]
 
-# Points per block: the block's widest intermediate (points x values per point) takes 1.5 MiB,
-# the scratch buffers being reused at every block: a little above a typical second-level cache,
-# since more points per block amortize the few dozen numpy calls of a block; larger blocks gain
-# nothing measurable (block sizes timed side by side with benchmarks/query_speed_tt.py).
-BLOCK_BYTES = 3 << 19
-MIN_BLOCK, MAX_BLOCK = 32, 2048
-# The cost model that decides whether a later coordinate's windows are grouped by (see
-# TTBatch._group_key): seconds per multiply-add in the blocks' products (one core's AVX2 rate)
-# and per block of points (its few dozen numpy calls), both from the batch rows of
-# benchmarks/query_speed_tt.py with more and fewer blocks.
-SECONDS_PER_MADD = 4e-11
-SECONDS_PER_BLOCK = 4e-5
 # Slabs up to this many interior breakpoints are found by counting (see _window_of).
 COUNT_BREAKPOINTS = 32
-# Merged first-two-core tables are kept up to this many values (all windows, all unknowns).
-MAX_PAIR_VALUES = 1 << 22
 
 
 def _windows(basis) -> tuple[np.ndarray, int]:

@@ -30,11 +30,11 @@ from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError, QueryError
 from . import io as codebook_io
 from . import summary as codebook_summary
-from .evaluate import Evaluator, nodal_tensor, shared_basis
-from .fields import FieldModes, FieldTT, validate_field
+from .evaluate import Evaluator, shared_basis
+from .fields import CPTensor, TT, validate_field
 from .io import FORMAT_NAME, FORMAT_VERSION
 
-__all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "FieldModes", "FieldTT", "FORMAT_NAME", "FORMAT_VERSION"]
+__all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "CPTensor", "TT", "FORMAT_NAME", "FORMAT_VERSION"]
 
 _SCALAR_TYPES = frozenset({float, int, np.float64})
 
@@ -56,8 +56,9 @@ class Codebook:
         In dimension order: name, role (``time``, ``space`` or ``parameter``), domain, nodes and
         discretization of each.
     fields : mapping
-        Unknown name -> :class:`FieldModes` (CP) or :class:`FieldTT` (tensor train), in output
-        order.
+        Unknown name -> :class:`~pgdcli.tensors.cp.CPTensor` (weights and one mode matrix of
+        nodal values per coordinate) or :class:`~pgdcli.tensors.tt.TT` (cores with their
+        ``mode_order``), in output order.
     name : str
         The problem's name.
     spec_text : str
@@ -83,7 +84,7 @@ class Codebook:
     Attributes
     ----------
     coordinates : tuple of CoordinateInfo
-    fields : dict of str to FieldModes or FieldTT
+    fields : dict of str to CPTensor or TT
     name, spec_text, description, created : str
     report : dict
 
@@ -94,7 +95,7 @@ class Codebook:
     array([0., 20.])
     """
 
-    def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping[str, FieldModes], *,
+    def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping[str, CPTensor | TT], *,
                  name: str = "codebook", spec_text: str = "", report: Mapping | None = None,
                  description: str = "", created: str | None = None, partial: bool = False,
                  format_version: str | None = None):
@@ -249,7 +250,7 @@ class Codebook:
             from .blockwise import evaluate_blockwise
 
             return evaluate_blockwise(self, dict(zip(names, raw)), selected)
-        if not scalars and any(isinstance(self.fields[u], FieldTT) for u in selected):
+        if not scalars and any(isinstance(self.fields[u], TT) for u in selected):
             return self._evaluate_mixed(coordinates, selected)
         if scalars:
             # one point given as Python numbers: a handful of small numpy calls, no broadcasting
@@ -424,7 +425,7 @@ class Codebook:
 
     def _evaluate_mixed(self, coordinates: Mapping[str, object], selected: list[str]) -> dict[str, np.ndarray]:
         """Tensor-train unknowns (and any CP ones beside them)."""
-        tt = [u for u in selected if isinstance(self.fields[u], FieldTT)]
+        tt = [u for u in selected if isinstance(self.fields[u], TT)]
         cp = [u for u in selected if u not in tt]
         out = self.evaluate(coordinates, cp) if cp else {}
         arrays = np.broadcast_arrays(*[np.asarray(coordinates[c.name], dtype=float) for c in self.coordinates])
@@ -482,7 +483,7 @@ class Codebook:
         QueryError
             No unknown has that name.
         """
-        return nodal_tensor(self.fields[self._select([field_name])[0]])
+        return self.fields[self._select([field_name])[0]].full()
 
     @property
     def accurate(self) -> bool | None:

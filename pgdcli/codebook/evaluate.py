@@ -24,12 +24,12 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..discretization.coordinates import CoordinateInfo
-from .fields import FieldModes, FieldTT
+from .fields import CPTensor, TT
 from .point import TTStack
 from .point_weights import PointData
-from .threads import chunk_bounds, chunk_length, one_blas_thread, run_chunks
+from .threads import batch_blas, chunk_bounds, chunk_length, run_chunks
 
-__all__ = ["Evaluator", "shared_basis", "contract_tt", "grid_tt", "grid_cp", "nodal_tensor"]
+__all__ = ["Evaluator", "shared_basis", "contract_tt", "grid_tt", "grid_cp"]
 
 _dot, _multiply = np.dot, np.multiply
 _basis_cache: dict = {}
@@ -53,7 +53,7 @@ class Evaluator:
     ----------
     coordinates : sequence of CoordinateInfo
     fields : mapping
-        Unknown name -> :class:`FieldModes` or :class:`FieldTT` (validated by the caller).
+        Unknown name -> :class:`CPTensor` or :class:`TT` (validated by the caller).
 
     Attributes
     ----------
@@ -73,8 +73,8 @@ class Evaluator:
     def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping):
         self.fields = fields
         self.bases = [shared_basis(c) for c in coordinates]
-        cp = {u: fm for u, fm in fields.items() if isinstance(fm, FieldModes)}
-        self.stacked = [np.hstack([fm.modes[j] for fm in cp.values()]) if cp else None
+        cp = {u: fm for u, fm in fields.items() if isinstance(fm, CPTensor)}
+        self.stacked = [np.hstack([fm.factors[j] for fm in cp.values()]) if cp else None
                         for j in range(len(self.bases))]
         bounds = np.cumsum([0] + [fm.rank for fm in cp.values()])
         self.slices = {u: slice(bounds[i], bounds[i + 1]) for i, u in enumerate(cp)}
@@ -111,7 +111,7 @@ class Evaluator:
                 product = vals if product is None else _multiply(product, vals, out=product)
             for u in selected:
                 if u in self.slices:
-                    out[u] = np.array(product[self.slices[u]] @ self.fields[u].alphas)
+                    out[u] = np.array(product[self.slices[u]] @ self.fields[u].weights)
         stack = self.tt_stack
         if stack is not None and any(u in stack.index for u in selected):
             values = stack.at_point(xs)
@@ -132,7 +132,7 @@ class Evaluator:
 
         Chunk by chunk (:func:`~pgdcli.codebook.threads.chunk_length` points): per coordinate
         the cardinal rows times the stacked modes of every unknown, their product over
-        coordinates, times each unknown's alphas.
+        coordinates, times each unknown's weights.
         """
         bases, stacked, slices = self.bases, self.stacked, self.slices
         size = flat[0].size
@@ -141,7 +141,7 @@ class Evaluator:
             return out
         rank = stacked[0].shape[1]
         chunk = min(size, chunk_length(rank, max(b.size for b in bases)))
-        alphas = {u: self.fields[u].alphas for u in selected}
+        term_weights = {u: self.fields[u].weights for u in selected}
 
         def run(bounds):
             rows = chunk + 1  # the last chunk may hold one more point (see chunk_bounds)
@@ -158,7 +158,7 @@ class Evaluator:
                     else:
                         np.multiply(p, np.matmul(w, modes, out=vals[:m]), out=p)
                 for u in selected:
-                    np.matmul(p[:, slices[u]], alphas[u], out=out[u][lo:hi])
+                    np.matmul(p[:, slices[u]], term_weights[u], out=out[u][lo:hi])
 
         run_chunks(run, chunk_bounds(size, chunk))
         return out
@@ -168,7 +168,7 @@ class Evaluator:
         if self._tt_batch is None:  # prepared on the first batch (pgd query of one point never needs it)
             from .batch_eval import TTBatch
 
-            trains = {u: f for u, f in self.fields.items() if isinstance(f, FieldTT)}
+            trains = {u: f for u, f in self.fields.items() if isinstance(f, TT)}
             self._tt_batch = TTBatch(trains, self.bases)
         # the CP path's BLAS and thread policy (one BLAS thread, blocks shared by our threads)
         return self._tt_batch.evaluate(flat, selected, run_chunks)
@@ -182,12 +182,12 @@ class Evaluator:
         slower, the first call most (``benchmarks/query_speed_tt.py``'s grid rows).
         """
         mats = [b.interpolation_matrix(v) for b, v in zip(self.bases, values)]
-        with one_blas_thread(int(np.prod([v.size for v in values], dtype=float))):
-            return {u: grid_tt(self.fields[u], mats) if isinstance(self.fields[u], FieldTT) else
+        with batch_blas(int(np.prod([v.size for v in values], dtype=float))):
+            return {u: grid_tt(self.fields[u], mats) if isinstance(self.fields[u], TT) else
                     grid_cp(self.fields[u], mats) for u in selected}
 
 
-def contract_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
+def contract_tt(fm: TT, mats: list[np.ndarray]) -> np.ndarray:
     """Tensor train at points: ``mats[j]`` (P, nodes_j) are the points' rows per coordinate; shape (P,).
 
     The rows are cardinal rows for values, or a derivative's rows in one coordinate's place.
@@ -205,7 +205,7 @@ def contract_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
     return v[:, 0]
 
 
-def grid_tt(fm: FieldTT, mats: list[np.ndarray]) -> np.ndarray:
+def grid_tt(fm: TT, mats: list[np.ndarray]) -> np.ndarray:
     """Tensor train on the grid of the points behind ``mats[j]`` (P_j, nodes_j): shape (P_1, ..., P_d).
 
     Contracted from both ends toward one core (the pivot, :func:`_pivot`): the running blocks
@@ -250,16 +250,16 @@ def _pivot(cores, sizes: list[int]) -> int:
     return int(np.argmin(costs))
 
 
-def grid_cp(fm: FieldModes, mats: list[np.ndarray]) -> np.ndarray:
+def grid_cp(fm: CPTensor, mats: list[np.ndarray]) -> np.ndarray:
     """CP field on the grid of the points behind ``mats[j]`` (P_j, nodes_j): shape (P_1, ..., P_d).
 
     ``sum_r alpha_r prod_j V_j[:, r]`` with ``V_j`` the interpolated modes: the product over
     every coordinate but the one with most points is formed as a (points, rank) block, and one
     matrix product with that coordinate's ``V`` finishes the sum over the rank.
     """
-    vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P_j, rank)
+    vs = [m @ modes for m, modes in zip(mats, fm.factors)]  # (P_j, rank)
     last = int(np.argmax([v.shape[0] for v in vs]))
-    block = fm.alphas[None, :]
+    block = fm.weights[None, :]
     for j, v in enumerate(vs):
         if j != last:
             block = (block[:, None, :] * v[None, :, :]).reshape(-1, v.shape[1])
@@ -267,17 +267,3 @@ def grid_cp(fm: FieldModes, mats: list[np.ndarray]) -> np.ndarray:
     grid = (block @ vs[last].T).reshape(sizes + [vs[last].shape[0]])  # the longest axis last
     return np.moveaxis(grid, -1, last)
 
-
-def nodal_tensor(fm) -> np.ndarray:
-    """The field on the full tensor grid of its nodes (small codebooks only: tests and plots)."""
-    if isinstance(fm, FieldTT):
-        full = fm.cores[0][0]
-        for core in fm.cores[1:]:
-            full = np.tensordot(full, core, axes=(-1, 0))
-        return np.transpose(full[..., 0], np.argsort(fm.mode_order))
-    d = len(fm.modes)
-    letters = "abcdefghijklmnopqrstuvwxyz"[:d]
-    expr = ",".join(f"{l}r" for l in letters) + ",r->" + letters
-    out = np.zeros(tuple(m.shape[0] for m in fm.modes))
-    out += np.einsum(expr, *fm.modes, fm.alphas)
-    return out

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import PgdError
 from ..names import identifier_problem, printable, problem_name_problem
-from .fields import FieldTT
+from .fields import TT
 
 __all__ = ["ExportError", "TARGETS", "DEFAULT_LIMIT", "layout", "export", "size_of"]
 
@@ -73,13 +73,13 @@ def layout(cb) -> dict:
         coords.append(entry)
     unknowns = []
     for u, fm in cb.fields.items():
-        if isinstance(fm, FieldTT):
+        if isinstance(fm, TT):
             unknowns.append({"name": u, "representation": "tt", "mode_order": [int(j) for j in fm.mode_order],
                              "shapes": [list(map(int, core.shape)) for core in fm.cores],
                              "cores": [core.reshape(-1).tolist() for core in fm.cores]})
         else:
-            unknowns.append({"name": u, "representation": "cp", "rank": int(fm.rank), "alphas": fm.alphas.tolist(),
-                             "modes": [m.reshape(-1).tolist() for m in fm.modes]})
+            unknowns.append({"name": u, "representation": "cp", "rank": int(fm.rank), "alphas": fm.weights.tolist(),
+                             "modes": [m.reshape(-1).tolist() for m in fm.factors]})
     return {"format": "pgdcli-export", "version": 1, "name": cb.name, "coordinates": coords, "unknowns": unknowns}
 
 
@@ -111,7 +111,7 @@ def _check_float32(cb, target: str) -> None:
     from .export_c import FLOAT32_MAX
 
     for u, fm in cb.fields.items():
-        arrays = fm.cores if isinstance(fm, FieldTT) else (fm.alphas, *fm.modes)
+        arrays = fm.cores if isinstance(fm, TT) else (fm.weights, *fm.factors)
         largest = max((float(np.abs(a).max()) for a in arrays if a.size), default=0.0)
         if not largest <= FLOAT32_MAX:
             raise ExportError(f"unknown {u!r} holds numbers up to {largest:.3g}, beyond float32's range "

@@ -25,13 +25,11 @@ from typing import Sequence
 import numpy as np
 
 from ..discretization.basis import ChebyshevBasis, LinearBasis, PiecewiseChebyshevBasis, barycentric_rows
+from ..tuning import CHUNK_VALUES
 from .evaluate import contract_tt, grid_cp, grid_tt
-from .fields import FieldTT
+from .fields import TT
 
 __all__ = ["derivative_matrix", "gradient_points", "gradient_grid", "TrajectoryModel"]
-
-#: Values of the cardinal rows of one coordinate built at once by :func:`gradient_points` (32 MB).
-CHUNK_VALUES = 1 << 22
 
 
 def derivative_matrix(basis, x) -> np.ndarray:
@@ -92,8 +90,7 @@ def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[
     Parameters
     ----------
     fields : mapping
-        Unknown name -> ``FieldModes`` or ``FieldTT`` (duck-typed: ``alphas``/``modes`` or
-        ``cores``/``mode_order``).
+        Unknown name -> ``CPTensor`` or ``TT``.
     bases : sequence of Basis1D, one per coordinate
     flat : sequence of ndarray, each shape (P,)
         The points' values per coordinate.
@@ -118,17 +115,17 @@ def gradient_points(fields, bases, flat, wrt: Sequence[int], selected: Sequence[
     out = {}
     for u in selected:
         fm = fields[u]
-        if isinstance(fm, FieldTT):
+        if isinstance(fm, TT):
             out[u] = [contract_tt(fm, _swap(mats, j, dmats[j])) for j in wrt]
         else:
-            vs = [m @ modes for m, modes in zip(mats, fm.modes)]  # (P, rank)
+            vs = [m @ modes for m, modes in zip(mats, fm.factors)]  # (P, rank)
             out[u] = []
             for j in wrt:
-                prod = dmats[j] @ fm.modes[j]
+                prod = dmats[j] @ fm.factors[j]
                 for k, v in enumerate(vs):
                     if k != j:
                         prod = prod * v
-                out[u].append(prod @ fm.alphas)
+                out[u].append(prod @ fm.weights)
     return out
 
 
@@ -161,7 +158,7 @@ def gradient_grid(fields, bases, axes, wrt: Sequence[int], selected: Sequence[st
     out = {}
     for u in selected:
         fm = fields[u]
-        grid = grid_tt if isinstance(fm, FieldTT) else grid_cp
+        grid = grid_tt if isinstance(fm, TT) else grid_cp
         out[u] = [grid(fm, m) for m in variants]
     return out
 
@@ -191,14 +188,14 @@ class TrajectoryModel:
         self.fields = [codebook.fields[u] for u in fields]
         rows = self.bases[self.axis].interpolation_matrix(np.asarray(values, dtype=float))
         # per unknown: the axis's modes (P, R) or its core contracted with the rows (P, r0, r1)
-        self.axis_blocks = [rows @ fm.modes[self.axis] if not isinstance(fm, FieldTT) else
+        self.axis_blocks = [rows @ fm.factors[self.axis] if not isinstance(fm, TT) else
                             np.tensordot(rows, fm.cores[list(fm.mode_order).index(self.axis)], axes=(1, 1))
                             for fm in self.fields]
         # tensor trains: each other core as (nodes, r0 * r1) (left of the axis) or (nodes, r1 * r0)
         # (right of it, transposed), so that weights times it is one matrix-vector product
         self.unfolded = []
         for fm in self.fields:
-            if not isinstance(fm, FieldTT):
+            if not isinstance(fm, TT):
                 self.unfolded.append(None)
                 continue
             k = list(fm.mode_order).index(self.axis)
@@ -231,8 +228,8 @@ class TrajectoryModel:
                          for fm, blk, unf in zip(self.fields, self.axis_blocks, self.unfolded)])
 
     def _cp(self, fm, block, weights, dweights, wrt) -> np.ndarray:
-        v = {j: w @ fm.modes[j] for j, w in weights.items()}
-        cols = [fm.alphas.copy()] + [fm.alphas * (dweights[j] @ fm.modes[j]) for j in wrt]
+        v = {j: w @ fm.factors[j] for j, w in weights.items()}
+        cols = [fm.weights.copy()] + [fm.weights * (dweights[j] @ fm.factors[j]) for j in wrt]
         for j, vj in v.items():
             for i, col in enumerate(cols):
                 if i == 0 or wrt[i - 1] != j:

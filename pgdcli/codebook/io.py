@@ -16,7 +16,7 @@ from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError
 from ..limits import MAX_COORDINATES, MAX_UNKNOWNS, limit
 from ..names import identifier_problem, printable, problem_name_problem
-from .fields import FieldModes, FieldTT
+from .fields import TT, cp_field, tt_field
 from .file_checks import (ARRAY_DIGESTS, CONTENT_DIGEST, Survey, array_digest, metadata_digest, open_codebook,
                           read_array, read_text, survey)
 
@@ -137,7 +137,7 @@ def write_contents(cb, f) -> None:
     gu = f.create_group("unknowns")
     for u, fm in cb.fields.items():
         g = gu.create_group(u)
-        if isinstance(fm, FieldTT):
+        if isinstance(fm, TT):
             g.attrs["representation"] = "tensor-train"
             g.attrs["mode-order"] = np.array([cb.coordinates[j].name for j in fm.mode_order], dtype=object)
             gc = g.create_group("cores")
@@ -145,9 +145,9 @@ def write_contents(cb, f) -> None:
                 _array(gc, cb.coordinates[j].name, core, digests)
             continue
         g.attrs["representation"] = "cp"
-        _array(g, "alphas", fm.alphas, digests)
+        _array(g, "alphas", fm.weights, digests)
         gm = g.create_group("modes")
-        for c, m in zip(cb.coordinates, fm.modes):
+        for c, m in zip(cb.coordinates, fm.factors):
             _array(gm, c.name, m, digests)
     gr = f.create_group("report")
     for key, value in cb.report.items():
@@ -327,7 +327,7 @@ def _field(found: Survey, u: str, coords: list, digests: dict | None):
     alphas = read_array(found, f"{where}/alphas", (rank,), digests=digests)
     modes = tuple(read_array(found, f"{where}/modes/{c}", (n.nodes, rank), digests=digests)
                   for c, n in zip(names, coords))
-    return FieldModes(alphas, modes), 8 * rank * (1 + sum(c.nodes for c in coords))
+    return cp_field(u, alphas, modes), 8 * rank * (1 + sum(c.nodes for c in coords))
 
 
 def _tensor_train(found: Survey, u: str, coords: list, digests: dict | None):
@@ -352,7 +352,7 @@ def _tensor_train(found: Survey, u: str, coords: list, digests: dict | None):
         shapes.append(shape)
         left = shape[2]
     cores = tuple(read_array(found, f"{where}/cores/{c}", shape, digests=digests) for c, shape in zip(order, shapes))
-    return FieldTT(cores, tuple(names.index(c) for c in order)), sum(8 * int(np.prod(s)) for s in shapes)
+    return tt_field(u, cores, [names.index(c) for c in order]), sum(8 * int(np.prod(s)) for s in shapes)
 
 
 def _report(found: Survey, digests: dict | None, *, arrays: bool) -> dict:

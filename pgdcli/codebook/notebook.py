@@ -18,7 +18,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import PgdError
-from .fields import FieldTT
+from .fields import TT
 
 __all__ = ["to_xarray", "summary_html"]
 
@@ -73,7 +73,7 @@ def summary_html(cb) -> str:
         f"<tr><td>{e(c.name)}</td><td>{e(c.role)}</td><td>[{_number(c.domain[0], 6)}, {_number(c.domain[1], 6)}]</td>"
         f"<td>{int(c.nodes)}</td><td>{e(c.discretization)}</td></tr>" for c in cb.coordinates)
     unknowns = ", ".join(
-        f"{e(u)} (tensor train, ranks {'-'.join(map(str, fm.ranks))})" if isinstance(fm, FieldTT) else
+        f"{e(u)} (tensor train, ranks {'-'.join(map(str, fm.ranks))})" if isinstance(fm, TT) else
         f"{e(u)} ({fm.rank} modes)" for u, fm in cb.fields.items())
     tolerance, error = _number(report.get("tolerance")), _number(report.get("check_error"))
     if cb.accurate is True:

@@ -16,17 +16,12 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..pages import huge_page_array
-from .fields import FieldTT
+from ..tuning import HUGE_PAGES_ABOVE, PAIR_MAX, ROW_FIRST_MAX
+from .fields import TT
 from .point_weights import PointData, PointWeights
 
 __all__ = ["TTStack"]
 
-# One-point tensor trains: cores with up to this many values per node (all unknowns) go through
-# their node table (see TTStack); the gemv's output then fits the first-level cache (32 KiB).
-ROW_FIRST_MAX = 4096
-PAIR_MAX = 1 << 20  # values in the merged table of the first two cores (8 MiB)
-# Tables of more bytes than this lie in one mapping in huge pages (see _Arena).
-HUGE_PAGES_ABOVE = 1 << 20
 _add_reduce, _dot, _matmul = np.add.reduce, np.dot, np.matmul
 
 
@@ -244,11 +239,11 @@ class TTStack:
         Parameters
         ----------
         fields : mapping
-            Unknown name -> field (only the ``FieldTT`` ones are stacked).
+            Unknown name -> field (only the tensor trains are stacked).
         points : sequence of PointData
             Per coordinate (codebook order).
         """
-        tts = {u: f for u, f in fields.items() if isinstance(f, FieldTT)}
+        tts = {u: f for u, f in fields.items() if isinstance(f, TT)}
         if not tts:
             return None
         order = next(iter(tts.values())).mode_order

@@ -21,11 +21,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..blas import one_blas_thread
 from ..errors import QueryError
 from .densities import Density, parse_density, quadrature
 from .evaluate import shared_basis
-from .fields import FieldTT
-from .threads import BLAS_LIMIT_MIN_POINTS, one_blas_thread
+from .fields import TT
 from .sobol import Patterns, cp_patterns, cp_terms, tt_patterns, tt_terms
 
 __all__ = ["SensitivityResult", "sensitivity", "DEFAULT_TIMES", "ROUNDING_STD"]
@@ -165,10 +165,10 @@ def _rms(fm, random: dict, rows: dict, time_nodes, cache: dict) -> float:
     inputs = dict(random)
     if time_nodes is not None:
         inputs[len(inputs)] = time_nodes
-    if isinstance(fm, FieldTT):
+    if isinstance(fm, TT):
         value, _ = tt_patterns(fm, inputs, rows, None, cache)
     else:
-        value, _ = cp_patterns(fm.alphas, fm.modes, inputs, rows, None, cache)
+        value, _ = cp_patterns(fm.weights, fm.factors, inputs, rows, None, cache)
     return float(np.sqrt(max(float(value("P" * len(inputs))[0]), 0.0)))
 
 
@@ -176,10 +176,10 @@ def _unknown(fm, u: str, random: dict, rows: dict, batch, patterns: Patterns, ti
              out: dict) -> None:
     """One unknown's terms, divided by its variance, into ``out``."""
     cache: dict = {}  # the inputs' kernels, shared by the terms and the scale
-    if isinstance(fm, FieldTT):
+    if isinstance(fm, TT):
         terms = tt_terms(fm, random, rows, batch, patterns, cache)
     else:
-        terms = cp_terms(fm.alphas, fm.modes, random, rows, batch, patterns, cache)
+        terms = cp_terms(fm.weights, fm.factors, random, rows, batch, patterns, cache)
     # sums of nonnegative quadratic forms: a negative value is rounding of a zero
     variance = np.maximum(terms["variance"], 0.0)
     rms = _rms(fm, random, rows, time_nodes, cache)
@@ -244,7 +244,7 @@ def sensitivity(cb, *, times=None, at: Mapping[str, float] | None = None,
     # time at its nodes (rows None: the identity), weighted by the basis's quadrature: for the scale only
     time_nodes = None if tc is None else (index[tc.name], None, bases[tc.name].weights / bases[tc.name].weights.sum())
     out = {"mean": {}, "variance": {}, "first": {}, "total": {}, "second": {} if second_order else None}
-    with one_blas_thread(BLAS_LIMIT_MIN_POINTS):  # small products: a second BLAS thread only costs (10-40x)
+    with one_blas_thread():  # small products: a second BLAS thread only costs (benchmarks/sensitivity_speed.py)
         for u in selected:
             _unknown(cb.fields[u], u, random, rows, batch, patterns, time_nodes, second_order, out)
     return SensitivityResult(inputs=[c.name for c in inputs], time=None if tc is None else tc.name, times=times_,

@@ -7,7 +7,7 @@ contracted from both of its ends toward the series coordinate's core once per pa
 into a left row ``L`` (S, r0) and a right column ``R`` (S, r1); the series core ``G`` (r0, n, r1)
 then gives each point's nodal values ``Z[s, :] = L[s] G[:, :, :] R[s]`` (S, n), and one matrix
 product with the cardinal rows ``W`` (T, n) of the series values gives all ``S x T`` values. A
-CP field: the product over the other coordinates of the interpolated modes times the alphas
+CP field: the product over the other coordinates of the interpolated modes times the weights
 (S, rank), times the interpolated modes of the series coordinate (T, rank) transposed.
 
 Per point of the series that is ``n`` multiply-adds (and the cores once per parameter point),
@@ -23,29 +23,29 @@ from typing import Sequence
 
 import numpy as np
 
-from .fields import FieldTT
-from .threads import one_blas_thread
+from .fields import TT
+from .threads import batch_blas
 
 __all__ = ["evaluate_series", "series_tt", "series_cp"]
 
 
 def evaluate_series(fields, mats: list, series: int, rows: np.ndarray, selected: Sequence[str]) -> dict:
     """The ``selected`` unknowns of ``fields`` at parameter points times series values, each (S, T),
-    under the batches' BLAS policy (:func:`~pgdcli.codebook.threads.one_blas_thread`: threaded BLAS
+    under the batches' BLAS policy (:func:`~pgdcli.codebook.threads.batch_blas`: threaded BLAS
     makes these small products many times slower on a loaded machine). ``mats``, ``series`` and
     ``rows`` as in :func:`series_tt`."""
     points = next((m.shape[0] for j, m in enumerate(mats) if j != series), 1)
-    with one_blas_thread(points * rows.shape[0]):
-        return {u: series_tt(fields[u], mats, series, rows) if isinstance(fields[u], FieldTT) else
-                series_cp(fields[u].alphas, fields[u].modes, mats, series, rows) for u in selected}
+    with batch_blas(points * rows.shape[0]):
+        return {u: series_tt(fields[u], mats, series, rows) if isinstance(fields[u], TT) else
+                series_cp(fields[u].weights, fields[u].factors, mats, series, rows) for u in selected}
 
 
-def series_tt(fm: FieldTT, mats: list, series: int, rows: np.ndarray) -> np.ndarray:
+def series_tt(fm: TT, mats: list, series: int, rows: np.ndarray) -> np.ndarray:
     """Tensor train at parameter points times series values: shape (S, T).
 
     Parameters
     ----------
-    fm : FieldTT
+    fm : TT
     mats : list
         Per coordinate (codebook order), the parameter points' cardinal rows (S, nodes_j);
         the entry of the series coordinate is not read.
@@ -84,14 +84,14 @@ def series_tt(fm: FieldTT, mats: list, series: int, rows: np.ndarray) -> np.ndar
     return nodal @ rows.T
 
 
-def series_cp(alphas: np.ndarray, modes: Sequence[np.ndarray], mats: list, series: int,
+def series_cp(weights: np.ndarray, modes: Sequence[np.ndarray], mats: list, series: int,
               rows: np.ndarray) -> np.ndarray:
-    """CP field ``sum_r alphas_r prod_j modes_j[:, r]`` at parameter points times series values: (S, T).
+    """CP field ``sum_r weights_r prod_j modes_j[:, r]`` at parameter points times series values: (S, T).
 
     ``mats``, ``series`` and ``rows`` as in :func:`series_tt`.
     """
     points = next((m.shape[0] for j, m in enumerate(mats) if j != series), 1)
-    product = np.broadcast_to(alphas, (points, alphas.size)).copy()
+    product = np.broadcast_to(weights, (points, weights.size)).copy()
     for j, (m, v) in enumerate(zip(mats, modes)):
         if j != series:
             product *= m @ v  # (S, rank)

@@ -32,7 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .fields import FieldTT
+from .fields import TT
 
 __all__ = ["Patterns", "cp_terms", "tt_terms", "cp_patterns", "tt_patterns"]
 
@@ -195,14 +195,14 @@ class _Core:
         return mean + cov if letter == "P" else cov
 
 
-def tt_terms(fm: FieldTT, random: dict, rows: dict, batch: tuple | None, patterns: Patterns,
+def tt_terms(fm: TT, random: dict, rows: dict, batch: tuple | None, patterns: Patterns,
              cache: dict | None = None) -> dict:
     """ANOVA terms of a tensor-train field (arguments and result as :func:`cp_terms`)."""
     value, mean = tt_patterns(fm, random, rows, batch, cache)
     return _results(patterns, value, mean)
 
 
-def tt_patterns(fm: FieldTT, random: dict, rows: dict, batch: tuple | None, cache: dict | None = None):
+def tt_patterns(fm: TT, random: dict, rows: dict, batch: tuple | None, cache: dict | None = None):
     """:func:`cp_patterns` of a tensor-train field."""
     cache = {} if cache is None else cache
     slot = {j: i for i, (j, _, _) in random.items()}  # coordinate -> input index

@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from .fields import FieldTT
+from .fields import TT
 from .io import FORMAT_NAME, FORMAT_VERSION
 
 __all__ = ["accurate", "coordinate_ratios", "integrity", "nodes_chosen", "summary"]
@@ -47,9 +47,9 @@ def nodes_chosen(report, coordinate_names) -> dict | None:
 
 def field_summary(fm) -> dict:
     """Representation, modes (or ranks) and stored floats of one field."""
-    if isinstance(fm, FieldTT):
+    if isinstance(fm, TT):
         return {"representation": "tensor-train", "modes": fm.rank, "ranks": list(fm.ranks), "floats": fm.size}
-    return {"representation": "cp", "modes": fm.rank, "floats": int(fm.alphas.size + sum(m.size for m in fm.modes))}
+    return {"representation": "cp", "modes": fm.rank, "floats": int(fm.weights.size + sum(m.size for m in fm.factors))}
 
 
 def summary(cb, path: str | os.PathLike | None = None) -> dict:

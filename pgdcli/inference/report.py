@@ -1,39 +1,11 @@
-"""What ``pgd fit`` prints and draws: the estimate, the fitted curve, a summary line, a figure."""
+"""What ``pgd fit`` tells and draws besides its output: a summary line, a figure (the output formats are
+:mod:`pgdcli.cli.fit_command`'s)."""
 
 from __future__ import annotations
 
-import csv
-import json
 import numpy as np
 
-__all__ = ["write_result", "summary", "plot_fit"]
-
-
-def write_result(stream, result, fmt: str) -> None:
-    """Write a :class:`~pgdcli.inference.fitting.FitResult` to ``stream``.
-
-    ``plain``: one line per free coordinate, ``name estimate stderr`` (full precision);
-    ``csv``: the fitted curve, one row per data row: the data's coordinate columns, then for
-    every unknown its fitted value and, when observed, ``<u>_data``; ``json``: :meth:`FitResult.to_dict`.
-    """
-    if fmt == "json":
-        stream.write(json.dumps(result.to_dict(), indent=2) + "\n")
-        return
-    if fmt == "plain":
-        for name, value in result.estimate.items():
-            stream.write(f"{name} {value!r} {result.stderr[name]!r}\n")
-        return
-    columns, values = [], []
-    for name, col in result.fitted.items():
-        columns.append(name)
-        values.append(col)
-        if name in result.data:
-            columns.append(f"{name}_data")
-            values.append(result.data[name])
-    writer = csv.writer(stream, lineterminator="\n")
-    writer.writerow(columns)
-    for row in zip(*values):
-        writer.writerow([repr(float(v)) for v in row])
+__all__ = ["summary", "plot_fit"]
 
 
 def summary(result) -> str:

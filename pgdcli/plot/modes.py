@@ -18,8 +18,8 @@ __all__ = ["modes_data", "tt_hosvd_modes", "convergence_data"]
 def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *, points: int | None = None) -> dict:
     """The first ``count`` modes of ``field`` per coordinate, on a fine grid.
 
-    A CP unknown (:class:`~pgdcli.codebook.codebook.FieldModes`) shows its stored modes.
-    A tensor-train unknown (:class:`~pgdcli.codebook.codebook.FieldTT`, the time march's
+    A CP unknown (:class:`~pgdcli.tensors.cp.CPTensor`) shows its stored modes.
+    A tensor-train unknown (:class:`~pgdcli.tensors.tt.TT`, the time march's
     codebooks) has no per-coordinate modes of its own; it shows its HOSVD modes:
     for coordinate ``j``, the leading left singular vectors of the tensor's
     mode-``j`` unfolding (nodes of ``j`` x nodes of all other coordinates),
@@ -48,20 +48,20 @@ def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *
         above ``max(unfolding shape) * eps * sigma_1``, numpy's ``matrix_rank``) and
         ``singular_values`` (all min(n, r_{k-1} r_k) of them, decreasing).
     """
-    from ..codebook.codebook import FieldTT
+    from ..tensors.tt import TT
 
     name = field_name(codebook, field)
     if int(count) != count or count < 1:
         raise QueryError(f"--count: expected an integer >= 1, got {count}")
     npts = count_points(points, LINE_POINTS)
     fm = codebook.fields[name]
-    tt = isinstance(fm, FieldTT)
+    tt = isinstance(fm, TT)
     if tt:
         hosvd = tt_hosvd_modes(fm)
         per_coordinate = [hosvd[j] for j in range(len(codebook.coordinates))]
     else:
         n = min(int(count), fm.rank)
-        per_coordinate = [(m[:, :n], None) for m in fm.modes]
+        per_coordinate = [(m[:, :n], None) for m in fm.factors]
     panels = []
     grid = [c.nodes for c in codebook.coordinates]
     for j, (c, (m, sigma)) in enumerate(zip(codebook.coordinates, per_coordinate)):
@@ -82,7 +82,7 @@ def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *
         out.update(representation="tensor-train", count=max(p["count"] for p in panels), rank=fm.rank,
                    ranks=fm.ranks, alphas=None)
     else:
-        out.update(representation="cp", count=n, rank=fm.rank, alphas=np.array(fm.alphas[:n]))
+        out.update(representation="cp", count=n, rank=fm.rank, alphas=np.array(fm.weights[:n]))
     return out
 
 

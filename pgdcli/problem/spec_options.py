@@ -17,12 +17,15 @@ from .checker import Checker, show_value
 from .model import SolverOptions
 from .spec_coordinates import MAX_NODES
 
-__all__ = ["FORMULATIONS", "METHODS", "MARCHES", "default_name", "parse_problem_name", "parse_description", "parse_solver",
+__all__ = ["FORMULATIONS", "METHODS", "MARCHES", "INTEGRATORS", "default_name", "parse_problem_name", "parse_description", "parse_solver",
            "parse_output"]
 
 FORMULATIONS = ("minres", "galerkin")
 METHODS = ("auto", "pgd", "amen", "march")
 MARCHES = ("auto", "grid", "cross", "train")
+#: The names of the time march's steppers (``pgdcli.algorithms.steppers.METHODS``, a layer this one
+#: does not import; a test keeps them equal).
+INTEGRATORS = ("dop853", "bs32")
 
 
 def default_name(source: str, name: str | None) -> str:
@@ -86,6 +89,8 @@ def parse_solver(check: Checker, value: Any) -> SolverOptions:
         options["method"] = check.choice(section["method"], "solver.method", METHODS)
     if "march" in section:
         options["march"] = check.choice(section["march"], "solver.march", MARCHES)
+    if "integrator" in section:
+        options["integrator"] = check.choice(section["integrator"], "solver.integrator", INTEGRATORS)
     if "time_slabs" in section:
         value = section["time_slabs"]
         if value == "auto":

@@ -100,7 +100,7 @@ def tt_point_function(train: TT):
     The modes whose slices are the same at every node (a coefficient free of that coordinate) are
     multiplied together once, here; when the other modes span at most :data:`TABLE_LIMIT` nodes, the
     train's entries over them are tabulated once and each call is one gather (a coefficient of one to
-    three coordinates: ~4x faster than contracting the cores at every call).
+    three coordinates: much cheaper than contracting the cores at every call).
     """
     steps, pending = [], np.ones((1, 1))
     for k, core in enumerate(train.cores):

@@ -39,6 +39,7 @@ import numpy as np
 from scipy.linalg import qr
 
 from ..pages import small_page_array
+from ..tuning import BATCH_FLOATS, MEMO_FLOATS, SMALL_PAGES_ABOVE
 from .cross import maxvol
 from .tt import TT
 from .tt_svd import truncation_rank
@@ -52,14 +53,10 @@ TRUNCATION_SHARE = 0.01
 STALLED = 0.5
 #: Random columns added to every fibre matrix's basis (the kick), beside the growth of a full one.
 KICK = 4
-#: Values (points x vector length) asked of the function in one call: 16 MB, below glibc's largest
-#: mmap threshold (32 MB), so the arrays of successive calls reuse memory instead of faulting in pages.
-BATCH_FLOATS = 2 ** 21
-#: Values of evaluated vectors kept to answer a multi-index asked again (1 GiB): the sweeps ask for many
-#: fibres again (the index sets settle), and a later half sweep's check points may have been fibres.
-MEMO_FLOATS = 2 ** 27
-#: A memo of more values than this is kept in small pages (see ``_fresh_array``): 128 MB.
-SMALL_PAGES_ABOVE = 2 ** 24
+# BATCH_FLOATS: values (points x vector length) asked of the function in one call; MEMO_FLOATS:
+# values of evaluated vectors kept to answer a multi-index asked again (the sweeps ask for many
+# fibres again as the index sets settle, and a later half sweep's check points may have been
+# fibres); a memo of more than SMALL_PAGES_ABOVE values is kept in small pages (``_fresh_array``).
 
 
 @dataclass
@@ -356,8 +353,8 @@ class _Memo:
     """The vectors of the multi-indices evaluated so far: column ``columns[j]`` of ``values`` is the
     vector of the multi-index of linear index ``keys[j]`` (keys sorted).
 
-    Vectors are columns, as the function returns them: stored without a transposed copy (as rows,
-    coupled.yaml's cross took 121 ms against 100 ms).
+    Vectors are columns, as the function returns them: stored without a transposed copy, which a
+    row layout would need at every sweep.
     """
 
     def __init__(self, shape: tuple, capacity: int, outputs: int):

@@ -27,6 +27,16 @@ __all__ = ["TT", "tt_round", "tt_round_shared", "tt_round_many", "tt_sum", "tt_h
            "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate", "is_ones"]
 
 
+_IDENTITY: dict[int, tuple[int, ...]] = {}
+
+
+def _identity(d: int) -> tuple[int, ...]:
+    order = _IDENTITY.get(d)
+    if order is None:
+        order = _IDENTITY.setdefault(d, tuple(range(d)))
+    return order
+
+
 @dataclass(frozen=True, eq=False)
 class TT:
     """A tensor train.
@@ -35,11 +45,16 @@ class TT:
     ----------
     cores : sequence of ndarray
         ``cores[k]`` has shape ``(r_{k-1}, n_k, r_k)`` with ``r_0 = r_d = 1``.
+    mode_order : sequence of int, optional
+        The mode (coordinate) of each core, a permutation of ``range(d)``; default: core ``k``
+        is mode ``k``. A codebook's train keeps its time coordinate's core first whatever the
+        coordinates' order; :attr:`shape`, :meth:`full` and :meth:`evaluate` are in mode order.
     """
 
     cores: tuple[np.ndarray, ...]
+    mode_order: tuple[int, ...]
 
-    def __init__(self, cores: Sequence[np.ndarray]):
+    def __init__(self, cores: Sequence[np.ndarray], mode_order: Sequence[int] | None = None):
         cs = tuple(np.asarray(c, dtype=float) for c in cores)
         if not cs:
             raise ValueError("a tensor train needs at least one core")
@@ -50,7 +65,15 @@ class TT:
                 raise ValueError(f"core {k} has left rank {c.shape[0]}, core {k - 1} right rank {cs[k - 1].shape[2]}")
         if cs[0].shape[0] != 1 or cs[-1].shape[2] != 1:
             raise ValueError("the first core's left rank and the last core's right rank must be 1")
+        if mode_order is None:
+            order = _identity(len(cs))
+        else:
+            order = tuple(int(j) for j in mode_order)
+            if sorted(order) != list(range(len(cs))):
+                raise ValueError(f"mode order {list(order)} is not a permutation of the {len(cs)} cores' modes "
+                                 f"0..{len(cs) - 1}")
         object.__setattr__(self, "cores", cs)
+        object.__setattr__(self, "mode_order", order)
 
     @property
     def order(self) -> int:
@@ -58,7 +81,11 @@ class TT:
 
     @property
     def shape(self) -> tuple[int, ...]:
-        return tuple(c.shape[1] for c in self.cores)
+        """Nodes per mode, in mode order (``shape[mode_order[k]]`` is core ``k``'s middle size)."""
+        out = [0] * len(self.cores)
+        for c, j in zip(self.cores, self.mode_order):
+            out[j] = c.shape[1]
+        return tuple(out)
 
     @property
     def ranks(self) -> tuple[int, ...]:
@@ -66,31 +93,50 @@ class TT:
         return tuple(c.shape[2] for c in self.cores[:-1])
 
     @property
+    def rank(self) -> int:
+        """Largest inner rank (1 for one core): what a codebook reports as the train's modes."""
+        return int(max(self.ranks, default=1))
+
+    @property
     def size(self) -> int:
         """Number of stored floats."""
         return int(sum(c.size for c in self.cores))
 
     def full(self) -> np.ndarray:
-        """The full tensor (small tensors only)."""
+        """The full tensor in mode order (small tensors only: tests, plots)."""
         out = self.cores[0][0]
         for c in self.cores[1:]:
             out = np.tensordot(out, c, axes=(-1, 0))
-        return out[..., 0]
+        out = out[..., 0]
+        if self.mode_order == _identity(len(self.cores)):
+            return out
+        return np.transpose(out, np.argsort(self.mode_order))
 
     def evaluate(self, matrices: Sequence[np.ndarray]) -> np.ndarray:
-        """Contract with one interpolation matrix per mode, point by point.
+        """Contract every mode with a matrix of rows, point by point: the reference contraction.
+
+        ``v_p = prod_k sum_i M_{j_k}[p, i] G_k[:, i, :]`` with ``j_k = mode_order[k]``. With the
+        cardinal (interpolation) rows of points it gives the train's values there, with derivative
+        rows in one mode's place a derivative. Simple rather than fast; the codebook's evaluation
+        paths are tested against it.
 
         Parameters
         ----------
-        matrices : sequence of ndarray, each shape (P, n_k)
+        matrices : sequence of ndarray, each shape (P, n_j)
+            One per mode, in mode order.
 
         Returns
         -------
         ndarray, shape (P,)
         """
+        if len(matrices) != self.order:
+            raise ValueError(f"{len(matrices)} row matrices for a tensor train of order {self.order}")
         v = None
-        for c, m in zip(self.cores, matrices):
-            s = np.einsum("pi,aib->pab", m, c)  # (P, r_{k-1}, r_k)
+        for c, j in zip(self.cores, self.mode_order):
+            m = matrices[j]
+            if np.shape(m)[1:] != (c.shape[1],):
+                raise ValueError(f"row matrix {j} has shape {np.shape(m)}, expected (P, {c.shape[1]})")
+            s = np.einsum("pi,aib->pab", m, c)  # (P, r_{k-1}, r_k): each point's core slice
             v = s[:, 0, :] if v is None else np.einsum("pa,pab->pb", v, s)
         return v[:, 0]
 
@@ -107,7 +153,7 @@ class TT:
     def scaled(self, s: float) -> "TT":
         cores = list(self.cores)
         cores[0] = cores[0] * s
-        return TT(cores)
+        return TT(cores, self.mode_order)
 
     def norm(self) -> float:
         """Frobenius norm via orthogonalization (accurate to rounding, no Gram cancellation)."""
@@ -129,6 +175,15 @@ def tt_rank_one(vectors: Sequence[np.ndarray], weight: float = 1.0) -> TT:
     return TT(cores)
 
 
+def _common_order(trains: Sequence[TT]) -> tuple[int, ...]:
+    """The mode order of every train (ValueError naming the first train with another)."""
+    order = trains[0].mode_order
+    for i, t in enumerate(trains):
+        if t.mode_order != order:
+            raise ValueError(f"train {i} has mode order {list(t.mode_order)}, train 0 {list(order)}")
+    return order
+
+
 def tt_sum(terms: Sequence[TT], weights: Sequence[float] | None = None) -> TT:
     """``sum_i w_i X_i`` with block cores (ranks add; round afterwards)."""
     terms = list(terms)
@@ -136,6 +191,7 @@ def tt_sum(terms: Sequence[TT], weights: Sequence[float] | None = None) -> TT:
         weights = [1.0] * len(terms)
     if len(terms) == 1:
         return terms[0].scaled(weights[0])
+    order = _common_order(terms)
     d = terms[0].order
     cores = []
     for k in range(d):
@@ -157,17 +213,18 @@ def tt_sum(terms: Sequence[TT], weights: Sequence[float] | None = None) -> TT:
                 a += ra
                 b += rb
             cores.append(c)
-    return TT(cores)
+    return TT(cores, order)
 
 
 def tt_hadamard(x: TT, y: TT) -> TT:
     """Elementwise product (ranks multiply; round afterwards)."""
+    order = _common_order([x, y])
     cores = []
     for a, b in zip(x.cores, y.cores):
         ra, n, rb = a.shape
         sa, _, sb = b.shape
         cores.append((a[:, None, :, :, None] * b[None, :, :, None, :]).reshape(ra * sa, n, rb * sb))
-    return TT(cores)
+    return TT(cores, order)
 
 
 def _orthogonalize_left(cores: list[np.ndarray]) -> list[np.ndarray]:
@@ -203,23 +260,24 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
     shares of ``delta`` chosen to keep the fewest values
     (:func:`pgdcli.tensors.tt_allocate.truncate_allocated`; no ``max_rank``).
     """
-    d = x.order
+    d, order = x.order, x.mode_order
     cores = list(x.cores)
     if d == 1:
-        return TT(cores)
+        return TT(cores, order)
     cores = _orthogonalize_right(cores)
     norm = np.linalg.norm(cores[0])
     if norm == 0.0:
-        return TT([np.zeros((1, c.shape[1], 1)) for c in cores])
+        return TT([np.zeros((1, c.shape[1], 1)) for c in cores], order)
     delta = tolerance * norm if absolute is None else absolute
     if allocate:
         if max_rank is not None:
             raise ValueError("tt_round: allocate does not take a max_rank")
-        return TT(truncate_allocated(cores, delta))
-    return _truncate(cores, delta / np.sqrt(d - 1), max_rank)
+        return TT(truncate_allocated(cores, delta), order)
+    return _truncate(cores, delta / np.sqrt(d - 1), max_rank, order)
 
 
-def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None) -> TT:
+def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None,
+              order: tuple[int, ...] | None = None) -> TT:
     """Left-to-right truncated SVDs of right-orthogonal cores 1..d-1, each dropping at most ``delta``."""
     for k in range(len(cores) - 1):
         r0, n, r1 = cores[k].shape
@@ -229,7 +287,7 @@ def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None) -> TT
             rank = min(rank, max_rank)
         cores[k] = u[:, :rank].reshape(r0, n, rank)
         cores[k + 1] = np.tensordot(s[:rank, None] * vt[:rank], cores[k + 1], axes=(1, 0))
-    return TT(cores)
+    return TT(cores, order)
 
 
 def tt_round_shared(firsts: Sequence[np.ndarray], shared: Sequence[np.ndarray], *, absolute: float,
@@ -312,6 +370,7 @@ def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None
     d = trains[0].order
     if d == 1:
         return [tt_round(t, absolute=absolute, max_rank=max_rank) for t in trains]
+    order = _common_order(trains)
     ranks = [1] + [max(t.cores[k].shape[2] for t in trains) for k in range(d - 1)] + [1]
     cores = [np.stack(cs) for cs in zip(*[_pad_to(list(t.cores), ranks) for t in trains])]  # (B, r0, n, r1)
     b = len(trains)
@@ -334,24 +393,24 @@ def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None
         _, _, nb, rb = cores[k + 1].shape
         sv = s[:, :rank, None] * vt[:, :rank]
         cores[k + 1] = (sv @ cores[k + 1].reshape(b, r1, nb * rb)).reshape(b, rank, nb, rb)
-    return [TT([c[i] for c in cores]) for i in range(b)]
+    return [TT([c[i] for c in cores], order) for i in range(b)]
 
 
 def tt_concatenate(trains: Sequence[TT]) -> TT:
-    """Concatenate trains along their first mode (ranks add; round afterwards).
+    """Concatenate trains along their first core's mode (ranks add; round afterwards).
 
     ``X[(m, i_1), i_2, ...] = trains[m][i_1, i_2, ...]``: block-row first core,
     block-diagonal inner cores, stacked last core.
     """
     trains = list(trains)
-    d = trains[0].order
+    d, order = trains[0].order, _common_order(trains)
     if d == 1:
-        return TT([np.concatenate([t.cores[0] for t in trains], axis=1)])
+        return TT([np.concatenate([t.cores[0] for t in trains], axis=1)], order)
     r1 = [t.cores[0].shape[2] for t in trains]
-    first = np.zeros((1, sum(t.shape[0] for t in trains), sum(r1)))
+    first = np.zeros((1, sum(t.cores[0].shape[1] for t in trains), sum(r1)))
     row = col = 0
     for t, r in zip(trains, r1):
-        n = t.shape[0]
+        n = t.cores[0].shape[1]
         first[0, row:row + n, col:col + r] = t.cores[0][0]
         row += n
         col += r
@@ -359,7 +418,7 @@ def tt_concatenate(trains: Sequence[TT]) -> TT:
     for k in range(1, d - 1):
         rl = [t.cores[k].shape[0] for t in trains]
         rr = [t.cores[k].shape[2] for t in trains]
-        c = np.zeros((sum(rl), trains[0].shape[k], sum(rr)))
+        c = np.zeros((sum(rl), trains[0].cores[k].shape[1], sum(rr)))
         a = b = 0
         for t, x, y in zip(trains, rl, rr):
             c[a:a + x, :, b:b + y] = t.cores[k]
@@ -367,7 +426,7 @@ def tt_concatenate(trains: Sequence[TT]) -> TT:
             b += y
         cores.append(c)
     cores.append(np.concatenate([t.cores[-1] for t in trains], axis=0))
-    return TT(cores)
+    return TT(cores, order)
 
 
 def tt_centre_cores(cores: Sequence[np.ndarray]) -> list[np.ndarray]:

@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .cp import separated_norm
+from .cp_sweep import separated_norm
 from .tt import TT, tt_round
 from .tt_svd import tt_from_cp
 

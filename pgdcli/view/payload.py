@@ -15,7 +15,6 @@ from typing import Mapping
 import numpy as np
 
 from ..codebook.export import layout
-from ..codebook.fields import FieldTT
 from ..errors import PgdError
 
 __all__ = ["ViewError", "PAGE_LIMIT", "payload", "numbers_size", "check_size", "data_columns"]
@@ -36,11 +35,7 @@ def numbers_size(cb) -> int:
     for c in cb.coordinates:
         slabs = max(len(c.breakpoints) - 1, 1)
         count += c.nodes + ((slabs + 1) + (c.nodes - 1) // slabs + 1 if c.discretization == "chebyshev" else 0)
-    for fm in cb.fields.values():
-        if isinstance(fm, FieldTT):
-            count += sum(core.size for core in fm.cores)
-        else:
-            count += fm.alphas.size + sum(m.size for m in fm.modes)
+    count += sum(fm.size for fm in cb.fields.values())
     return 8 * int(count)
 
 

@@ -17,6 +17,7 @@ import pgdcli
 from pgdcli import load_spec, parse_spec
 from pgdcli.errors import SpecError
 from pgdcli.algorithms import cross_march, grid_steps
+from pgdcli.algorithms.outcome import Learned
 from pgdcli.algorithms.march import compile_system
 
 # a forced Duffing oscillator with a stiffness, a damping, a forcing frequency and an initial position as
@@ -213,10 +214,10 @@ def test_a_cross_abandoned_in_one_solve_is_not_tried_again_in_the_next(monkeypat
     crosses = []
     real = march.march_by_cross
     monkeypatch.setattr(march, "march_by_cross", lambda *a, **k: crosses.append(1) or real(*a, **k))
-    learned: dict = {}
-    first = march.solve_march(problem, 1e-6, learned=learned)
+    first = march.solve_march(problem, 1e-6)
+    learned = Learned().after(first)
     assert first.converged and first.codebook.report["march"] == "grid" and len(crosses) == 1
-    assert "more than the budget of 0" in learned["cross_abandoned"]
+    assert "more than the budget of 0" in learned.cross_abandoned
     second = march.solve_march(problem, 1e-6, learned=learned)
     assert second.converged and second.codebook.report["march"] == "grid" and len(crosses) == 1
     assert second.codebook.report["cross_abandoned"].startswith("in an earlier solve of the automatic resolution")

@@ -21,7 +21,7 @@ from scipy.integrate import solve_ivp
 import pgdcli
 from pgdcli import load_spec, parse_spec
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, FieldTT
+from pgdcli.codebook.codebook import Codebook, TT
 from pgdcli.errors import SolverError
 from pgdcli.algorithms.march import WATCH_AGREE, compile_system
 
@@ -167,7 +167,7 @@ def test_linear_problem_forced_through_the_march(relaxation_march, record_proper
     cb = res.codebook
     assert res.converged, res.message
     assert cb.report["method"] == "march"
-    assert all(isinstance(f, FieldTT) for f in cb.fields.values())
+    assert all(isinstance(f, TT) for f in cb.fields.values())
     tol = cb.report["tolerance"]
     assert tol == 1e-9
     rng = np.random.default_rng(11)
@@ -238,7 +238,7 @@ def test_save_load_round_trip_is_bitwise(coupled, tmp_path):
     assert back.unknown_names == cb.unknown_names
     for u, fm in cb.fields.items():
         fb = back.fields[u]
-        assert isinstance(fb, FieldTT)
+        assert isinstance(fb, TT)
         assert tuple(fb.mode_order) == tuple(fm.mode_order)
         assert len(fb.cores) == len(fm.cores)
         for c0, c1 in zip(fm.cores, fb.cores):

@@ -17,10 +17,11 @@ from click.testing import CliRunner
 from conftest import PROBLEMS, spec_text, train_march
 
 import pgdcli
-from pgdcli import driver as solver, load_spec, parse_spec
+from pgdcli import load_spec, parse_spec
 from pgdcli.checks import check, sampling
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, FieldTT
+from pgdcli.codebook.codebook import Codebook, TT
+from pgdcli.driver.methods import MARCH_SAFETY
 
 
 def exact_logistic(t, r, u0):
@@ -114,7 +115,7 @@ def test_a_wrong_codebook_is_measured_wrong(solved):
     fm = cb.fields["u"]
     cores = list(fm.cores)
     cores[-1] = cores[-1] * (1.0 + 1e-4)  # the whole field 1e-4 too large
-    wrong = Codebook(cb.coordinates, {"u": FieldTT(tuple(cores), fm.mode_order)}, name="wrong")
+    wrong = Codebook(cb.coordinates, {"u": TT(tuple(cores), fm.mode_order)}, name="wrong")
     measured = check.check_codebook(problem, wrong)
     points, _ = sampling.check_sample(problem, cb)
     t = cb.coordinate("t").basis().nodes
@@ -159,7 +160,7 @@ def test_march_is_tightened_when_the_error_between_time_nodes_exceeds(monkeypatc
 
     calls, result = _logistic_with_first_check(monkeypatch, tamper)
     assert len(calls) == 2
-    assert calls[1] == pytest.approx(calls[0] * solver.MARCH_SAFETY / 2.0)
+    assert calls[1] == pytest.approx(calls[0] * MARCH_SAFETY / 2.0)
     assert result.codebook.report["check_error"] <= 1e-8 and not result.warnings
 
 
@@ -172,7 +173,7 @@ def test_march_is_tightened_until_the_check_passes(monkeypatch):
     calls, result = _logistic_with_first_check(monkeypatch, tamper)
     rep = result.codebook.report
     assert len(calls) == 2
-    assert calls[1] == pytest.approx(calls[0] * solver.MARCH_SAFETY / 4.0)
+    assert calls[1] == pytest.approx(calls[0] * MARCH_SAFETY / 4.0)
     assert rep["march_tolerance"] == pytest.approx(calls[1]) and rep["tolerance"] == 1e-8
     np.testing.assert_allclose(rep["march_attempts"][:, 0], calls)
     assert "rejected), 2 marches, max abs error" in result.message and rep["check_error"] <= 1e-8

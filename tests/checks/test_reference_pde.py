@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from conftest import spec_text
 import pgdcli
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor
 from pgdcli.errors import PgdError
 from pgdcli.checks.reference import (
     barycentric_matrix,
@@ -248,7 +248,7 @@ def rank_one_heat_codebook(kappa: float = 0.5) -> Codebook:
     coords = [CoordinateInfo("x", (0.0, 1.0), 40, role="space"), CoordinateInfo("t", (0.0, 0.5), 24, role="time")]
     x, t = (cheb_nodes(c) for c in coords)
     modes = (np.sin(PI * x)[:, None], np.exp(-kappa * PI**2 * t)[:, None])
-    return Codebook(coords, {"u": FieldModes(np.ones(1), modes)}, name="heat1d", spec_text=text)
+    return Codebook(coords, {"u": CPTensor(np.ones(1), modes)}, name="heat1d", spec_text=text)
 
 
 def run(*args):
@@ -275,9 +275,9 @@ def test_verify_rank_one_codebook_passes_and_perturbed_modes_fail(tmp_path):
     assert json.loads(ok.stdout)["passed"] is True
 
     x, t = cheb_nodes(cb.coordinate("x")), cheb_nodes(cb.coordinate("t"))
-    modes = [m.copy() for m in cb.fields["u"].modes]
+    modes = [m.copy() for m in cb.fields["u"].factors]
     modes[0][17, 0] *= 1.0 + 1e-5  # one nodal value of the x mode
-    bad = Codebook(cb.coordinates, {"u": FieldModes(np.ones(1), tuple(modes))}, name="heat1d",
+    bad = Codebook(cb.coordinates, {"u": CPTensor(np.ones(1), tuple(modes))}, name="heat1d",
                    spec_text=cb.spec_text)
     path = bad.save(tmp_path / "perturbed.h5")
     failed = run("verify", path, "--max-error", "1e-6", "-j", 1, "--format", "json", "-q")
@@ -296,7 +296,7 @@ def test_verify_samples_parameters_but_not_space(tmp_path):
     U, s, Vt = np.linalg.svd(np.exp(-PI**2 * np.outer(t, k)))
     r = int(np.sum(s > 1e-14 * s[0]))
     modes = (np.repeat(np.sin(PI * x)[:, None], r, axis=1), U[:, :r], Vt[:r].T)
-    cb = Codebook(coords, {"u": FieldModes(s[:r], modes)}, name="heat1d", spec_text=HEAT_1D)
+    cb = Codebook(coords, {"u": CPTensor(s[:r], modes)}, name="heat1d", spec_text=HEAT_1D)
     report = pgdcli.verify(cb, samples=16, times=4, space_points=3, jobs=1)
     assert report.passed(1e-6) and report.unknowns["u"].max_abs_error <= 1e-6
     assert set(report.samples) == {"kappa"} and report.n_points == 18  # 16 Sobol + 2 corners

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor
 from pgdcli.checks.resolution import resolution_tails
 
 COORDS = (CoordinateInfo("x", (0.0, 1.0), 9, "chebyshev", "space"),
@@ -26,15 +26,15 @@ def _full_tail(full: np.ndarray, axis: int, info) -> float:
     return float(max(np.sqrt(np.mean(coef[-2] ** 2)), np.sqrt(np.mean(coef[-1] ** 2))))
 
 
-def _full(field: FieldModes) -> np.ndarray:
-    return np.einsum("r,ir,jr,kr->ijk", field.alphas, *field.modes)
+def _full(field: CPTensor) -> np.ndarray:
+    return np.einsum("r,ir,jr,kr->ijk", field.weights, *field.factors)
 
 
 def test_tails_of_a_cp_codebook_match_the_full_tensor():
     x, k, c = (_nodes(i) for i in COORDS)
     modes = (np.column_stack([np.exp(x), np.sin(3 * x)]), np.column_stack([1 / k, k**2]),
              np.column_stack([np.ones_like(c), c]))
-    field = FieldModes(np.array([1.0, 0.5]), modes)
+    field = CPTensor(np.array([1.0, 0.5]), modes)
     tails = resolution_tails(Codebook(COORDS, {"u": field}))["u"]
     full = _full(field)
     for axis in (0, 1):
@@ -56,7 +56,7 @@ def test_a_small_tail_under_large_cancelling_terms_is_resolved():
     # lift and the modes; Gram products w G w lose it (measured: -6e-11, i.e. 0, for a true 3e-13)
     modes = (np.column_stack([spike, spike, spike, smooth]),
              np.column_stack([k, k - 1, np.ones_like(k), np.ones_like(k)]), np.column_stack([np.ones_like(c)] * 4))
-    field = FieldModes(np.array([1e3, -1e3, -1e3, 1.0]), modes)
+    field = CPTensor(np.array([1e3, -1e3, -1e3, 1.0]), modes)
     tails = resolution_tails(Codebook(COORDS, {"u": field}))["u"]
     expected = _full_tail(_full(field), 0, COORDS[0])
     assert 0 < expected < 1e-12
@@ -73,7 +73,7 @@ def test_chebyshev_decay_is_the_bernstein_ellipse_of_a_pole():
             CoordinateInfo("k", (1.0, 3.0), 7, "chebyshev", "parameter"),
             CoordinateInfo("c", (-1.0, 1.0), 3, "linear", "parameter"))
     x, k, c = (_nodes(i) for i in info)
-    field = FieldModes(np.array([1.0]), (np.column_stack([1 / (1 + (x - 0.3) ** 2)]),
+    field = CPTensor(np.array([1.0]), (np.column_stack([1 / (1 + (x - 0.3) ** 2)]),
                                          np.column_stack([k]), np.column_stack([1 + c])))
     decay = chebyshev_decay(Codebook(info, {"u": field}))
     z = 0.3 + 1j
@@ -88,5 +88,5 @@ def test_chebyshev_decay_skips_a_resolved_coordinate():
 
     info = (CoordinateInfo("x", (-1.0, 1.0), 17, "chebyshev", "parameter"),)
     x = _nodes(info[0])
-    field = FieldModes(np.array([1.0]), (np.column_stack([1 + x + x**3]),))
+    field = CPTensor(np.array([1.0]), (np.column_stack([1 + x + x**3]),))
     assert chebyshev_decay(Codebook(info, {"u": field})) == {}

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from conftest import reseal, spec_text
 import pgdcli
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor
 
 ROOT = Path(__file__).resolve().parents[2]
 PROBLEMS = ROOT / "problems"
@@ -274,7 +274,7 @@ def test_reference_failure_is_reported_and_fails(tmp_path):
     # codebook is built by hand (its modes do not matter, the failures are the point).
     coords = [CoordinateInfo("t", (0.0, 2.0), 4, "chebyshev", "time"),
               CoordinateInfo("u0", (0.2, 1.0), 2, "linear", "parameter")]
-    fields = {"u": FieldModes(np.ones(1), (np.ones((4, 1)), np.array([[0.2], [1.0]])))}
+    fields = {"u": CPTensor(np.ones(1), (np.ones((4, 1)), np.array([[0.2], [1.0]])))}
     path = Codebook(coords, fields, name="blowup", spec_text=BLOWUP).save(tmp_path / "blowup.h5")
     result = run("verify", path, "--samples", 6, "--times", 2, "-j", 1, "--format", "json")
     assert result.exit_code == 1
@@ -293,7 +293,7 @@ def test_reference_failure_is_reported_and_fails(tmp_path):
 
 def test_codebook_without_spec_is_invalid_input(tmp_path):
     coords = [CoordinateInfo("t", (0.0, 1.0), 3, "chebyshev", "time")]
-    path = Codebook(coords, {"u": FieldModes(np.ones(1), (np.ones((3, 1)),))}).save(tmp_path / "nospec.h5")
+    path = Codebook(coords, {"u": CPTensor(np.ones(1), (np.ones((3, 1)),))}).save(tmp_path / "nospec.h5")
     result = run("verify", path)
     assert result.exit_code == 2
     assert "no problem spec" in stderr_of(result)

@@ -379,7 +379,7 @@ def test_info_text_and_json(runner, codebook_path):
     assert [c["name"] for c in info["coordinates"]] == ["t", "k", "c"]
     cb = Codebook.load(path)
     assert info["unknowns"] == {
-        u: {"representation": "cp", "modes": fm.rank, "floats": fm.alphas.size + sum(m.size for m in fm.modes)}
+        u: {"representation": "cp", "modes": fm.rank, "floats": fm.weights.size + sum(m.size for m in fm.factors)}
         for u, fm in cb.fields.items()
     }
     assert info["size_bytes"] == path.stat().st_size

@@ -25,7 +25,7 @@ import pgdcli
 from pgdcli.cli import guard, solve_command
 from pgdcli.cli import stream
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, FieldModes
+from pgdcli.codebook.codebook import Codebook, CPTensor
 from pgdcli.errors import SpecError
 from pgdcli.problem.spec import MAX_SPEC_NODES, load_spec, parse_spec
 
@@ -361,9 +361,9 @@ def test_verify_pde_defaults_catch_a_perturbed_codebook(codebook_path, tmp_path)
     assert report.passed(1e-8), report.unknowns["u"].max_abs_error
     fm = cb.fields["u"]
     j = cb.coordinate_names.index("kappa")
-    modes = [m.copy() for m in fm.modes]
+    modes = [m.copy() for m in fm.factors]
     modes[j][modes[j].shape[0] // 2, 0] *= 1.0 + 1e-6  # one nodal value of one kappa mode
-    bad = Codebook(cb.coordinates, {"u": FieldModes(fm.alphas, tuple(modes))}, name=cb.name,
+    bad = Codebook(cb.coordinates, {"u": CPTensor(fm.weights, tuple(modes))}, name=cb.name,
                    spec_text=cb.spec_text, report=cb.report)
     report = pgdcli.verify(bad)
     assert not report.passed(1e-8) and report.unknowns["u"].max_abs_error > 1e-8
@@ -386,9 +386,9 @@ def test_verify_pde_defaults_visit_every_element_of_a_linear_parameter(tmp_path)
     fm = cb.fields["u"]
     j = cb.coordinate_names.index("a")
     assert pgdcli.verify(cb).passed(1e-6)
-    modes = [m.copy() for m in fm.modes]
+    modes = [m.copy() for m in fm.factors]
     modes[j][4] += 1e-5 * np.abs(modes[j]).max()  # node 4 of 9 (a = 1): elements 3 and 4 only
-    bad = Codebook(cb.coordinates, {"u": FieldModes(fm.alphas, tuple(modes))}, name=cb.name,
+    bad = Codebook(cb.coordinates, {"u": CPTensor(fm.weights, tuple(modes))}, name=cb.name,
                    spec_text=cb.spec_text, report=cb.report)
     report = pgdcli.verify(bad)
     assert report.n_points == 8 + 4 and not report.passed(1e-6)

@@ -33,7 +33,7 @@ import pgdcli.codebook.threads as threads_module
 from pgdcli.codebook import batch_eval
 from pgdcli.cli import query as _query
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor
 from pgdcli.errors import QueryError
 
 SPRING_CASES = [
@@ -296,12 +296,12 @@ def _plain_evaluation(cb, points):
     """The textbook algorithm on flat points: per coordinate interpolation_matrix @ modes, product, @ alphas."""
     product = None
     for c, basis in zip(cb.coordinates, cb._bases):
-        modes = np.hstack([cb.fields[u].modes[cb.coordinate_names.index(c.name)] for u in cb.fields])
+        modes = np.hstack([cb.fields[u].factors[cb.coordinate_names.index(c.name)] for u in cb.fields])
         vals = basis.interpolation_matrix(np.clip(points[c.name], *c.domain)) @ modes
         product = vals if product is None else product * vals
     out, start = {}, 0
     for u, fm in cb.fields.items():
-        out[u] = product[:, start:start + fm.rank] @ fm.alphas
+        out[u] = product[:, start:start + fm.rank] @ fm.weights
         start += fm.rank
     return out
 
@@ -401,7 +401,7 @@ def test_nodes_are_exact_on_every_path():
     coords = [CoordinateInfo("t", (0.0, 2.0), 5, "chebyshev", "time"), CoordinateInfo("k", (1.0, 3.0), 4),
               CoordinateInfo("a", (-1.0, 1.0), 3, "linear")]
     rng = np.random.default_rng(0)
-    fields = {"u": FieldModes(np.array([1.0, -2.0, 0.5]), tuple(rng.integers(-4, 5, (c.nodes, 3)).astype(float)
+    fields = {"u": CPTensor(np.array([1.0, -2.0, 0.5]), tuple(rng.integers(-4, 5, (c.nodes, 3)).astype(float)
                                                                    for c in coords))}
     cb = Codebook(coords, fields)
     nodes = [c.basis().nodes for c in coords]
@@ -472,7 +472,7 @@ def test_blas_limit_is_restored_after_batches(solved):
 def _small_tt_codebook(order, first_rank=9):
     """Two tensor-train unknowns of different ranks (zero-padded in the stack) on a piecewise
     time coordinate (3 slabs of 5 nodes), a Chebyshev and a linear one, cores in ``order``."""
-    from pgdcli.codebook.codebook import FieldTT
+    from pgdcli.codebook.codebook import TT
 
     coords = [CoordinateInfo("t", (0.0, 3.0), 13, "chebyshev", "time", breakpoints=(0.0, 0.7, 1.9, 3.0)),
               CoordinateInfo("x", (-1.0, 2.0), 7, "chebyshev"),
@@ -482,7 +482,7 @@ def _small_tt_codebook(order, first_rank=9):
     for name, ranks in (("u", (1, first_rank, 4, 1)), ("w", (1, first_rank - 2, 3, 1))):
         cores = tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1]))
                       for k, j in enumerate(order))
-        fields[name] = FieldTT(cores, order)
+        fields[name] = TT(cores, order)
     return Codebook(coords, fields, name="small-tt", report={})
 
 
@@ -570,14 +570,14 @@ def test_tensor_train_point_errors_and_fallbacks():
 
 def test_one_point_of_a_mixed_codebook():
     """CP modes, a stacked tensor train and one of another core order (outside the stack) together."""
-    from pgdcli.codebook.codebook import FieldTT
+    from pgdcli.codebook.codebook import TT
 
     tt = _small_tt_codebook((0, 1, 2))
     other = _small_tt_codebook((2, 0, 1)).fields["u"]
     rng = np.random.default_rng(14)
-    cp = FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3)) for c in tt.coordinates))
+    cp = CPTensor(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3)) for c in tt.coordinates))
     cb = Codebook(tt.coordinates, {"m": cp, "u": tt.fields["u"], "o": other}, name="mixed", report={})
-    assert isinstance(cb.fields["o"], FieldTT) and cb._tt_all is None and list(cb._tt_stack.index) == ["u"]
+    assert isinstance(cb.fields["o"], TT) and cb._tt_all is None and list(cb._tt_stack.index) == ["u"]
     for p in _tt_points(cb):
         one = cb(**p)
         batch = cb(**{k: np.array([v, v]) for k, v in p.items()})
@@ -596,7 +596,7 @@ def _mixed_codebook():
     tt = _small_tt_codebook((0, 1, 2))
     other = _small_tt_codebook((2, 0, 1)).fields["u"]
     rng = np.random.default_rng(14)
-    cp = FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3)) for c in tt.coordinates))
+    cp = CPTensor(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3)) for c in tt.coordinates))
     return Codebook(tt.coordinates, {"m": cp, "u": tt.fields["u"], "o": other, "w": tt.fields["w"]},
                     name="mixed", report={})
 

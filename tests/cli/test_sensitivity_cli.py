@@ -70,13 +70,13 @@ def test_errors_are_one_line_exit_2(codebook_path, args, message):
 
 
 def test_space_coordinates_must_be_held(tmp_path):
-    from pgdcli.codebook.codebook import CoordinateInfo, FieldModes
+    from pgdcli.codebook.codebook import CoordinateInfo, CPTensor
 
     rng = np.random.default_rng(0)
     coords = [CoordinateInfo("t", (0.0, 1.0), 4, "chebyshev", "time"), CoordinateInfo("x", (0.0, 1.0), 4, "chebyshev",
                                                                                      "space"),
               CoordinateInfo("k", (1.0, 2.0), 3)]
-    path = Codebook(coords, {"u": FieldModes(np.ones(1), tuple(rng.standard_normal((4 if c.name != "k" else 3, 1))
+    path = Codebook(coords, {"u": CPTensor(np.ones(1), tuple(rng.standard_normal((4 if c.name != "k" else 3, 1))
                                                                for c in coords))}, report={}).save(tmp_path / "s.h5")
     r = _run(path)
     assert r.exit_code == 2 and "give a value for the space coordinate x (e.g. --at x=...)" in r.stderr

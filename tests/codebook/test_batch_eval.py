@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import nodal_points
 
 import pgdcli.codebook.point as point_module
 import pgdcli.codebook.threads as threads_module
 from pgdcli.codebook.batch_eval import TTBatch, _window_of
 from pgdcli.discretization.basis import make_basis
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor, TT
 
 
 def _reference(cb: Codebook, points: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -26,7 +27,7 @@ def _reference(cb: Codebook, points: dict[str, np.ndarray]) -> dict[str, np.ndar
     rows = [b.interpolation_matrix(np.clip(points[c.name], *c.domain)) for c, b in zip(cb.coordinates, cb._bases)]
     out = {}
     for u, f in cb.fields.items():
-        if not isinstance(f, FieldTT):
+        if not isinstance(f, TT):
             continue
         values = np.empty(rows[0].shape[0])
         for i in range(values.size):
@@ -38,29 +39,17 @@ def _reference(cb: Codebook, points: dict[str, np.ndarray]) -> dict[str, np.ndar
     return out
 
 
-def _points(cb: Codebook, size: int, seed: int, special: float = 0.25) -> dict[str, np.ndarray]:
-    """Uniform points, a share of each coordinate's values on its nodes (breakpoints, ends included)."""
-    rng = np.random.default_rng(seed)
-    out = {}
-    for c, b in zip(cb.coordinates, cb._bases):
-        x = rng.uniform(*c.domain, size)
-        hit = rng.random(size) < special
-        x[hit] = b.nodes[rng.integers(0, b.nodes.size, int(hit.sum()))]
-        out[c.name] = x
-    return out
-
-
 def _assert_close(ours: dict, ref: dict) -> None:
     for u, v in ref.items():
         scale = max(1.0, float(np.max(np.abs(v))))
         np.testing.assert_allclose(ours[u], v, rtol=0, atol=5e-14 * scale, err_msg=u)
 
 
-def _random_tt(rng, coords: list[CoordinateInfo], ranks: list[int], order: list[int]) -> FieldTT:
+def _random_tt(rng, coords: list[CoordinateInfo], ranks: list[int], order: list[int]) -> TT:
     full = [1] + ranks + [1]
     cores = tuple(rng.standard_normal((full[k], coords[j].nodes, full[k + 1])) / np.sqrt(full[k] * coords[j].nodes)
                   for k, j in enumerate(order))
-    return FieldTT(cores, tuple(order))
+    return TT(cores, tuple(order))
 
 
 def _slab_time(name: str, slabs: int, per_slab: int, domain=(0.0, 2.0)) -> CoordinateInfo:
@@ -94,9 +83,9 @@ def _hand_made() -> dict[str, Codebook]:
     }
     out = {name: Codebook(coords, fields, name=name) for name, fields in books.items()}
     # a tensor train beside CP unknowns (the mixed path) and a one-coordinate train
-    cp = FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((ci.nodes, 3)) for ci in coords))
+    cp = CPTensor(rng.standard_normal(3), tuple(rng.standard_normal((ci.nodes, 3)) for ci in coords))
     out["mixed with CP"] = Codebook(coords, {"p": cp, "u": _random_tt(rng, coords, [9, 11, 5], [0, 1, 2, 3])})
-    out["one coordinate"] = Codebook([t], {"u": FieldTT((rng.standard_normal((1, t.nodes, 1)),), (0,))})
+    out["one coordinate"] = Codebook([t], {"u": TT((rng.standard_normal((1, t.nodes, 1)),), (0,))})
     return out
 
 
@@ -107,7 +96,7 @@ HAND_MADE = _hand_made()
 def test_batch_equals_pointwise_contraction_hand_made(name):
     cb = HAND_MADE[name]
     for size, seed in ((1, 1), (2, 2), (37, 3), (3000, 4)):  # one point, one block, many blocks and windows
-        points = _points(cb, size, seed)
+        points = nodal_points(cb, size, seed)
         ours = cb(**points)
         _assert_close(ours, _reference(cb, points))
 
@@ -116,7 +105,7 @@ def test_batch_equals_pointwise_contraction_hand_made(name):
 def test_batch_equals_one_point_path(name):
     """The batch path and the one-point path (a different algorithm: TTStack) agree."""
     cb = HAND_MADE[name]
-    points = _points(cb, 200, 11)
+    points = nodal_points(cb, 200, 11)
     batch = cb(**points)
     for i in range(0, 200, 7):
         one = cb(**{k: float(v[i]) for k, v in points.items()})
@@ -127,7 +116,7 @@ def test_batch_equals_one_point_path(name):
 @pytest.mark.parametrize("name", ["coupled", "logistic"])
 def test_batch_equals_pointwise_contraction_march_codebooks(solved, name):
     cb = solved(name).codebook
-    points = _points(cb, 1500, 5)
+    points = nodal_points(cb, 1500, 5)
     _assert_close(cb(**points), _reference(cb, points))
 
 
@@ -135,7 +124,7 @@ def test_blocks_and_threads_never_change_a_value(solved, monkeypatch):
     """Blocks are cut from the sorted points the same way whatever the threads: bitwise equal."""
     cb = solved("coupled").codebook
     size = threads_module.PARALLEL_MIN_POINTS + 3000
-    points = _points(cb, size, 6)
+    points = nodal_points(cb, size, 6)
     ref = cb(**points)
     for threads in (1, 2, 3):
         monkeypatch.setattr(threads_module, "available_threads", lambda: threads)
@@ -155,9 +144,9 @@ def test_blocks_grouped_by_later_windows(name, monkeypatch):
     monkeypatch.setattr(batch_module, "MIN_BLOCK", 4)
     monkeypatch.setattr(batch_module, "BLOCK_BYTES", 64)
     cb = HAND_MADE[name]
-    fields = {u: f for u, f in cb.fields.items() if isinstance(f, FieldTT)}
+    fields = {u: f for u, f in cb.fields.items() if isinstance(f, TT)}
     batch = TTBatch(fields, cb._bases)
-    points = _points(cb, 3000, 21)
+    points = nodal_points(cb, 3000, 21)
     flat = [np.clip(points[c.name], *c.domain) for c in cb.coordinates]
     grouped = [j for train in batch.trains for j, _ in batch._group_key(train, flat)[1]]
     later = [j for train in batch.trains for j in train.later_windows]

@@ -10,7 +10,8 @@ import pytest
 from conftest import codebook_points, reseal
 
 from pgdcli.codebook import io as codebook_io
-from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, Codebook, CoordinateInfo, FieldModes
+from pgdcli.codebook.codebook import FORMAT_NAME, FORMAT_VERSION, TT, Codebook, CoordinateInfo, CPTensor
+from pgdcli.codebook.fields import cp_field, tt_field
 from pgdcli.errors import CodebookError, QueryError
 
 EPS = np.finfo(float).eps
@@ -31,8 +32,8 @@ def _small_codebook():
     ]
     rng = np.random.default_rng(0)
     fields = {
-        "u": FieldModes(np.array([1.0, -2.0, 0.5]), tuple(rng.integers(-4, 5, (c.nodes, 3)).astype(float) for c in coords)),
-        "w": FieldModes(np.array([3.0]), tuple(rng.integers(-4, 5, (c.nodes, 1)).astype(float) for c in coords)),
+        "u": CPTensor(np.array([1.0, -2.0, 0.5]), tuple(rng.integers(-4, 5, (c.nodes, 3)).astype(float) for c in coords)),
+        "w": CPTensor(np.array([3.0]), tuple(rng.integers(-4, 5, (c.nodes, 1)).astype(float) for c in coords)),
     }
     return Codebook(coords, fields, name="small", spec_text="name: small\n", report={"converged": True})
 
@@ -44,8 +45,8 @@ def _node_grid(cb):
 
 def _reference_sum(fm, index):
     """sum_r alpha_r prod_j modes_j[i_j, r] and the sum of absolute terms (for a rounding bound)."""
-    terms = fm.alphas.copy()
-    for m, i in zip(fm.modes, index):
+    terms = fm.weights.copy()
+    for m, i in zip(fm.factors, index):
         terms = terms * m[i]
     return terms.sum(), np.abs(terms).sum()
 
@@ -73,17 +74,17 @@ def test_evaluate_at_nodes_returns_nodal_values(solved, name):
     for u in cb.unknown_names:
         nodal = cb.nodal_values(u)
         fm = cb.fields[u]
-        letters = "abcdefgh"[: len(fm.modes)]
+        letters = "abcdefgh"[: len(fm.factors)]
         abs_terms = np.einsum(",".join(f"{l}r" for l in letters) + ",r->" + letters,
-                              *[np.abs(m) for m in fm.modes], np.abs(fm.alphas))
-        bound = 2 * (fm.rank + len(fm.modes)) * EPS * abs_terms
+                              *[np.abs(m) for m in fm.factors], np.abs(fm.weights))
+        bound = 2 * (fm.rank + len(fm.factors)) * EPS * abs_terms
         assert np.all(np.abs(values[u] - nodal) <= bound)
         # spot check against an independent sum
         rng = np.random.default_rng(1)
         for _ in range(5):
             index = tuple(int(rng.integers(c.nodes)) for c in cb.coordinates)
             ref, scale = _reference_sum(fm, index)
-            assert abs(values[u][index] - ref) <= 2 * (fm.rank + len(fm.modes)) * EPS * scale
+            assert abs(values[u][index] - ref) <= 2 * (fm.rank + len(fm.factors)) * EPS * scale
 
 
 def test_evaluate_between_nodes_uses_the_basis_interpolants():
@@ -95,14 +96,14 @@ def test_evaluate_between_nodes_uses_the_basis_interpolants():
 
     for u, fm in cb.fields.items():
         per_coord = []
-        for c, m in zip(cb.coordinates, fm.modes):
+        for c, m in zip(cb.coordinates, fm.factors):
             nodes = c.basis().nodes
             if c.discretization == "linear":
                 per_coord.append(np.stack([np.interp(p[c.name], nodes, m[:, r]) for r in range(fm.rank)], axis=1))
             else:
                 per_coord.append(np.stack([Chebyshev.fit(nodes, m[:, r], c.nodes - 1, domain=list(c.domain))(p[c.name])
                                            for r in range(fm.rank)], axis=1))
-        ref = np.prod(per_coord, axis=0) @ fm.alphas
+        ref = np.prod(per_coord, axis=0) @ fm.weights
         np.testing.assert_allclose(cb(**p)[u], ref, rtol=0, atol=1e-12)
 
 
@@ -160,9 +161,37 @@ def test_query_errors_name_the_coordinate_and_domain(solved, coords, fields, pat
 def test_codebook_validation_names_the_problem():
     coords = [CoordinateInfo("t", (0.0, 1.0), 3, "chebyshev", "time")]
     with pytest.raises(CodebookError, match=r"unknown 'u': modes of coordinate 0 \('t'\) have shape \(4, 1\)"):
-        Codebook(coords, {"u": FieldModes(np.ones(1), (np.ones((4, 1)),))})
+        Codebook(coords, {"u": CPTensor(np.ones(1), (np.ones((4, 1)),))})
     with pytest.raises(CodebookError, match="non-finite"):
-        Codebook(coords, {"u": FieldModes(np.array([np.nan]), (np.ones((3, 1)),))})
+        Codebook(coords, {"u": CPTensor(np.array([np.nan]), (np.ones((3, 1)),))})
+    with pytest.raises(CodebookError, match="unknown 'u': expected a CPTensor or a TT, got dict"):
+        Codebook(coords, {"u": {"alphas": np.ones(1)}})
+    two = coords + [CoordinateInfo("k", (1.0, 2.0), 4)]
+    with pytest.raises(CodebookError, match=r"unknown 'u': core 1 \('t'\) has shape \(2, 4, 1\), expected \(2, 3, r\)"):
+        Codebook(two, {"u": TT((np.ones((1, 4, 2)), np.ones((2, 4, 1))), (1, 0))})
+    with pytest.raises(CodebookError, match="tensor-train mode order \\[0\\] is not a permutation of the 2"):
+        Codebook(two, {"u": TT((np.ones((1, 3, 1)),))})
+
+
+def test_a_malformed_field_in_a_file_names_the_unknown_and_the_factor(codebook_path, tmp_path):
+    """A mode matrix of the wrong shape is refused by the reader before any tensor is built."""
+    path = tmp_path / "bad.h5"
+    path.write_bytes(codebook_path("spring").read_bytes())
+    with h5py.File(path, "r+") as f:
+        modes = f["unknowns"]["x"]["modes"]
+        rank = modes["k"].shape[1]
+        del modes["k"]
+        modes.create_dataset("k", data=np.ones((20, rank + 1)))
+    with pytest.raises(CodebookError, match=f"dataset 'unknowns/x/modes/k' has shape \\(20, {rank + 1}\\), "
+                                            f"expected \\(20, {rank}\\)"):
+        Codebook.load(path)
+
+
+def test_the_tensor_types_checks_become_codebook_errors_naming_the_unknown():
+    with pytest.raises(CodebookError, match="unknown 'x': factor 1 has 3 columns, expected rank 2"):
+        cp_field("x", np.ones(2), (np.ones((4, 2)), np.ones((5, 3))))
+    with pytest.raises(CodebookError, match="unknown 'w': core 1 has left rank 3, core 0 right rank 2"):
+        tt_field("w", (np.ones((1, 4, 2)), np.ones((3, 5, 1))), (0, 1))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -180,8 +209,8 @@ def test_round_trip_is_exact(solved, codebook_path, name):
     assert loaded.description == original.description
     assert loaded.created == original.created
     for u in original.fields:
-        assert np.array_equal(loaded.fields[u].alphas, original.fields[u].alphas)
-        for a, b in zip(loaded.fields[u].modes, original.fields[u].modes):
+        assert np.array_equal(loaded.fields[u].weights, original.fields[u].weights)
+        for a, b in zip(loaded.fields[u].factors, original.fields[u].factors):
             assert np.array_equal(a, b)
     points = codebook_points(original, 500, seed=9)
     a, b = original(**points), loaded(**points)

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor, TT
 from pgdcli.codebook.export import ExportError, export, layout
 
 CC = shutil.which("cc") or shutil.which("gcc")
@@ -26,8 +26,8 @@ def _mixed_codebook():
     coords = [CoordinateInfo("t", (0.0, 2.0), 9, "chebyshev", "time", (0.0, 0.7, 2.0)),
               CoordinateInfo("k", (1.0, 3.0), 6), CoordinateInfo("a", (-1.0, 1.0), 4, "linear")]
     rng = np.random.default_rng(0)
-    cp = FieldModes(rng.normal(size=3), tuple(rng.normal(size=(c.nodes, 3)) for c in coords))
-    tt = FieldTT((rng.normal(size=(1, 6, 2)), rng.normal(size=(2, 9, 3)), rng.normal(size=(3, 4, 1))), (1, 0, 2))
+    cp = CPTensor(rng.normal(size=3), tuple(rng.normal(size=(c.nodes, 3)) for c in coords))
+    tt = TT((rng.normal(size=(1, 6, 2)), rng.normal(size=(2, 9, 3)), rng.normal(size=(3, 4, 1))), (1, 0, 2))
     return Codebook(coords, {"p": cp, "q": tt}, name="mixed-1")
 
 

@@ -22,7 +22,7 @@ from click.testing import CliRunner
 
 from pgdcli.cli.main import cli
 from pgdcli.codebook import io as codebook_io
-from pgdcli.codebook.codebook import Codebook, FieldModes, FieldTT
+from pgdcli.codebook.codebook import Codebook, CPTensor
 from pgdcli.codebook.export import ExportError, export
 from pgdcli.codebook.export_c import c_string, comment_text
 from pgdcli.codebook.file_checks import ARRAY_DIGESTS, CONTENT_DIGEST
@@ -152,7 +152,7 @@ def test_numbers_beyond_float32_refuse_the_c_export_not_json(codebook_path):
     cb = Codebook.load(codebook_path("spring"))
     u = next(iter(cb.fields))
     fm = cb.fields[u]
-    big = Codebook(cb.coordinates, {**cb.fields, u: FieldModes(fm.alphas * 1e300, fm.modes)}, name=cb.name)
+    big = Codebook(cb.coordinates, {**cb.fields, u: CPTensor(fm.weights * 1e300, fm.factors)}, name=cb.name)
     with pytest.raises(ExportError, match="float32"):
         export(big, "c")
     with pytest.raises(ExportError, match="float32"):

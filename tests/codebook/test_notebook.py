@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import RegularGridInterpolator
 
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor, TT
 from pgdcli.errors import PgdError, QueryError
 
 
@@ -16,9 +16,9 @@ def small_codebook(name="small", description="") -> Codebook:
               CoordinateInfo("k", (1.0, 3.0), 6, "chebyshev"),
               CoordinateInfo("c", (0.0, 1.0), 4, "linear")]
     cores = tuple(rng.standard_normal(s) for s in ((1, 9, 3), (3, 6, 2), (2, 4, 1)))
-    return Codebook(coords, {"u": FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3))
+    return Codebook(coords, {"u": CPTensor(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3))
                                                                           for c in coords)),
-                             "w": FieldTT(cores, (0, 1, 2))},
+                             "w": TT(cores, (0, 1, 2))},
                     name=name, description=description,
                     report={"tolerance": 1e-6, "accurate": 1, "check_error": 2.5e-7, "check_points": 40,
                             "check_where": "t=1, k=2, c=0"})

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pgdcli.codebook import point as point_module
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, TT
 from pgdcli.errors import QueryError
 from pgdcli.pages import HUGE_PAGE
 
@@ -26,7 +26,7 @@ def _codebook(order=(0, 1, 2, 3)):
     rng = np.random.default_rng(31)
     fields = {}
     for name, ranks in (("u", (1, 8, 11, 5, 1)), ("w", (1, 6, 9, 4, 1))):
-        fields[name] = FieldTT(tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1]))
+        fields[name] = TT(tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1]))
                                      for k, j in enumerate(order)), order)
     return Codebook(coords, fields, name="series", report={})
 
@@ -93,7 +93,7 @@ def _five(arena_above=None, monkeypatch=None):
     rng = np.random.default_rng(33)
     fields = {}
     for name, ranks in (("u", (1, 8, 50, 48, 6, 1)), ("w", (1, 6, 40, 45, 5, 1))):
-        fields[name] = FieldTT(tuple(rng.standard_normal((ranks[k], c.nodes, ranks[k + 1])) / np.sqrt(ranks[k])
+        fields[name] = TT(tuple(rng.standard_normal((ranks[k], c.nodes, ranks[k + 1])) / np.sqrt(ranks[k])
                                      for k, c in enumerate(coords)), (0, 1, 2, 3, 4))
     return Codebook(coords, fields, name="five", report={})
 

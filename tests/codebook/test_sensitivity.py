@@ -19,7 +19,7 @@ import math
 import numpy as np
 import pytest
 
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor, TT
 from pgdcli.codebook.densities import TruncatedNormal, parse_density, quadrature
 from pgdcli.errors import QueryError
 
@@ -127,11 +127,11 @@ def _synthetic(seed=1):
               CoordinateInfo("b", (0.0, 3.0), 9, "linear", "parameter"),
               CoordinateInfo("c", (1.0, 2.0), 9, "chebyshev", "parameter", (1.0, 1.4, 2.0)),
               CoordinateInfo("x", (0.0, 1.0), 6, "chebyshev", "space")]
-    fields = {"p": FieldModes(rng.standard_normal(4), tuple(rng.standard_normal((c.nodes, 4)) + 2 for c in coords))}
+    fields = {"p": CPTensor(rng.standard_normal(4), tuple(rng.standard_normal((c.nodes, 4)) + 2 for c in coords))}
     ranks = [1, 3, 4, 5, 2, 1]
     for name, order in (("q", (2, 0, 4, 1, 3)), ("r", (0, 1, 2, 3, 4)), ("s", (4, 3, 2, 1, 0))):
         cores = tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1])) for k, j in enumerate(order))
-        fields[name] = FieldTT(cores, order)
+        fields[name] = TT(cores, order)
     return Codebook(coords, fields, name="synthetic", report={})
 
 
@@ -202,7 +202,7 @@ def test_a_fixed_parameter_is_no_input_and_a_steady_codebook_has_no_times():
     mean, variance, first, total, _ = _brute(cb, "q", np.array([1.0]), {"x": 0.5, "b": 1.2}, {})
     np.testing.assert_allclose(s.first["q"], first, atol=1e-11)
     steady = Codebook([c for c in cb.coordinates if c.name != "t"],
-                      {"m": FieldModes(np.array([1.0, 2.0]), tuple(np.random.default_rng(3).standard_normal((c.nodes, 2))
+                      {"m": CPTensor(np.array([1.0, 2.0]), tuple(np.random.default_rng(3).standard_normal((c.nodes, 2))
                                                                     for c in cb.coordinates if c.name != "t"))},
                       name="steady", report={})
     r = steady.sensitivity(at={"x": 0.2})

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor, TT
 from pgdcli.errors import QueryError
 
 
@@ -21,7 +21,7 @@ def _random_tt(rng, coords, ranks, order):
     full = [1] + ranks + [1]
     cores = tuple(rng.standard_normal((full[k], coords[j].nodes, full[k + 1])) / np.sqrt(full[k] * coords[j].nodes)
                   for k, j in enumerate(order))
-    return FieldTT(cores, tuple(order))
+    return TT(cores, tuple(order))
 
 
 def _books() -> dict[str, Codebook]:
@@ -31,7 +31,7 @@ def _books() -> dict[str, Codebook]:
     b = CoordinateInfo("b", (0.0, 1.0), 11, "linear")
     c = CoordinateInfo("c", (0.5, 1.5), 6)
     coords = [t, a, b, c]
-    cp = FieldModes(rng.standard_normal(4), tuple(rng.standard_normal((ci.nodes, 4)) for ci in coords))
+    cp = CPTensor(rng.standard_normal(4), tuple(rng.standard_normal((ci.nodes, 4)) for ci in coords))
     return {
         "time first": Codebook(coords, {"u": _random_tt(rng, coords, [10, 14, 5], [0, 1, 2, 3]),
                                         "v": _random_tt(rng, coords, [3, 8, 4], [0, 1, 2, 3])}),
@@ -40,7 +40,7 @@ def _books() -> dict[str, Codebook]:
         "time last": Codebook(coords, {"u": _random_tt(rng, coords, [4, 12, 6], [2, 1, 3, 0])}),
         "CP only": Codebook(coords, {"p": cp}),
         "linear time": Codebook([b, a, c], {"u": _random_tt(rng, [b, a, c], [7, 5], [0, 1, 2])}),
-        "one coordinate": Codebook([t], {"u": FieldTT((rng.standard_normal((1, t.nodes, 1)),), (0,))}),
+        "one coordinate": Codebook([t], {"u": TT((rng.standard_normal((1, t.nodes, 1)),), (0,))}),
     }
 
 

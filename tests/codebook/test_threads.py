@@ -1,4 +1,4 @@
-"""The batches' BLAS policy also holds for grids (pgdcli.codebook.threads.one_blas_thread)."""
+"""The batches' BLAS policy also holds for grids (pgdcli.codebook.threads.batch_blas)."""
 
 from __future__ import annotations
 
@@ -6,14 +6,14 @@ import numpy as np
 
 import pgdcli.codebook.evaluate as evaluate_module
 import pgdcli.codebook.threads as threads_module
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, TT
 
 
 def _codebook():
     coords = [CoordinateInfo("t", (0.0, 1.0), 9, "chebyshev", "time"), CoordinateInfo("a", (0.0, 2.0), 6, "chebyshev")]
     rng = np.random.default_rng(41)
     cores = (rng.standard_normal((1, 9, 4)), rng.standard_normal((4, 6, 1)))
-    return Codebook(coords, {"u": FieldTT(cores, (0, 1))}, name="grid", report={})
+    return Codebook(coords, {"u": TT(cores, (0, 1))}, name="grid", report={})
 
 
 def test_large_grids_run_on_one_blas_thread_and_small_ones_do_not(monkeypatch):

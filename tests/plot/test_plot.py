@@ -104,9 +104,9 @@ def test_modes_data_equals_stored_modes_at_the_nodes(plot_codebooks, name):
         fm = cb.fields[field]
         n = min(6, fm.rank)
         assert data["count"] == n and data["field"] == field and data["rank"] == fm.rank
-        np.testing.assert_array_equal(data["alphas"], fm.alphas[:n])
+        np.testing.assert_array_equal(data["alphas"], fm.weights[:n])
         assert [p["coordinate"] for p in data["panels"]] == cb.coordinate_names
-        for c, m, panel in zip(cb.coordinates, fm.modes, data["panels"]):
+        for c, m, panel in zip(cb.coordinates, fm.factors, data["panels"]):
             x = panel["x"]
             assert x[0] == c.domain[0] and x[-1] == c.domain[1] and np.all(np.diff(x) > 0)
             assert x.size > c.nodes  # a fine grid, not only the nodes
@@ -383,13 +383,13 @@ def test_real_reference_agrees_with_the_exact_solution(plot_codebooks):
 def test_codebook_with_time_as_the_only_coordinate(tmp_path):
     """No parameters: one curve, error along time, the reference called with no parameters."""
     pytest.importorskip("pgdcli.checks.reference")
-    from pgdcli.codebook.codebook import CoordinateInfo, FieldModes
+    from pgdcli.codebook.codebook import CoordinateInfo, CPTensor
 
     c = CoordinateInfo("t", (0.0, 2.0), 14, "chebyshev", "time")
     nodes = c.basis().nodes
     spec = 'name: decay\ncoordinates:\n  t: {domain: [0, 2], nodes: 14}\nunknowns:\n  u: {initial: 1}\n' \
            'equations:\n  - "der(u) = -u"\n'
-    cb = Codebook([c], {"u": FieldModes(np.array([1.0]), (np.exp(-nodes)[:, None],))}, name="decay",
+    cb = Codebook([c], {"u": CPTensor(np.array([1.0]), (np.exp(-nodes)[:, None],))}, name="decay",
                   spec_text=spec, report={"residual_history": np.array([1.0, 1e-9]), "tolerance": 1e-8})
     sol = P.solution_data(cb, reference=True)
     assert sol["points"] == [{}] and sol["labels"] == ["(no parameters)"]
@@ -580,7 +580,7 @@ def march_codebooks(tmp_path_factory):
     """name -> (Codebook, Path): the nonlinear problems solved once per module (~1 s each), saved and
     loaded back, so the report arrays are those read from the file."""
     from pgdcli import load_spec, solve
-    from pgdcli.codebook.codebook import FieldTT
+    from pgdcli.codebook.codebook import TT
 
     directory = tmp_path_factory.mktemp("march-codebooks")
     out = {}
@@ -589,7 +589,7 @@ def march_codebooks(tmp_path_factory):
         assert result.converged and result.codebook.report["method"] == "march"
         path = result.codebook.save(directory / f"{name}.h5")
         cb = Codebook.load(path)
-        assert all(isinstance(fm, FieldTT) for fm in cb.fields.values())
+        assert all(isinstance(fm, TT) for fm in cb.fields.values())
         out[name] = (cb, path)
     return out
 
@@ -601,7 +601,7 @@ def _small_tt_codebook() -> Codebook:
     below its 7 nodes; q (the last core) has 3 nodes, below its rank 5; t has
     9 nodes below its core's 3 * 4 columns.
     """
-    from pgdcli.codebook.codebook import CoordinateInfo, FieldTT
+    from pgdcli.codebook.codebook import CoordinateInfo, TT
 
     coords = [CoordinateInfo("t", (0.0, 2.0), 9, "chebyshev", "time"),
               CoordinateInfo("p", (-1.0, 3.0), 7, "linear", "parameter"),
@@ -612,7 +612,7 @@ def _small_tt_codebook() -> Codebook:
     rng = np.random.default_rng(11)
     cores = tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1])) * (1.0 + k)
                   for k, j in enumerate(order))
-    return Codebook(coords, {"w": FieldTT(cores, order)}, name="small-tt", report={})
+    return Codebook(coords, {"w": TT(cores, order)}, name="small-tt", report={})
 
 
 def _unfolding(full: np.ndarray, j: int) -> np.ndarray:

@@ -18,8 +18,8 @@ from scipy.integrate import solve_ivp
 from pgdcli import Codebook, load_spec, parse_spec, solve
 from pgdcli.errors import SolverError
 from pgdcli.tensors.cp import CPTensor
-from pgdcli import driver as solver
 from pgdcli.algorithms.enrichment import residual_norm
+from pgdcli.algorithms.enrichment_solve import solve_enrichment
 from pgdcli.driver import SolveResult
 from pgdcli.discretization.linear import STATE, discretize
 
@@ -300,7 +300,7 @@ def _solver_space_solution(problem, cb):
     for s, u in enumerate(disc.unknowns):
         fm = cb.fields[u]
         lift = disc.lift[u].rank
-        time_modes = fm.modes[jt]
+        time_modes = fm.factors[jt]
         # lift columns are constant in time; PGD columns vanish at t0 (v(t0) = 0)
         assert np.all(time_modes[:, :lift] == 1.0)
         assert np.all(time_modes[0, lift:] == 0.0)
@@ -308,9 +308,9 @@ def _solver_space_solution(problem, cb):
         block = np.zeros((q * (nt - 1), r))
         block[s * (nt - 1):(s + 1) * (nt - 1)] = time_modes[1:, lift:]
         state.append(block)
-        weights.append(fm.alphas[lift:])
+        weights.append(fm.weights[lift:])
         for c in disc.names[1:]:
-            params[c].append(fm.modes[coords.index(c)][:, lift:])
+            params[c].append(fm.factors[coords.index(c)][:, lift:])
     factors = [np.hstack(state)] + [np.hstack(params[c]) for c in disc.names[1:]]
     return disc, CPTensor(np.concatenate(weights), factors)
 
@@ -361,7 +361,7 @@ def test_update_fallback_reports_the_residual_of_what_it_keeps(monkeypatch):
 
     monkeypatch.setattr(enrichment, "_update_all", lambda state, previous: one_pass(state, 0.0))
     monkeypatch.setattr(enrichment, "_update_sweep", checked_sweep)
-    result = solver._enrich(load_spec(PROBLEMS / "relaxation.yaml"), 1e-10, 100, None)  # one enrichment
+    result = solve_enrichment(load_spec(PROBLEMS / "relaxation.yaml"), 1e-10, 100, None)  # one enrichment
     assert result.converged, result.message
     assert len(checked) == result.n_modes
     for reported, full_sweep, f_norm in checked:
@@ -382,7 +382,7 @@ def test_not_converged_when_max_modes_too_small():
 
 def test_callback_sees_every_mode():
     seen = []
-    result = solver._enrich(load_spec(PROBLEMS / "relaxation.yaml"), 1e-4, 100, seen.append)  # one enrichment
+    result = solve_enrichment(load_spec(PROBLEMS / "relaxation.yaml"), 1e-4, 100, seen.append)  # one enrichment
     assert [s["mode"] for s in seen] == list(range(1, result.n_modes + 1))
     np.testing.assert_array_equal([s["residual"] for s in seen], result.residuals[1:])
     np.testing.assert_array_equal([s["iterations"] for s in seen], result.iterations)
@@ -393,8 +393,8 @@ def test_solve_accepts_a_path_and_is_deterministic(solved):
     again = solve(PROBLEMS / "relaxation.yaml")
     first = solved("relaxation").codebook
     for u in first.fields:
-        np.testing.assert_array_equal(again.codebook.fields[u].alphas, first.fields[u].alphas)
-        for a, b in zip(again.codebook.fields[u].modes, first.fields[u].modes):
+        np.testing.assert_array_equal(again.codebook.fields[u].weights, first.fields[u].weights)
+        for a, b in zip(again.codebook.fields[u].factors, first.fields[u].factors):
             np.testing.assert_array_equal(a, b)
 
 

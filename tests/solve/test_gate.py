@@ -366,21 +366,23 @@ def test_a_second_march_starts_from_the_target_learned():
     round of the automatic resolution) instead of being found again by a second march."""
     from pathlib import Path
 
-    from pgdcli.driver import CHECK_FIRST, _checked_march
+    from pgdcli.driver.method import Settings
+    from pgdcli.driver.methods import CHECK_FIRST, choose_method
+    from pgdcli.driver.refinement import solve_rounds
 
     text = (Path(__file__).resolve().parents[1] / "user_problems" / "sir.yaml").read_text()
     for name in ("t", "b", "g", "I0"):  # a coarse grid: the march's own error at the nodes decides
         text = text.replace(f"  {name}: {{domain:", f"  {name}: {{nodes: 9, domain:")
     problem = parse_spec(text, source="sir.yaml")
-    learned: dict = {}
+    settings = Settings(1e-6, 0.0, problem.solver.max_modes)
     # as pgdcli.solve runs it (two BLAS threads per xdist worker: 10x slower); the train march, whose RMS
     # target needs a second march on this grid (the grid march meets it in one)
     with threadpool_limits(1), train_march():
-        first = _checked_march(problem, tolerance=1e-6, learned=learned)
-        second = _checked_march(problem, tolerance=1e-6, learned=learned)
+        first, learned = solve_rounds(problem, choose_method(problem), settings)
+        second, _ = solve_rounds(problem, choose_method(problem), settings, learned=learned)
     attempts = first.codebook.report["march_attempts"]
     assert attempts.shape[0] >= 2 and attempts[0, 0] == CHECK_FIRST * 1e-6  # it had to tighten
-    assert first.check.node_ratio <= 1.0 and learned["march_target"] == attempts[-1, 0]
+    assert first.check.node_ratio <= 1.0 and learned.target == attempts[-1, 0]
     assert second.codebook.report["march_attempts"].tolist() == [[attempts[-1, 0], second.check.error]]
     assert second.check.node_ratio <= 1.0
 
@@ -389,20 +391,20 @@ def test_a_second_enrichment_starts_from_the_residual_learned():
     """heat1d needs a residual a decade below its tolerance: found once, then carried to the next solve."""
     from conftest import PROBLEMS
 
-    from pgdcli.driver import _checked_enrichment
+    from pgdcli.driver.method import Settings
+    from pgdcli.driver.methods import choose_method
+    from pgdcli.driver.refinement import solve_rounds
 
     problem = pgdcli.load_spec(PROBLEMS / "heat1d.yaml")
     opts = problem.solver
-    learned: dict = {}
+    settings = Settings(opts.tolerance, 0.0, opts.max_modes)
     with threadpool_limits(1):  # as pgdcli.solve runs it
-        first = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
-                                    max_modes=opts.max_modes, learned=learned)
-        second = _checked_enrichment(problem, tolerance=opts.tolerance, relative_tolerance=0.0,
-                                     max_modes=opts.max_modes, learned=learned)
+        first, learned = solve_rounds(problem, choose_method(problem), settings)
+        second, _ = solve_rounds(problem, choose_method(problem), settings, learned=learned)
     attempts = first.codebook.report["enrichment_attempts"]
     assert attempts.shape[0] == 2 and attempts[0, 0] == opts.tolerance
-    assert learned["residual"] == attempts[-1, 0] < opts.tolerance
-    assert second.codebook.report["enrichment_attempts"][:, 0].tolist() == [learned["residual"]]
+    assert learned.target == attempts[-1, 0] < opts.tolerance
+    assert second.codebook.report["enrichment_attempts"][:, 0].tolist() == [learned.target]
     assert second.accurate is not False and second.check.node_ratio <= 1.0
 
 
@@ -433,12 +435,12 @@ def test_an_enrichment_stopped_by_max_modes_is_named_not_blamed_on_nodes():
 def test_a_refusal_says_whether_a_coordinates_error_was_measured_or_estimated(measured, tail, says):
     """The larger of the error measured off the coordinate's nodes and its Chebyshev tail is quoted, as what it is
     (a 7-coordinate kinetics model's refusal quoted its tail, 7.3x, as the error between its nodes)."""
-    from pgdcli.adapt import _refusal
+    from pgdcli.adapt import refusal
     from pgdcli.checks.check import CheckResult
 
     problem = parse_spec(COARSE, source="coarse.yaml")
     check = CheckResult(4e-6, 1e-7, 4e-6, 200, 0, {}, {}, ratio=4.0, node_ratio=0.1, between_ratio=4.0,
                         coordinate_ratio={"t": 0.1, "k": measured}, tail_ratio={"k": tail}, tolerance=1e-6,
                         method="DOP853")
-    text = _refusal(problem, check, True, {})
+    text = refusal(problem, check, True)
     assert text == f"coordinate 'k' lacks resolution ({says}; it has nodes: 5; add nodes or write 'nodes: auto')"

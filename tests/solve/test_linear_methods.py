@@ -104,40 +104,40 @@ def test_pgd_solve_and_info_say_which_solver_ran_and_why(tmp_path):
     assert "method: tensor-train solver (amen): the enrichment stopped" in info.stdout
 
 
-def test_a_tighter_amen_solve_that_stalls_far_below_the_error_at_the_nodes_blames_the_nodes(monkeypatch):
+def test_a_tighter_amen_solve_that_stalls_far_below_the_error_at_the_nodes_blames_the_nodes():
     """Error at the nodes 50 x the tolerance with residuals near 1e-9: the discretization's, so more nodes
     (not a refusal naming the solver) even when the tighter solve stalls just short of its target."""
     from types import SimpleNamespace
 
-    from pgdcli import driver
-    from pgdcli.algorithms import amen_solve
+    from pgdcli.algorithms.outcome import SolverOutcome, Status
+    from pgdcli.driver.method import Settings, Try
+    from pgdcli.driver.methods import METHODS
 
-    residuals = iter([1.2e-9, 1.1e-9])
+    amen = METHODS["amen"]
 
-    def fake_solve(problem, target, **kwargs):
-        residual = next(residuals)
-        converged = residual <= target
-        codebook = SimpleNamespace(report={"sweeps": 3}, fields={"u": SimpleNamespace(ranks=(4, 2))})
-        return SimpleNamespace(converged=converged, status=0 if converged else 2, residual=residual, check=None,
-                               codebook=codebook, solution=None,
-                               message="converged" if converged else "not converged: the residual stopped falling")
+    def attempt(target, residual, converged):
+        status = Status.CONVERGED if converged else Status.STAGNATED
+        message = "converged" if converged else "not converged: the residual stopped falling"
+        outcome = SolverOutcome(None, status, message, target, "tensor-train solver: residual",
+                                residuals=np.array([residual]))
+        return Try(target, outcome, SimpleNamespace(node_ratio=50.0, node_error=5e-5))
 
-    monkeypatch.setattr(amen_solve, "solve_amen", fake_solve)
-    monkeypatch.setattr(driver, "_measure", lambda *a: SimpleNamespace(node_ratio=50.0))
-    monkeypatch.setattr(driver, "_with_resolution", lambda result, tolerance: result)
-    kept = driver._checked_amen(heat1d("amen"), tolerance=1e-6, relative_tolerance=0.0)
-    assert kept.residual == 1.2e-9
-    assert kept.codebook.report["discretization_limited"] == 1
-    assert "enrichment_stopped" not in kept.codebook.report
+    tries = [attempt(5e-7, 1.2e-9, True), attempt(1e-9, 1.1e-9, False)]
+    assert amen.next_target(None, tries[:1], Settings(1e-6, 0.0, 100)) is not None  # the error asks a tighter one
+    kept = amen.keep(tries)
+    assert kept.attempt is tries[0] and kept.attempt.outcome.residual == 1.2e-9
+    assert kept.stopped is None and kept.limited  # the nodes, not the solver
+    entries = amen.round_entries(kept, tries, Settings(1e-6, 0.0, 100))
+    assert entries["discretization_limited"] == 1 and "enrichment_stopped" not in entries
 
 
 def test_a_coefficient_too_large_for_the_enrichment_goes_to_amen(monkeypatch):
     # forced.yaml's sin(w*t) separates into a few Kronecker terms; with the enrichment's cap at one term it
     # is refused with the advice to use amen, and auto follows that advice itself
-    from pgdcli import driver
+    from pgdcli.algorithms import enrichment_solve
     from pgdcli.discretization.linear import discretize
 
-    monkeypatch.setattr(driver, "discretize", lambda problem, **kw: discretize(problem, max_terms=1, **kw))
+    monkeypatch.setattr(enrichment_solve, "discretize", lambda problem, **kw: discretize(problem, max_terms=1, **kw))
     problem = pgdcli.load_spec(PROBLEMS / "forced.yaml")
     enrichment = dataclasses.replace(problem, solver=dataclasses.replace(problem.solver, method="pgd"))
     with pytest.raises(SolverError, match=r"solver.method: amen \(the tensor-train solver\) takes it"):

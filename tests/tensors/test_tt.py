@@ -277,6 +277,47 @@ def test_constructor_names_the_boundary_cores():
         TT([np.ones((1, 3, 2)), np.ones((2, 4, 3))])
 
 
+def test_constructor_names_a_mode_order_that_is_not_a_permutation():
+    cores = [np.ones((1, 3, 2)), np.ones((2, 4, 1))]
+    with pytest.raises(ValueError, match=r"mode order \[0, 0\] is not a permutation of the 2 cores' modes 0..1"):
+        TT(cores, (0, 0))
+    with pytest.raises(ValueError, match=r"mode order \[1, 2\]"):
+        TT(cores, (1, 2))
+
+
+# ----------------------------------------------------------------------------------------------
+# mode order: core k holds mode mode_order[k]
+# ----------------------------------------------------------------------------------------------
+def test_mode_order_sets_shape_full_and_evaluate_in_mode_order():
+    rng = np.random.default_rng(8)
+    cores = [rng.standard_normal(s) for s in ((1, 3, 2), (2, 4, 3), (3, 5, 1))]
+    x = TT(cores, (2, 0, 1))  # core 0 is mode 2, core 1 mode 0, core 2 mode 1
+    assert x.shape == (4, 5, 3) and x.ranks == (2, 3) and x.rank == 3
+    by_core = np.einsum("ia,ajb,bk->ijk", cores[0][0], cores[1], cores[2][:, :, 0])  # (3, 4, 5)
+    np.testing.assert_allclose(x.full(), np.transpose(by_core, (1, 2, 0)), rtol=1e-14, atol=1e-14)
+    rows = [rng.standard_normal((6, n)) for n in x.shape]
+    expected = [sum(x.full()[i, j, k] * rows[0][p, i] * rows[1][p, j] * rows[2][p, k]
+                    for i, j, k in itertools.product(*map(range, x.shape))) for p in range(6)]
+    np.testing.assert_allclose(x.evaluate(rows), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_operations_keep_the_mode_order_and_refuse_to_mix_orders():
+    rng = np.random.default_rng(9)
+    cores = [rng.standard_normal(s) for s in ((1, 3, 2), (2, 4, 3), (3, 5, 1))]
+    x, y = TT(cores, (2, 0, 1)), TT([2.0 * cores[0]] + cores[1:], (2, 0, 1))  # y = 2 x
+    for result, full in ((x.scaled(3.0), 3 * x.full()), (tt_sum([x, y]), x.full() + y.full()),
+                         (tt_hadamard(x, y), x.full() * y.full()), (tt_round(tt_sum([x, y]), 1e-12), 3 * x.full()),
+                         (tt_round_many([x, y], absolute=1e-12)[1], y.full())):
+        assert result.mode_order == (2, 0, 1)
+        np.testing.assert_allclose(result.full(), full, rtol=1e-10, atol=1e-10)
+    identity = TT(cores)
+    assert identity.mode_order == (0, 1, 2)
+    with pytest.raises(ValueError, match=r"train 1 has mode order \[0, 1, 2\], train 0 \[2, 0, 1\]"):
+        tt_sum([x, identity])
+    with pytest.raises(ValueError, match="train 1 has mode order"):
+        tt_hadamard(x, identity)
+
+
 # ---------------------------------------------------------------- sums of Hadamard products, centres
 def _random_train(rng, shape, rank):
     ranks = [1] + [rank] * (len(shape) - 1) + [1]

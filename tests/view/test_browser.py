@@ -25,7 +25,7 @@ from selenium.webdriver.common.keys import Keys  # noqa: E402
 
 from chromium import browser, open_page  # noqa: F401 (browser: a fixture)
 from pgdcli.cli.main import cli  # noqa: E402
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes, FieldTT
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor, TT
 from pgdcli.view import page_html
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,7 +36,7 @@ RELATIVE = 1e-12
 # codebooks built here: every representation and basis
 # ----------------------------------------------------------------------------------------------
 def _trains(coords, orders, ranks, rng):
-    return {name: FieldTT(tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1]))
+    return {name: TT(tuple(rng.standard_normal((ranks[k], coords[j].nodes, ranks[k + 1]))
                                 for k, j in enumerate(order)), order) for name, order in orders.items()}
 
 
@@ -50,7 +50,7 @@ def mixed_codebook() -> Codebook:
               CoordinateInfo("c", (1.0, 2.0), 9, "chebyshev", "parameter", (1.0, 1.25, 2.0)),
               CoordinateInfo("x", (0.0, 1.0), 6, "chebyshev", "space"),
               CoordinateInfo("y", (-0.5, 0.5), 5, "chebyshev", "space")]
-    fields = {"p": FieldModes(rng.standard_normal(4), tuple(rng.standard_normal((c.nodes, 4)) + 1.5 for c in coords))}
+    fields = {"p": CPTensor(rng.standard_normal(4), tuple(rng.standard_normal((c.nodes, 4)) + 1.5 for c in coords))}
     fields.update(_trains(coords, {"q": (0, 1, 2, 3, 4, 5), "r": (3, 5, 0, 2, 4, 1), "s": (5, 4, 3, 2, 1, 0)},
                           (1, 3, 4, 5, 3, 2, 1), rng))
     return Codebook(coords, fields, name="mixed", report={})
@@ -61,7 +61,7 @@ def steady_codebook() -> Codebook:
     coords = [CoordinateInfo("x", (0.0, 1.0), 8, "chebyshev", "space"),
               CoordinateInfo("y", (0.0, 2.0), 7, "chebyshev", "space"),
               CoordinateInfo("g", (-1.0, 1.0), 2, "linear", "parameter")]
-    return Codebook(coords, {"u": FieldModes(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3))
+    return Codebook(coords, {"u": CPTensor(rng.standard_normal(3), tuple(rng.standard_normal((c.nodes, 3))
                                                                               for c in coords))},
                     name="steady", report={})
 
@@ -79,7 +79,7 @@ def single_codebook() -> Codebook:
     """Time alone: no parameter, nothing but the curves and the values."""
     rng = np.random.default_rng(34)
     t = CoordinateInfo("t", (0.0, 5.0), 12, "chebyshev", "time")
-    return Codebook([t], {"u": FieldModes(rng.standard_normal(2), (rng.standard_normal((12, 2)),))}, name="single",
+    return Codebook([t], {"u": CPTensor(rng.standard_normal(2), (rng.standard_normal((12, 2)),))}, name="single",
                     report={})
 
 

@@ -15,7 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 from pgdcli.cli.main import cli
-from pgdcli.codebook.codebook import Codebook, CoordinateInfo, FieldModes
+from pgdcli.codebook.codebook import Codebook, CoordinateInfo, CPTensor
 from pgdcli.codebook.export import layout
 from pgdcli.view import PAGE_LIMIT, UPLOT_VERSION, ViewError, page_html
 from pgdcli.view.page import script_json
@@ -25,7 +25,7 @@ from pgdcli.view.payload import numbers_size
 def tiny(name="tiny", description="", report=None) -> Codebook:
     rng = np.random.default_rng(2)
     coords = [CoordinateInfo("t", (0.0, 1.0), 5, "chebyshev", "time"), CoordinateInfo("k", (1.0, 2.0), 3, "linear")]
-    return Codebook(coords, {"u": FieldModes(rng.standard_normal(2), tuple(rng.standard_normal((c.nodes, 2))
+    return Codebook(coords, {"u": CPTensor(rng.standard_normal(2), tuple(rng.standard_normal((c.nodes, 2))
                                                                           for c in coords))},
                     name=name, description=description, report=report or {})
 
@@ -113,7 +113,7 @@ def test_cli_refuses_a_codebook_too_large_for_a_page(tmp_path):
     coords = [CoordinateInfo("t", (0.0, 1.0), 1999, "chebyshev", "time", tuple(np.linspace(0, 1, 1000))),
               CoordinateInfo("k", (0.0, 1.0), 600, "chebyshev")]
     modes = (rng.standard_normal((1999, 600)), rng.standard_normal((600, 600)))  # 1.56e6 numbers: 12.5 MB
-    path = Codebook(coords, {"u": FieldModes(rng.standard_normal(600), modes)}, name="big", report={}).save(
+    path = Codebook(coords, {"u": CPTensor(rng.standard_normal(600), modes)}, name="big", report={}).save(
         tmp_path / "big.h5")
     r = CliRunner().invoke(cli, ["view", str(path)], catch_exceptions=False)
     assert r.exit_code == 2 and "over the page limit of 8 MiB" in r.stderr and "--force" in r.stderr

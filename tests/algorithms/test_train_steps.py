@@ -1,4 +1,4 @@
-"""The DOP853 stages on trains (pgdcli.algorithms.dop853_stepper): the error norms of the embedded estimates."""
+"""The arithmetic of tensor-train states (pgdcli.algorithms.train_steps): the error norms of the embedded estimates."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import DOP853
 
-from pgdcli.algorithms.dop853_stepper import frobenius_of_sums
+from pgdcli.algorithms.train_steps import frobenius_of_sums
 from pgdcli.tensors.tt import TT
 
 
