@@ -266,11 +266,13 @@ class Resolution:
         self.problem = refined
         return True
 
-    def judge(self, check, codebook, stopped: str | None = None, limited: bool = False) -> Verdict | None:
+    def judge(self, check, codebook, stopped: str | None = None, limited: bool = False,
+              solver: str = "enrichment") -> Verdict | None:
         """The verdict on a round's codebook, or None when automatic coordinates were refined (solve again).
 
         ``stopped``: the solver could not lower its own error at the nodes further (why); ``limited``:
-        that error did not fall with the solver's target (the time and space discretization).
+        that error did not fall with the solver's target (the time and space discretization);
+        ``solver``: what the refusal calls the method ("enrichment", "tensor-train solver").
         """
         this_round = len(self.rounds)
         self._record(check.ratio)
@@ -291,7 +293,7 @@ class Resolution:
                 self.problem = refined
                 return None
             pending = stuck != refine  # a refinement was chosen that the rounds left no solve for
-        reason = refusal(self.problem, check, self.marches, stopped, limited)
+        reason = refusal(self.problem, check, self.marches, stopped, limited, solver)
         return Verdict(False, f"still refining after {MAX_ROUNDS} solves: {reason}" if pending else reason)
 
     def report_entries(self, reason: str) -> dict:
@@ -306,7 +308,8 @@ class Resolution:
         }
 
 
-def refusal(problem, check, marches: bool, stopped: str | None = None, limited: bool = False) -> str:
+def refusal(problem, check, marches: bool, stopped: str | None = None, limited: bool = False,
+            solver: str = "enrichment") -> str:
     """Why the error is too large and what would reduce it, in one clause.
 
     ``stopped`` and ``limited`` as :meth:`Resolution.judge`'s.
@@ -315,7 +318,7 @@ def refusal(problem, check, marches: bool, stopped: str | None = None, limited: 
     refine, stuck = _to_refine(problem, check, marches, limited)
     names = refine + stuck
     if stopped and not any(_lacks_nodes(check, n) for n in names):
-        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the enrichment could not "
+        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the {solver} could not "
                 f"lower its residual further: {stopped}")
     if names:
         def share(n):
@@ -345,6 +348,6 @@ def refusal(problem, check, marches: bool, stopped: str | None = None, limited: 
                 "reference of problems with space coordinates is itself accurate to about 1e-9, so a tighter "
                 "tolerance cannot be checked (--keep-inaccurate keeps the codebook)")
     if check.node_ratio > 1.0:
-        what = "march" if marches else "enrichment"
+        what = "march" if marches else solver
         return f"the {what} did not reach the tolerance at the nodes ({check.node_ratio:.2g} x the tolerance)"
     return "the error between the nodes exceeds the tolerance, in no one coordinate alone"

@@ -16,8 +16,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import ClassVar
 
-__all__ = ["ProgressEvent", "PhaseStarted", "EnrichmentStep", "MarchStep", "CrossSweep", "ReferenceProgress",
-           "emit"]
+__all__ = ["ProgressEvent", "PhaseStarted", "EnrichmentStep", "AmenSweep", "MarchStep", "CrossSweep",
+           "ReferenceProgress", "emit"]
 
 
 @dataclass(frozen=True)
@@ -104,6 +104,33 @@ class EnrichmentStep(ProgressEvent):
     def describe(self) -> str:
         of = f"/{self.max_modes}" if self.max_modes else ""
         return f"{self.mode}{of} modes, residual {self.residual:.2e} (target {self.target:.0e})"
+
+
+@dataclass(frozen=True)
+class AmenSweep(ProgressEvent):
+    """A sweep of the tensor-train solver (AMEn) of a linear problem.
+
+    Attributes
+    ----------
+    sweep : int
+    residual : float
+        The 2-norm at the nodes of the integrated equations' residual (absolute).
+    target : float
+        The residual asked: the solver's own target, not the tolerance.
+    ranks : list of int
+    """
+
+    sweep: int
+    residual: float
+    target: float
+    ranks: list
+
+    def fraction(self) -> float | None:
+        return _decades(self.residual, self.target) if self.residual < 1.0 else 0.0
+
+    def describe(self) -> str:
+        return (f"tensor-train sweep {self.sweep}: residual {self.residual:.2e} (its target {self.target:.0e}), "
+                f"max rank {max(self.ranks, default=1)}")
 
 
 @dataclass(frozen=True)

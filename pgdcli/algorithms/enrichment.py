@@ -40,7 +40,8 @@ from .mode_update import update_mode
 from .outcome import Status
 from .rank_one import enrich, solve_small
 
-__all__ = ["EnrichmentState", "enrich", "project_alphas", "update_mode", "residual_norm", "run_enrichment"]
+__all__ = ["EnrichmentState", "enrich", "project_alphas", "update_mode", "residual_norm", "run_enrichment",
+           "predicted_modes"]
 
 
 def project_alphas(state: EnrichmentState, formulation: str = "minres") -> tuple[np.ndarray, float, float]:
@@ -125,6 +126,24 @@ def residual_norm(op: SeparatedOperator, source: CPTensor, approx: CPTensor) -> 
 
 
 STAGNATION_WINDOW = 8
+#: The enrichment predicts, from the last PREDICTION_WINDOW modes (after PREDICTION_AFTER), how many modes its
+#: residual needs to reach the tolerance at its present rate of decay; beyond PREDICTION_MARGIN x max_modes
+#: it stops at once (status 1, as at max_modes) instead of running up to the cap.
+PREDICTION_AFTER = 25
+PREDICTION_WINDOW = 10
+PREDICTION_MARGIN = 1.5
+
+
+def predicted_modes(history: list[float], tol: float) -> float:
+    """Modes at which a residual falling as over its last :data:`PREDICTION_WINDOW` modes reaches ``tol``.
+
+    ``history`` has the residual before the first mode and after each; inf when it is not falling.
+    """
+    recent = np.log(np.maximum(np.asarray(history[-PREDICTION_WINDOW - 1:]), 1e-300))
+    rate = (recent[0] - recent[-1]) / (recent.size - 1)  # decades (natural) a mode
+    if not rate > 0.0:
+        return float("inf")
+    return len(history) - 1 + max(0.0, (recent[-1] - np.log(tol)) / rate)
 
 
 def run_enrichment(disc: Discretization, opts, tol: float, nmax: int, callback):
@@ -180,6 +199,8 @@ def run_enrichment(disc: Discretization, opts, tol: float, nmax: int, callback):
         if len(history) > STAGNATION_WINDOW and history[-1] > 0.99 * history[-1 - STAGNATION_WINDOW]:
             status = Status.STAGNATED
             break
+        if len(history) > PREDICTION_AFTER and predicted_modes(history, tol) > PREDICTION_MARGIN * nmax:
+            break  # status 1: it would run into max_modes first
     return state, history, iterations, status
 
 

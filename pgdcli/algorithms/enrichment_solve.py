@@ -15,7 +15,7 @@ import numpy as np
 from ..discretization.coefficients import separation_report_text
 from ..discretization.coordinates import coordinate_infos
 from ..discretization.linear import discretize
-from .enrichment import run_enrichment
+from .enrichment import predicted_modes, run_enrichment
 from .outcome import Learned, SolverOutcome, Status
 
 __all__ = ["solve_enrichment", "codebook_from_solution"]
@@ -49,7 +49,7 @@ def solve_enrichment(problem, target: float, max_modes: int, callback=None, sepa
     state, history, iterations, status = run_enrichment(disc, opts, target, max_modes, callback)
     wall = _time.perf_counter() - started
     residual = history[-1]
-    message = _message(status, residual, target, max_modes, state.rank)
+    message = _message(status, history, target, max_modes, state.rank)
     report = {
         "converged": status is Status.CONVERGED,
         "status": int(status),
@@ -71,14 +71,20 @@ def solve_enrichment(problem, target: float, max_modes: int, callback=None, sepa
                          residuals=np.array(history), iterations=np.array(iterations, dtype=int), wall_time=wall)
 
 
-def _message(status: Status, residual: float, target: float, max_modes: int, rank: int) -> str:
+def _message(status: Status, history: list, target: float, max_modes: int, rank: int) -> str:
+    residual = history[-1]
     if status is Status.CONVERGED:
         return f"converged: relative residual {residual:.3g} with {rank} modes"
+    if status is Status.MAX_MODES and rank < max_modes:  # stopped early: the cap is out of reach at this rate
+        needed = predicted_modes(history, target)
+        return (f"not converged: relative residual {residual:.3g} after {rank} modes, falling as if to need "
+                f"{'more than 10 000' if needed > 1e4 else f'about {needed:.0f}'} modes to reach {target:.3g} "
+                f"(max_modes={max_modes}); solver.method: amen (the tensor-train solver) may take it")
     if status is Status.MAX_MODES:
         return (f"not converged: relative residual {residual:.3g} > {target:.3g} after max_modes={max_modes} modes "
-                f"(raise solver.max_modes)")
+                f"(raise solver.max_modes, or solver.method: amen)")
     return (f"not converged: relative residual stagnated at {residual:.3g} (asked {target:.3g}) "
-            f"after {rank} modes")
+            f"after {rank} modes; solver.method: amen (the tensor-train solver) may take it")
 
 
 def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.ndarray], report: dict):

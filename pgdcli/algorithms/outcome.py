@@ -69,6 +69,8 @@ class SolverOutcome:
     wall_time: float = 0.0
     under_resolved: str | None = None
     cross_abandoned: str | None = None
+    #: A solution another solve can start from (the tensor-train solver's), or None.
+    start: object = None
 
     @property
     def converged(self) -> bool:
@@ -95,13 +97,19 @@ class Learned:
     cross_abandoned : str or None
         A cross of trajectories ran past its budget: a finer grid asks it for more trajectories a node, not
         fewer, so the next solves take the grid march when it can hold the grid.
+    start : object or None
+        The last solution a solver can start from (the tensor-train solver's, interpolated to new nodes).
     """
 
     target: float | None = None
     cross_abandoned: str | None = None
+    start: object = None
 
     def after(self, outcome: SolverOutcome) -> "Learned":
         """What is known after ``outcome`` too."""
+        learned = self
         if outcome.cross_abandoned and not self.cross_abandoned:
-            return dataclasses.replace(self, cross_abandoned=outcome.cross_abandoned)
-        return self
+            learned = dataclasses.replace(learned, cross_abandoned=outcome.cross_abandoned)
+        if outcome.start is not None and outcome.converged:
+            learned = dataclasses.replace(learned, start=outcome.start)
+        return learned

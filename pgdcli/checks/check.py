@@ -42,7 +42,7 @@ from .compare import codebook_at_samples, codebook_on_space_grid
 from .sampling import BETWEEN, CORNER_LINES, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
 
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
-           "ordinal", "points_text", "unchecked"]
+           "ordinal", "points_text", "reference_space_nodes", "unchecked"]
 
 @dataclass
 class CheckResult:
@@ -338,10 +338,29 @@ def _pde_reference(problem, codebook, seed: int, progress=None):
         return report, on_report_grid(codebook, report)
     points = None if progress is None else (lambda done, total: progress(ReferenceProgress(done, total)))
     report = verify(codebook, samples=PDE_SAMPLES, seed=seed, times=PDE_TIMES, max_corners=PDE_CORNERS, jobs=1,
-                    rtol=1e-12, atol=1e-12, progress=points)
+                    rtol=1e-12, atol=1e-12, space_nodes=reference_space_nodes(codebook), progress=points)
     _PDE_REFERENCES.clear()
     _PDE_REFERENCES[key] = report
     return report, report.codebook_values
+
+
+#: The reference's collocation nodes per space coordinate: at least this many times the codebook's
+#: (and at least :data:`~pgdcli.checks.reference_base.DEFAULT_SPACE_NODES`), so that a codebook the
+#: automatic resolution refined for a sharp feature is measured against a reference that resolves it
+#: better than it does; with two space coordinates at most :data:`REFERENCE_NODES_2D` each (the
+#: reference's dense LU).
+REFERENCE_NODES_FACTOR = 1.5
+REFERENCE_NODES_2D = 64
+
+
+def reference_space_nodes(codebook) -> dict[str, int]:
+    """Collocation nodes of the gate's method-of-lines reference per space coordinate of ``codebook``."""
+    from .reference_base import DEFAULT_SPACE_NODES
+
+    space = [c for c in codebook.coordinates if c.role == "space"]
+    cap = 1000 if len(space) == 1 else REFERENCE_NODES_2D
+    return {c.name: int(min(cap, max(DEFAULT_SPACE_NODES, np.ceil(REFERENCE_NODES_FACTOR * c.nodes))))
+            for c in space}
 
 
 def on_report_grid(codebook, report) -> dict[str, np.ndarray]:

@@ -48,6 +48,9 @@ def _print_contents(console, summary: dict) -> None:
         console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
     for line in summary.get("separated_coefficients", []):
         console.print(f"separated coefficient: {line}")
+    if summary.get("method_reason"):  # escaped for rich by _shown, as every string of the summary
+        name = "tensor-train solver (amen)" if summary["method"] == "amen" else "enrichment (pgd)"
+        console.print(f"method: {name}: {summary['method_reason']}")
 
 
 def _print_solve(console, summary: dict) -> None:

@@ -139,7 +139,9 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
     placeholder = (march or pde_march) and result.status == Status.FAILED
     return {
         "problem": problem.name,
-        "method": "march" if march else "pde march" if pde_march else "pgd",
+        "method": "march" if march else "pde march" if pde_march else "amen" if rep.get("method") == "amen" else "pgd",
+        # a linear problem: which solver ran and why (solver.method, or auto's fallback)
+        **({"method_reason": str(rep["method_reason"])} if "method_reason" in rep else {}),
         "converged": bool(result.converged),
         "accurate": result.accurate,
         "message": result.message,
@@ -217,8 +219,15 @@ def _summary_table(summary: dict):
             table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
     else:
         residual = "none" if summary["residual"] is None else f"{summary['residual']:.3e}"
-        table.add_row("residual", f"{residual} (relative; the solver's stopping signal)")
-        table.add_row("modes", ", ".join(f"{u}: {n}" for u, n in summary["modes"].items()))
+        if summary.get("method_reason"):
+            name = "tensor-train solver (amen)" if summary["method"] == "amen" else "enrichment (pgd)"
+            table.add_row("method", f"{name}: {escape(summary['method_reason'])}")
+        if summary["method"] == "amen":
+            table.add_row("residual", f"{residual} (2-norm at the nodes; the solver's stopping signal)")
+            table.add_row("TT ranks", ", ".join(f"{u}: {tuple(r)}" for u, r in summary["ranks"].items()))
+        else:
+            table.add_row("residual", f"{residual} (relative; the solver's stopping signal)")
+            table.add_row("modes", ", ".join(f"{u}: {n}" for u, n in summary["modes"].items()))
     for line in summary.get("separated_coefficients", []):
         table.add_row("separated", escape(line))
     slabs = summary.get("slabs", {})

@@ -69,6 +69,7 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
         ],
         "unknowns": {u: field_summary(fm) for u, fm in cb.fields.items()},
         "method": str(rep.get("method", "pgd")),
+        **({"method_reason": str(rep["method_reason"])} if "method_reason" in rep else {}),
         "converged": bool(rep.get("converged", False)),
         "accurate": accurate(rep),
         "relative_tolerance": float(rep.get("relative_tolerance", 0.0)),

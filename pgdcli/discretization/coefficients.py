@@ -23,7 +23,7 @@ from ..errors import SolverError
 from .separate import (DENSE_LIMIT, MAX_SEPARATION_RANK, Separation, SeparationRankError, cp_from_tt,
                        separate_function)
 
-__all__ = ["MAX_CANONICAL_TERMS", "SEPARATION_FRACTION", "JointTrain", "separate_joint", "nodal_terms",
+__all__ = ["CanonicalTermsError", "MAX_CANONICAL_TERMS", "SEPARATION_FRACTION", "JointTrain", "separate_joint", "nodal_terms",
            "separation_report_text"]
 
 #: Most Kronecker terms one coefficient may add to the linear solver's operator (the product of
@@ -34,6 +34,9 @@ MAX_CANONICAL_TERMS = 400
 #: coefficient's singular values fall exponentially, so a tenfold tighter bound costs 1-2 terms.
 SEPARATION_FRACTION = 1e-2
 
+
+class CanonicalTermsError(SolverError):
+    """A coefficient whose canonical expansion has more Kronecker terms than the solver takes."""
 
 
 def _one_coordinate_values(func, nodes: np.ndarray, name: str) -> np.ndarray:
@@ -95,8 +98,8 @@ def separate_joint(joint, nodes: Mapping[str, np.ndarray], tolerance: float, *, 
 
 
 def nodal_terms(sep, nodes: Mapping[str, np.ndarray], tolerance: float, *, where: str = "",
-                reports: list | None = None, max_rank: int = MAX_SEPARATION_RANK
-                ) -> list[tuple[float, dict[str, np.ndarray]]]:
+                reports: list | None = None, max_rank: int = MAX_SEPARATION_RANK,
+                max_terms: int = MAX_CANONICAL_TERMS) -> list[tuple[float, dict[str, np.ndarray]]]:
     """A coefficient as ``[(coef, {coordinate: values at its nodes})]``, joints separated to ``tolerance``.
 
     Parameters
@@ -112,12 +115,15 @@ def nodal_terms(sep, nodes: Mapping[str, np.ndarray], tolerance: float, *, where
         Receives one dict per joint: ``{"coefficient", "coordinates", "terms", "ranks", "error", "method"}``.
     max_rank : int
         Cap on every rank of a separation.
+    max_terms : int
+        Cap on the Kronecker terms of one joint's canonical expansion (the enrichment's
+        :data:`MAX_CANONICAL_TERMS`; the tensor-train solver compresses them again).
 
     Raises
     ------
     SolverError
-        A joint not finite at a node, not separable within ``max_rank``, or whose canonical
-        expansion would exceed :data:`MAX_CANONICAL_TERMS` Kronecker terms.
+        A joint not finite at a node, or not separable within ``max_rank``;
+        :class:`CanonicalTermsError` when its canonical expansion would exceed ``max_terms``.
     """
     out = []
     for term in sep.terms:
@@ -127,12 +133,11 @@ def nodal_terms(sep, nodes: Mapping[str, np.ndarray], tolerance: float, *, where
         out.append((term.coef, values))
     for joint in sep.joints:
         separation, names = separate_joint(joint, nodes, tolerance, where=where, max_rank=max_rank, fewest_terms=True)
-        if separation.terms > MAX_CANONICAL_TERMS:
-            raise SolverError(f"{where}the coefficient '{joint.function_text()}' separates on the nodes of "
-                              f"{', '.join(names)} with tensor-train ranks {separation.ranks}, "
-                              f"{separation.terms} Kronecker terms for the linear solver (at most "
-                              f"{MAX_CANONICAL_TERMS}); use solver.method: march if the problem allows it, "
-                              f"or narrow the domains")
+        if separation.terms > max_terms:
+            raise CanonicalTermsError(
+                f"{where}the coefficient '{joint.function_text()}' separates on the nodes of {', '.join(names)} "
+                f"with tensor-train ranks {separation.ranks}, {separation.terms} Kronecker terms for the "
+                f"enrichment (at most {max_terms}); solver.method: amen (the tensor-train solver) takes it")
         base = {name: np.ones(x.size) for name, x in nodes.items()}
         for name, func in joint.term.factors:
             base[name] = _one_coordinate_values(func, nodes[name], name)

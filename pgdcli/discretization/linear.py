@@ -27,7 +27,7 @@ from ..errors import SolverError
 from ..problem.compatibility import check_initial_meets_boundary
 from ..tensors.cp import CPTensor, SeparatedOperator
 from .basis import Basis1D
-from .coefficients import SEPARATION_FRACTION, nodal_terms
+from .coefficients import MAX_CANONICAL_TERMS, SEPARATION_FRACTION, nodal_terms
 from .coordinates import coordinate_infos
 from .operators_1d import CoordinateOps, SteadyOps, TimeOps, boundary_kinds
 from .separate import MAX_SEPARATION_RANK
@@ -94,6 +94,8 @@ class Discretization:
     time: str | None
     trial: dict = field(default_factory=dict)  # coordinate -> trial node indices (Dirichlet ends removed)
     separations: list = field(default_factory=list)  # per non-separable coefficient: how it was separated
+    # per mode (state first), the quadrature weights whose square roots the operator's rows carry
+    row_weights: list = field(default_factory=list)
 
     def nodal_factors(self, factors: list[np.ndarray]) -> dict[str, list[np.ndarray]]:
         """Solver factors -> per unknown, nodal mode matrices over the coordinates (spec order)."""
@@ -184,7 +186,7 @@ def _dirichlet_lift(unknown, bases: dict[str, Basis1D]) -> list[tuple[float, dic
     return terms
 
 
-def discretize(problem, *, tolerance: float | None = None) -> Discretization:
+def discretize(problem, *, tolerance: float | None = None, max_terms: int = MAX_CANONICAL_TERMS) -> Discretization:
     """Assemble the separated operator, source and lift of a linear problem.
 
     Time-dependent problems are lifted by the initial value (``u = u0 + v``, ``v(t0) = 0``);
@@ -197,6 +199,9 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
     problem : pgdcli.problem.spec.Problem
     tolerance : float, optional
         The solver's tolerance (default ``problem.solver.tolerance``).
+    max_terms : int
+        Most Kronecker terms of one non-separable coefficient's expansion
+        (:class:`~pgdcli.discretization.coefficients.CanonicalTermsError` beyond).
 
     Returns
     -------
@@ -219,7 +224,7 @@ def discretize(problem, *, tolerance: float | None = None) -> Discretization:
         r = eq.index
         for monomial, sep in eq.polynomial.items():
             terms = nodal_terms(sep, nodes, delta, where=f"{problem.source}: equations[{r}]: ", reports=separations,
-                                max_rank=cap)
+                                max_rank=cap, max_terms=max_terms)
             if len(monomial) == 0:
                 for coef, vals in terms:
                     asm.add_source(r, -coef, time.load(asm.time_values(vals)), asm.tested_values(vals))
@@ -334,5 +339,7 @@ def _discretization(problem, asm: _Assembly, bases: dict[str, Basis1D], lifts: d
             np.array(ws), [np.column_stack([vals[c.name] for _, vals in lifts[u]]) if ws
                            else np.zeros((bases[c.name].nodes.size, 0)) for c in coords])
     trial = {c: asm.ops[c].trial for c in asm.params if asm.ops[c].trial.size != bases[c].nodes.size}
+    time_weights = np.ones(1) if problem.time is None else bases[problem.time].time_weights()
+    row_weights = [np.tile(time_weights, len(unknowns))] + [asm.ops[c].w[asm.ops[c].test] for c in asm.params]
     return Discretization(names, bases, SeparatedOperator(tuple(op_terms)), source, lift, unknowns,
-                          [c.name for c in coords], problem.time, trial, separations)
+                          [c.name for c in coords], problem.time, trial, separations, row_weights)

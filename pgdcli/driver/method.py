@@ -88,6 +88,14 @@ class Method:
     plural = "solves"
     #: What the solver's target is, for progress lines ("residual", "RMS").
     target_name = "target"
+    #: What messages call it ("enrichment", "tensor-train solver"); its name when empty.
+    label = ""
+    #: The report names it (``method``, ``method_reason``): a linear problem has two to choose from.
+    names_itself = False
+
+    @property
+    def title(self) -> str:
+        return self.label or self.name
 
     def first_target(self, settings: Settings, learned: Learned) -> float:
         """The target of the first solve at a set of nodes: what met the tolerance before, else the tolerance."""
@@ -150,7 +158,9 @@ class MethodChoice:
 
     def fallback(self, method: Method, outcome: SolverOutcome) -> Method | None:
         """The method to try after ``method`` stalled with ``outcome``, or None."""
-        if not method.stalled(outcome):
-            return None
+        return self.after(method) if method.stalled(outcome) else None
+
+    def after(self, method: Method) -> Method | None:
+        """The method after ``method`` in the choice, or None."""
         later = self.methods[self.methods.index(method) + 1:]
         return later[0] if later else None

@@ -15,17 +15,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..algorithms.amen_solve import solve_amen
 from ..algorithms.enrichment_solve import solve_enrichment
 from ..algorithms.march import solve_march
-from ..algorithms.outcome import SolverOutcome
+from ..algorithms.outcome import SolverOutcome, Status
 from ..algorithms.pde_solve import solve_pde_march
 from ..algorithms.pde_system import pde_refusal
+from ..discretization.coefficients import CanonicalTermsError
 from ..errors import SolverError
 from ..problem.general import has_general
 from .method import Kept, Method, MethodChoice, Try
 
-__all__ = ["METHODS", "choose_method", "Enrichment", "OdeMarch", "PdeMarch", "CHECK_FIRST", "CHECK_SAFETY",
-           "MARCH_SAFETY", "RESIDUAL_FLOOR"]
+__all__ = ["METHODS", "choose_method", "Enrichment", "Amen", "OdeMarch", "PdeMarch", "CHECK_FIRST", "CHECK_SAFETY",
+           "MARCH_SAFETY", "RESIDUAL_FLOOR", "AMEN_FIRST", "AMEN_TIGHTEN", "AMEN_NODE_MARGIN"]
 
 # The enrichment's residual is relative; the tolerance is an absolute error. The first solve asks
 # for a relative residual equal to the tolerance (right for solutions of size ~1); when the error
@@ -49,11 +51,17 @@ class Enrichment(Method):
     name = "pgd"
     plural = "enrichments"
     target_name = "residual"
+    label = "enrichment"
+    names_itself = True
 
     def solve(self, problem, target, settings, learned, callback) -> SolverOutcome:
         # non-separable coefficients are separated to a share of the tolerance, tightened with the
         # residual when the error at the nodes asks for another enrichment (as the march's target is)
         return solve_enrichment(problem, target, settings.max_modes, callback, min(settings.tolerance, target))
+
+    def stalled(self, outcome: SolverOutcome) -> bool:
+        # max_modes reached or predicted, or the residual stagnating: the tensor-train solver may take it
+        return outcome.status in (Status.MAX_MODES, Status.STAGNATED)
 
     def next_target(self, problem, tries, settings) -> float | None:
         last = tries[-1]
@@ -113,6 +121,93 @@ def _at_max_modes(kept: Try, stopped: Try) -> tuple[Try, str | None]:
             and stopped.check.node_ratio > 0.5 * kept.check.node_ratio):
         reason = None
     return stopped, reason
+
+
+# AMEn's target is the 2-norm over the nodes of the integrated equations' residual (absolute, in the
+# unknowns' units), which bounds the largest nodal error up to the operator's smallest singular value:
+# the first solve asks AMEN_FIRST x the tolerance. A repeated solve, at the same nodes or more, starts
+# from the last solution (interpolated); a tighter target is at most AMEN_TIGHTEN x tighter.
+AMEN_FIRST = 0.5
+AMEN_TIGHTEN = 10.0
+# An error at the nodes this many times the residual reached is not the solver's: a tighter solve that
+# stalls then blames the discretization (more nodes), not itself
+AMEN_NODE_MARGIN = 10.0
+
+
+class Amen(Method):
+    """The tensor-train solver of a linear problem (AMEn), to an absolute residual at the nodes."""
+
+    name = "amen"
+    plural = "solves"
+    target_name = "residual"
+    label = "tensor-train solver"
+    names_itself = True
+
+    def first_target(self, settings, learned) -> float:
+        return learned.target if learned.target is not None else AMEN_FIRST * settings.tolerance
+
+    def solve(self, problem, target, settings, learned, callback) -> SolverOutcome:
+        result = solve_amen(problem, target, max_rank=problem.solver.max_rank, callback=callback,
+                            tolerance=settings.tolerance, start=learned.start)
+        status = Status(result.status)
+        ranks = max(max(f.ranks, default=1) for f in result.codebook.fields.values())
+        summary = (f"tensor-train solver: residual {result.residuals[-1]:.3g} (2-norm at the nodes), "
+                   f"{len(result.residuals)} sweeps, largest rank {ranks}")
+        return SolverOutcome(result.codebook, status, result.message, target, summary, residuals=result.residuals,
+                             iterations=result.iterations, wall_time=result.wall_time, start=result.solution)
+
+    def measures(self, outcome, tries) -> bool:
+        # a tighter solve that stopped short of its target is measured too: its best iterate may tell
+        return outcome.converged or bool(tries)
+
+    def next_target(self, problem, tries, settings) -> float | None:
+        last = tries[-1]
+        if not last.outcome.converged or last.check is None:
+            return None
+        ratio = last.check.node_ratio
+        if not np.isfinite(ratio) or ratio <= 1.0 or last.target <= RESIDUAL_FLOOR * settings.tolerance:
+            return None
+        measured = [t for t in tries if t.check is not None]
+        if len(measured) > 1 and ratio > 0.5 * measured[-2].check.node_ratio:
+            return None  # a smaller residual did not help: discretization error
+        # at most AMEN_TIGHTEN at once: a large error at the nodes may be the discretization's, and a
+        # much smaller residual costs sweeps at higher ranks before the next measurement can tell
+        return max(RESIDUAL_FLOOR * settings.tolerance,
+                   min(last.target, last.outcome.residual) * max(1.0 / AMEN_TIGHTEN, CHECK_SAFETY / ratio))
+
+    def keep(self, tries) -> Kept | None:
+        measured = [t for t in tries if t.check is not None]
+        converged = [t for t in measured if t.outcome.converged]
+        if not converged:
+            return None
+        kept = Kept(min(measured, key=lambda t: t.check.node_ratio))
+        if kept.attempt.check.node_ratio <= 1.0:
+            return kept
+        last, before = tries[-1], converged[-1]
+        stopped = None
+        if not last.outcome.converged:  # a tighter solve stopped short of its target
+            stopped = last.outcome.message.removeprefix("not converged: ")
+            reached = min(t.outcome.residual for t in measured)
+            if before.check.node_error > AMEN_NODE_MARGIN * reached:
+                stopped = None  # the error at the nodes is far above any residual reached: more nodes
+            if (last.check is not None and last.outcome.residual <= 0.1 * before.outcome.residual
+                    and last.check.node_ratio > 0.5 * before.check.node_ratio):
+                stopped = None  # the residual fell and the error did not: more nodes
+        kept.stopped, kept.limited = stopped, stopped is None
+        return kept
+
+    def round_entries(self, kept, tries, settings) -> dict:
+        measured = [t for t in tries if t.check is not None]
+        entries = {}
+        if kept.stopped is not None:
+            entries["enrichment_stopped"] = kept.stopped
+        elif kept.limited:
+            entries["discretization_limited"] = 1
+        entries["tolerance"] = float(settings.tolerance)
+        # (solves, 2): residual asked, node ratio
+        entries["amen_attempts"] = np.array([(t.target, t.check.node_ratio) for t in measured], dtype=float)
+        entries["solver_message"] = self.summary(kept, tries)
+        return entries
 
 
 class OdeMarch(Method):
@@ -207,7 +302,7 @@ def _space_limited(tries) -> bool:
 
 
 #: The solver methods by name.
-METHODS: dict[str, Method] = {m.name: m for m in (Enrichment(), OdeMarch(), PdeMarch())}
+METHODS: dict[str, Method] = {m.name: m for m in (Enrichment(), Amen(), OdeMarch(), PdeMarch())}
 
 
 def choose_method(problem) -> MethodChoice:
@@ -218,16 +313,18 @@ def choose_method(problem) -> MethodChoice:
     """
     nonlinear = any(eq.polynomial.degree >= 2 or has_general(eq.polynomial) for eq in problem.equations)
     asked = getattr(problem.solver, "method", "auto")
-    if asked == "pgd" and nonlinear:
-        raise SolverError(f"{problem.source}: solver.method: 'pgd' solves equations linear in the unknowns only; "
+    if asked in ("pgd", "amen") and nonlinear:
+        raise SolverError(f"{problem.source}: solver.method: '{asked}' solves equations linear in the unknowns only; "
                           f"use 'march' or 'auto' for this problem")
     march = asked == "march" or (asked == "auto" and nonlinear)
     if not march:
-        why = "solver.method: pgd" if asked == "pgd" else "equations linear in the unknowns"
-        return MethodChoice((METHODS["pgd"],), why)
+        if asked in ("pgd", "amen"):
+            return MethodChoice((METHODS[asked],), f"solver.method: {asked}")
+        return MethodChoice((METHODS["pgd"], METHODS["amen"]),
+                            "a linear problem: the enrichment first, the tensor-train solver if it stalls")
     if problem.time is None:
         raise SolverError(f"{problem.source}: equations: a steady problem (no time coordinate) needs equations linear "
-                          f"in the unknowns and solver.method 'auto' or 'pgd' (the march steps in time)")
+                          f"in the unknowns and solver.method 'auto', 'pgd' or 'amen' (the march steps in time)")
     why = "solver.method: march" if asked == "march" else "equations nonlinear in the unknowns"
     if any(c.role == "space" for c in problem.coordinates):
         reason = pde_refusal(problem)  # a nonlinear PDE in one space coordinate goes to the PDE march

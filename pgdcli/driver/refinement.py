@@ -22,6 +22,7 @@ import time as _time
 from ..adapt import Resolution, total_nodes
 from ..algorithms.outcome import Learned
 from ..algorithms.result import SolveResult
+from ..discretization.coefficients import CanonicalTermsError
 from ..progress import PhaseStarted, emit
 from . import gate
 from .method import Kept, Method, MethodChoice, Settings, Try
@@ -65,6 +66,8 @@ def solve_rounds(problem, choice: MethodChoice, settings: Settings, callback=Non
             if loop.fall_back(attempt) or loop.more_nodes(attempt):
                 continue
             return loop.failed(attempt), loop.learned
+        if kept.stopped is not None and loop.fall_back(loop.tries[-1], kept.stopped):  # it could go no further
+            continue
         result = loop.kept_result(kept)
         verdict = loop.judge(result, kept)  # refine: more nodes (None), or the verdict
         if verdict is not None:
@@ -95,7 +98,12 @@ class _Loop:
         method, problem = self.method, self.problem
         emit(self.callback, PhaseStarted("solve", f"{method.name} to {method.target_name} {self.target:.2g}, "
                                                   f"nodes {_nodes_text(problem)}", self.solves))
-        outcome = method.solve(problem, self.target, self.settings, self.learned, self.callback)
+        try:
+            outcome = method.solve(problem, self.target, self.settings, self.learned, self.callback)
+        except CanonicalTermsError as exc:  # a coefficient the enrichment cannot take: the next method may
+            if not self.switch(self.choice.after(method), f"the {method.title} cannot take it ({exc})"):
+                raise
+            return self.solve()
         self.learned = self.learned.after(outcome)
         attempt = Try(self.target, outcome)
         if method.measures(outcome, self.tries):
@@ -127,13 +135,15 @@ class _Loop:
         if self.method.solver_ratio(kept.attempt.check, self.problem) <= 1.0:
             measured = [t for t in self.tries if t.check is not None]
             self.learned = dataclasses.replace(self.learned, target=measured[-1].target)
-        return gate.kept_result(kept, self.entries(self.method.round_entries(kept, self.tries, self.settings)),
-                                self.settings)
+        entries = self.entries(self.method.round_entries(kept, self.tries, self.settings))
+        if self.fallbacks:  # never hide the choice: a warning beside the report's method_reason
+            kept.notes.append(f"{entries['method_fallback']} (solver.method: auto)")
+        return gate.kept_result(kept, entries, self.settings)
 
     def judge(self, result: SolveResult, kept: Kept):
         """The resolution's verdict on ``result``, or None after it refined the nodes (solve again)."""
         before = self.problem
-        verdict = self.resolution.judge(result.check, result.codebook, kept.stopped, kept.limited)
+        verdict = self.resolution.judge(result.check, result.codebook, kept.stopped, kept.limited, self.method.title)
         if verdict is None:
             self.refined(before)
         return verdict
@@ -143,14 +153,18 @@ class _Loop:
         self.tries = []
         self.target = self.method.first_target(self.settings, self.learned)
 
-    def fall_back(self, attempt: Try) -> bool:
+    def fall_back(self, attempt: Try, why: str | None = None) -> bool:
         """Another method of the choice takes over from one that stalled (the report says so)."""
         other = self.choice.fallback(self.method, attempt.outcome)
+        why = why if why is not None else attempt.outcome.message.removeprefix("not converged: ")
+        return self.switch(other, f"the {self.method.title} stopped: {why}")
+
+    def switch(self, other, note: str) -> bool:
+        """``other`` (a method or None) takes over; ``note`` says why, in the report and a warning."""
         if other is None:
             return False
-        note = f"{self.method.name} stalled ({attempt.outcome.message.removeprefix('not converged: ')}): {other.name}"
         self.fallbacks.append(note)
-        emit(self.callback, PhaseStarted("refine", note, self.solves))
+        emit(self.callback, PhaseStarted("refine", f"{note}; the {other.title} runs instead", self.solves))
         self.method = other
         self.resolution.marches = other.marches
         self.learned = dataclasses.replace(self.learned, target=None)  # another solver's target means nothing here
@@ -172,8 +186,15 @@ class _Loop:
         self.restart()
 
     def entries(self, entries: dict) -> dict:
-        """A round's report entries, with the methods that stalled before, if any."""
-        return {**entries, "method_fallback": "; ".join(self.fallbacks)} if self.fallbacks else entries
+        """A round's report entries, with the method and why it ran (``solver.method``, or the fallback)."""
+        if self.fallbacks:
+            reason = "; ".join(self.fallbacks) + f"; the {self.method.title} ran instead"
+            entries = {**entries, "method_fallback": reason}
+        else:
+            reason = self.choice.reason
+        if self.method.names_itself:
+            entries = {**entries, "method": self.method.name, "method_reason": reason}
+        return entries
 
 
 def _nodes_text(problem) -> str:

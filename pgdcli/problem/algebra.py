@@ -23,6 +23,17 @@ __all__ = ["SeparatedAlgebra", "MAX_POWER"]
 
 #: Largest integer exponent expanded by repeated multiplication.
 MAX_POWER = 1_000
+#: ``exp`` of a sum is split into factors only while every factor's exponent stays within this bound
+#: over the box (a product of a few such factors is finite and not subnormal)...
+EXPONENT_LIMIT = 300.0
+#: ... and the factors' largest values multiply to at most this many times the whole's largest value:
+#: the non-separable factor is separated numerically to a bound relative to its own size, which the
+#: other factors then carry (``exp(-(x - s)**2/w)`` expanded has factors up to ``exp(2 x s / w)``).
+SPLIT_GAIN = 100.0
+#: Points per coordinate (at most) of the grid on which the factors' ranges are found.
+RANGE_POINTS = 65
+#: Most points of that grid.
+RANGE_GRID = 20_000
 
 
 class SeparatedAlgebra:
@@ -159,6 +170,40 @@ class SeparatedAlgebra:
         # a function of two or more coordinates jointly (sin(w*t)): kept as a tree, separated by the solvers
         return joint_of(("call", name, arg.tree()))
 
+    def _unsafe_factors(self, single: tuple, rest: Separable, log_base: float) -> set[str]:
+        """The coordinates whose factor of ``exp(single + rest)`` must stay in the joint factor ``exp(rest + ...)``.
+
+        Split, ``exp(f(x) + g(s) + h(x, s))`` is ``exp(f) exp(g) exp(h)``: exact, but each factor
+        must stay within :data:`EXPONENT_LIMIT` over the box, and together no larger than
+        :data:`SPLIT_GAIN` times the whole (the joint ``exp(h)`` is separated numerically relative
+        to its own size). A factor of a coordinate of ``h`` that breaks either goes into the joint;
+        ranges are sampled on a grid of the box (the domains from the spec; none known: split).
+        """
+        coupled = rest.coordinates
+        if not coupled or not all(c in self.domains for c in rest.coordinates | {
+                t.factors[0][0] for t in single if t.factors}):
+            return set()
+        groups: dict[str, list] = {}
+        for term in single:
+            if term.factors and term.factors[0][0] in coupled:
+                groups.setdefault(term.factors[0][0], []).append(term)
+        names = sorted(coupled)
+        per = max(3, min(RANGE_POINTS, int(RANGE_GRID ** (1.0 / len(names)))))
+        axes = {c: np.linspace(*self.domains[c], per) for c in names}
+        grid = dict(zip(names, np.meshgrid(*[axes[c] for c in names], indexing="ij")))
+        with np.errstate(all="ignore"):
+            joint = log_base * np.asarray(rest.evaluate(**grid), dtype=float)
+            parts = {c: log_base * np.asarray(Separable(tuple(ts)).evaluate(**{c: grid[c]}), dtype=float)
+                     for c, ts in groups.items()}
+        if not np.all(np.isfinite(joint)) or not all(np.all(np.isfinite(v)) for v in parts.values()):
+            return set(groups)
+        whole = joint + sum(parts.values(), np.zeros_like(joint))
+        gain = float(np.max(joint)) + sum(float(np.max(v)) for v in parts.values()) - float(np.max(whole))
+        ranges = [joint] + list(parts.values())
+        if gain <= math.log(SPLIT_GAIN) and all(float(np.max(np.abs(r))) <= EXPONENT_LIMIT for r in ranges):
+            return set()
+        return set(groups)
+
     def fold_call(self, name: str, value: float, node: ast.AST) -> float:
         with np.errstate(all="ignore"):
             result = float(FUNCTIONS[name](np.float64(value)))
@@ -175,6 +220,11 @@ class SeparatedAlgebra:
         log_base = 1.0 if base is None else math.log(base)
         single = tuple(term for term in arg.terms if len(term.factors) <= 1)
         rest = Separable(tuple(term for term in arg.terms if len(term.factors) > 1), arg.joints)
+        kept = self._unsafe_factors(single, rest, log_base)
+        if kept:  # factors that would leave the range of floats, or carry the joint far above the whole
+            single = tuple(t for t in single if not (t.factors and t.factors[0][0] in kept))
+            rest = Separable(rest.terms + tuple(t for t in arg.terms if t.factors and len(t.factors) == 1
+                                                and t.factors[0][0] in kept), rest.joints)
         if not rest.is_zero:
             scaled = rest.tree() if base is None else t_mul(num(log_base), rest.tree())
             joint = joint_of(("call", "exp", scaled))

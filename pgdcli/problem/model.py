@@ -94,7 +94,7 @@ class SolverOptions:
     fixed_point_tolerance: float = 1e-4
     max_fixed_point_iterations: int = 25
     update: bool = True
-    method: str = "auto"  # 'auto' | 'pgd' (linear enrichment) | 'march' (separated time march)
+    method: str = "auto"  # 'auto' | 'pgd' (linear enrichment) | 'amen' (linear, tensor train) | 'march' (time march)
     max_rank: int = 400  # march: cap on every tensor-train rank
     max_steps: int = 20000  # march: cap on accepted + rejected time steps
     time_slabs: int | str = "auto"  # time basis: 'auto' (march: one slab per accepted step; pgd: 1) or a count

@@ -13,7 +13,7 @@ from __future__ import annotations
 import ast
 import difflib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 from ..errors import ExpressionError
@@ -50,6 +50,9 @@ class ParseOptions:
         If False, ``der()`` is an error (initial values, constants).
     allow_space_derivatives : bool
         If True, ``der(u, x[, n])`` is accepted for a non-time coordinate x.
+    domains : mapping of str to (float, float)
+        The coordinates' domains, where known: ``exp`` of a sum is split into factors only when
+        they stay in range over the box (:meth:`~pgdcli.problem.algebra.SeparatedAlgebra.exponential`).
     """
 
     coordinates: Sequence[str]
@@ -59,6 +62,7 @@ class ParseOptions:
     where: str
     allow_der: bool = True
     allow_space_derivatives: bool = False
+    domains: Mapping[str, tuple] = field(default_factory=dict)
 
 
 def where_prefix(where: str) -> str:
@@ -131,6 +135,7 @@ class Parser(SeparatedAlgebra):
         self.time = options.time
         self.allow_der = options.allow_der
         self.allow_space_derivatives = options.allow_space_derivatives
+        self.domains = dict(options.domains)
         self.products = 0  # term products so far: bounds the work of one parse
 
     # -- messages --------------------------------------------------------------------------

@@ -269,7 +269,8 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
                                   f"(coordinates: {', '.join(coordinate_names)}), or remove the initial values "
                                   f"for a steady problem")
     context = ParseOptions(coordinates=coordinate_names, constants=constants,
-                           unknowns=list(unknown_bodies) + list(rates.values()), time=time, where="")
+                           unknowns=list(unknown_bodies) + list(rates.values()), time=time, where="",
+                           domains={c.name: tuple(c.domain) for c in coordinates})
     parsed = [_parse_unknown(check, n, body, context) for n, body in unknown_bodies.items()]
     unknowns = tuple(u[0] for u in parsed) + tuple(u[1] for u in parsed if len(u) > 1)
     equations = _parse_equations(check, data["equations"], context, rates)

@@ -21,7 +21,7 @@ __all__ = ["FORMULATIONS", "METHODS", "MARCHES", "INTEGRATORS", "default_name", 
            "parse_output"]
 
 FORMULATIONS = ("minres", "galerkin")
-METHODS = ("auto", "pgd", "march")
+METHODS = ("auto", "pgd", "amen", "march")
 MARCHES = ("auto", "grid", "cross", "train")
 #: The names of the time march's steppers (``pgdcli.algorithms.steppers.METHODS``, a layer this one
 #: does not import; a test keeps them equal).

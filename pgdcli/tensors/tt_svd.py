@@ -17,10 +17,11 @@ from typing import Sequence
 
 import numpy as np
 
+from .cp_sweep import khatri_rao_rows, sweep_step
 from .tt import TT
 from .tt_allocate import rank_within
 
-__all__ = ["RELATIVE_FLOOR", "tt_from_full", "tt_from_full_sketched", "thin_svd", "truncation_rank"]
+__all__ = ["RELATIVE_FLOOR", "tt_from_full", "tt_from_full_sketched", "tt_from_cp", "thin_svd", "truncation_rank"]
 
 #: Relative floor of the singular values kept: exactly low-rank functions come out to rounding level.
 RELATIVE_FLOOR = 1e-14
@@ -45,6 +46,48 @@ def tt_from_full(values: np.ndarray, absolute: float) -> TT:
     TT
     """
     return _sweep(values, absolute, lambda unfolding, delta, guess: None, ())
+
+
+def tt_from_cp(weights: np.ndarray, factors: Sequence[np.ndarray], absolute: float) -> TT:
+    """The TT-SVD of a separated (CP) tensor, within an absolute Frobenius error, never forming it.
+
+    The unfolding between modes k and k+1 is ``Q_L (Z_L (.) F_k) diag(w) Z_R^T Q_R^T`` with
+    ``Q_L`` the train's cores so far (orthonormal), ``Z_L`` the terms' coefficients in them, and
+    ``Z_R`` the terms of modes k+1.. in an orthonormal basis ``Q_R`` (the orthogonal sweep of
+    :func:`pgdcli.tensors.cp.sweep_step`, from the right): its SVD is that of the small middle
+    matrix, truncated to ``absolute / sqrt(d - 1)`` as the TT-SVD of a full tensor. No Gram
+    product, so cancellation between terms is resolved to rounding (a sum of many terms of a
+    small residual).
+
+    Parameters
+    ----------
+    weights : ndarray, shape (C,)
+    factors : sequence of ndarray, each shape (n_k, C)
+    absolute : float
+
+    Returns
+    -------
+    TT
+    """
+    d = len(factors)
+    w = np.asarray(weights, dtype=float)
+    if w.size == 0:
+        return TT([np.zeros((1, f.shape[0], 1)) for f in factors])
+    right: list = [None] * (d + 1)
+    for k in range(d - 1, 0, -1):
+        right[k] = sweep_step(right[k + 1], factors[k])
+    delta = absolute / np.sqrt(max(d - 1, 1))
+    left = w[None, :]  # (r_{k-1}, C): the terms' coefficients in the cores so far
+    cores = []
+    for k in range(d - 1):
+        rows = khatri_rao_rows(left, factors[k])  # (r_{k-1} n_k, C)
+        u, s, _ = thin_svd(rows @ right[k + 1].T)
+        rank = truncation_rank(s, delta)
+        basis = u[:, :rank]
+        cores.append(basis.reshape(left.shape[0], factors[k].shape[0], rank))
+        left = basis.T @ rows
+    cores.append((left @ factors[-1].T).reshape(left.shape[0], -1, 1))
+    return TT(cores)
 
 
 def thin_svd(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -285,13 +285,21 @@ def test_solve_json_summary(runner, tmp_path):
     assert result.stderr == ""  # -q: nothing on stderr
 
 
+def _enrichment_only(tmp_path):
+    """spring.yaml solved by the enrichment alone (auto falls back to the tensor-train solver at max_modes)."""
+    spec = tmp_path / "spring.yaml"
+    spec.write_text((PROBLEMS / "spring.yaml").read_text().replace("  tolerance: 1e-10", "  tolerance: 1e-10\n  method: pgd"))
+    return spec
+
+
 def test_solve_not_converged_exits_1_without_file(runner, tmp_path):
+    spec = _enrichment_only(tmp_path)
     out = tmp_path / "spring.h5"
-    result = _invoke(runner, ["solve", PROBLEMS / "spring.yaml", "-o", out, "--max-modes", "1"])
+    result = _invoke(runner, ["solve", spec, "-o", out, "--max-modes", "1"])
     assert result.exit_code == 1, (result.stdout, result.stderr)
     assert result.stdout == ""
     assert not out.exists()
-    assert list(tmp_path.iterdir()) == []
+    assert list(tmp_path.iterdir()) == [spec]
     assert "Traceback" not in result.stderr
     last = result.stderr.splitlines()[-1]
     assert last.startswith("Error: ") and "not converged" in last
@@ -300,7 +308,7 @@ def test_solve_not_converged_exits_1_without_file(runner, tmp_path):
 
 def test_solve_not_converged_json(runner, tmp_path):
     out = tmp_path / "spring.h5"
-    result = _invoke(runner, ["solve", PROBLEMS / "spring.yaml", "-o", out, "--max-modes", "1", "--format", "json",
+    result = _invoke(runner, ["solve", _enrichment_only(tmp_path), "-o", out, "--max-modes", "1", "--format", "json",
                               "-q"])
     assert result.exit_code == 1
     summary = json.loads(result.stdout)

@@ -129,6 +129,23 @@ def test_exp_of_a_sum_splits_into_one_factor_per_coordinate():
     assert np.allclose(factors["a"](x), np.exp(-2 * x))
 
 
+def test_exp_of_a_sum_keeps_factors_that_would_overflow_or_cancel_in_the_joint():
+    # exp(-(a - k*t)**2/w) split would have factors exp(-a**2/w), exp(2 a k t / w), ...: up to exp(400) on
+    # this box, far larger than the whole (at most 1); with the domains known they stay in one joint factor
+    text = "exp(-(a - k*t)**2/0.01)"
+    domains = {"t": (0.0, 2.0), "k": (0.5, 5.0), "a": (0.2, 1.0)}
+    kept = parse(text, domains=domains).coefficient(())
+    assert not kept.terms and len(kept.joints) == 1
+    assert kept.joints[0].function_text() == "exp(200*a*k*t + -100*k**2*t**2 - 100*a**2)"
+    assert parse(text).coefficient(()).joints[0].function_text() == "exp(200*a*k*t + -100*k**2*t**2)*exp(-100*a**2)"
+    p = points()
+    np.testing.assert_allclose(kept.evaluate(**p), np.exp(-(p["a"] - p["k"] * p["t"]) ** 2 / 0.01), rtol=1e-12,
+                               atol=1e-300)
+    # small exponents over the box are still split off the joint
+    small = parse("exp(-(a - k*t)**2/100)", domains=domains).coefficient(())
+    assert small.joints[0].function_text() == "exp(0.02*a*k*t + -0.01*k**2*t**2)*exp(-0.01*a**2)"
+
+
 def test_constant_part_of_an_exponent_becomes_the_coefficient():
     (term,) = separable("exp(1 + k - a)").terms
     assert term.coef == pytest.approx(np.e)

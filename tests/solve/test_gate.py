@@ -413,15 +413,19 @@ def test_an_enrichment_stopped_by_max_modes_is_named_not_blamed_on_nodes():
     for needs more. The refusal names max_modes; only k, whose error between nodes is large, is refined
     (before, time was refined to the cap and blamed)."""
     with threadpool_limits(1):
-        result = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 34\n", source="capped.yaml"))
+        result = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 34\n  method: pgd\n", source="capped.yaml"))
     assert result.status == INACCURATE and result.accurate is False
     assert "enrichment could not lower its residual further" in result.message
     assert "raise solver.max_modes" in result.message
     rounds = result.codebook.report["resolution_rounds"]  # (rounds, t k c x0 + ratio)
     assert np.all(rounds[:, 0] == rounds[0, 0])  # the time nodes were not refined for the enrichment's error
     with threadpool_limits(1):
-        enough = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 60\n", source="enough.yaml"))
+        enough = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 60\n  method: pgd\n", source="enough.yaml"))
     assert enough.accurate is True
+    assert "or solver.method: amen" in result.message  # the other advice works too
+    with threadpool_limits(1):
+        other = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 34\n  method: amen\n", source="amen.yaml"))
+    assert other.accurate is True and other.codebook.report["method"] == "amen"
 
 
 @pytest.mark.parametrize("measured,tail,says", [

@@ -59,7 +59,8 @@ def test_the_method_is_chosen_from_the_equations_and_says_why():
     def choice(name):
         return choose_method(pgdcli.load_spec(PROBLEMS / f"{name}.yaml"))
 
-    assert choice("relaxation").methods == (METHODS["pgd"],) and choice("relaxation").reason.startswith("equations linear")
+    assert choice("relaxation").methods == (METHODS["pgd"], METHODS["amen"])  # the second when the first stalls
+    assert choice("relaxation").reason.startswith("a linear problem: the enrichment first")
     assert choice("coupled").methods == (METHODS["march"],)
     assert choice("fisher").methods == (METHODS["pde march"],) and "space coordinate" in choice("fisher").reason
     assert all(m.marches for m in (METHODS["march"], METHODS["pde march"])) and not METHODS["pgd"].marches
@@ -89,8 +90,11 @@ def test_a_method_that_stalls_falls_back_to_the_next_of_the_choice_and_the_repor
     seen: list = []
     result, _ = solve_rounds(problem, MethodChoice((_Stalls(), METHODS["pgd"]), "test"), settings, seen.append)
     assert result.accurate is True
-    assert result.codebook.report["method_fallback"] == "stalling stalled (stagnated at 0.5): pgd"
-    assert "stalling stalled (stagnated at 0.5): pgd" in [e.describe() for e in seen if isinstance(e, PhaseStarted)]
+    assert result.codebook.report["method_fallback"] == "the stalling stopped: stagnated at 0.5; the enrichment ran instead"
+    assert result.codebook.report["method"] == "pgd"
+    assert "the stalling stopped: stagnated at 0.5; the enrichment runs instead" in [
+        e.describe() for e in seen if isinstance(e, PhaseStarted)]
+    assert any("the enrichment ran instead (solver.method: auto)" in w for w in result.warnings)
     for u in alone.codebook.fields:  # the same solve, once the stalling method gave up
         np.testing.assert_array_equal(result.codebook.fields[u].weights, alone.codebook.fields[u].weights)
     # without a method to fall back to, the stalled outcome is the result

@@ -113,13 +113,17 @@ def test_an_error_peak_at_the_ends_of_five_coordinates_is_seen_by_the_gate():
 
 
 def test_advection_diffusion_is_refused_with_its_residual(tmp_path):
-    """Advection moves the solution with a: the enrichment reaches max_modes; exit 1, nothing written."""
+    """Advection moves the solution with a: the enrichment alone reaches max_modes; exit 1, nothing written.
+    (solver.method: auto would go on with the tensor-train solver.)"""
     from click.testing import CliRunner
 
     from pgdcli.cli.main import cli
 
     out = tmp_path / "ad.h5"
-    res = CliRunner().invoke(cli, ["solve", str(HERE / "advection_diffusion.yaml"), "-o", str(out), "-q"])
+    spec = tmp_path / "advection_diffusion.yaml"
+    spec.write_text((HERE / "advection_diffusion.yaml").read_text().replace("  tolerance: 1e-6",
+                                                                            "  tolerance: 1e-6\n  method: pgd"))
+    res = CliRunner().invoke(cli, ["solve", str(spec), "-o", str(out), "-q"])
     assert res.exit_code == 1 and not out.exists()
     last = res.stderr.strip().splitlines()[-1]
     assert last.startswith("Error: ") and "not converged: relative residual" in last and "max_modes=100" in last
