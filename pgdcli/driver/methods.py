@@ -53,6 +53,8 @@ class Enrichment(Method):
     target_name = "residual"
     label = "enrichment"
     names_itself = True
+    #: The report entry of the solves at one set of nodes: (solves, 2), residual asked and node ratio.
+    attempts_key = "enrichment_attempts"
 
     def solve(self, problem, target, settings, learned, callback) -> SolverOutcome:
         # non-separable coefficients are separated to a share of the tolerance, tightened with the
@@ -101,7 +103,7 @@ class Enrichment(Method):
             entries["discretization_limited"] = 1
         entries["tolerance"] = float(settings.tolerance)
         # (solves, 2): residual asked, node ratio
-        entries["enrichment_attempts"] = np.array([(t.target, t.check.node_ratio) for t in measured], dtype=float)
+        entries[self.attempts_key] = np.array([(t.target, t.check.node_ratio) for t in measured], dtype=float)
         entries["solver_message"] = self.summary(kept, tries)
         return entries
 
@@ -142,6 +144,7 @@ class Amen(Method):
     target_name = "residual"
     label = "tensor-train solver"
     names_itself = True
+    attempts_key = "amen_attempts"
 
     def first_target(self, settings, learned) -> float:
         return learned.target if learned.target is not None else AMEN_FIRST * settings.tolerance
@@ -196,18 +199,7 @@ class Amen(Method):
         kept.stopped, kept.limited = stopped, stopped is None
         return kept
 
-    def round_entries(self, kept, tries, settings) -> dict:
-        measured = [t for t in tries if t.check is not None]
-        entries = {}
-        if kept.stopped is not None:
-            entries["enrichment_stopped"] = kept.stopped
-        elif kept.limited:
-            entries["discretization_limited"] = 1
-        entries["tolerance"] = float(settings.tolerance)
-        # (solves, 2): residual asked, node ratio
-        entries["amen_attempts"] = np.array([(t.target, t.check.node_ratio) for t in measured], dtype=float)
-        entries["solver_message"] = self.summary(kept, tries)
-        return entries
+    round_entries = Enrichment.round_entries  # its attempts as amen_attempts
 
 
 class OdeMarch(Method):
