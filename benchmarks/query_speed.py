@@ -223,12 +223,14 @@ def measure_in_process(name: str, path: Path, rows: list, quick: bool) -> None:
 
 def evaluation_before(cb, coordinates):
     """Codebook.evaluate as in pgdcli 0.1.0: broadcast, check, then the unchunked algorithm."""
+    from pgdcli.codebook.domain import clip_to_domain
+
     for key in coordinates:
         if key not in cb.coordinate_names:
             raise KeyError(key)
     arrays = np.broadcast_arrays(*[np.asarray(coordinates[n], dtype=float) for n in cb.coordinate_names])
     shape = arrays[0].shape
-    flat = {c.name: cb._checked(c, a.reshape(-1)) for c, a in zip(cb.coordinates, arrays)}
+    flat = {c.name: clip_to_domain(c, a.reshape(-1)) for c, a in zip(cb.coordinates, arrays)}
     return {u: v.reshape(shape) for u, v in unchunked_evaluation(cb, flat).items()}
 
 

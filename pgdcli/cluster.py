@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 
+from . import __version__
 from .errors import ClusterError
 from .executors import DaskExecutor
 
@@ -75,8 +76,6 @@ def connect(address: str | None = None, workers: int | None = None, *, option: s
 
 def _check_workers(client, address: str, option: str, timeout: float) -> None:
     """At least one worker, and every worker runs this version of pgdcli."""
-    from . import __version__
-
     try:
         client.wait_for_workers(1, timeout=timeout)
     except Exception:  # noqa: BLE001 - a timeout, in whichever class this version raises it
@@ -94,6 +93,4 @@ def _check_workers(client, address: str, option: str, timeout: float) -> None:
 
 def _worker_version() -> str:
     """pgdcli's version where this runs."""
-    from . import __version__
-
     return __version__

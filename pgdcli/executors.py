@@ -36,9 +36,13 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import multiprocessing
 import os
+import sys
+import threading
+import time
 from collections import OrderedDict, deque
-from concurrent.futures import CancelledError, Future
+from concurrent.futures import CancelledError, Future, ProcessPoolExecutor, as_completed
 from typing import Callable, Iterable, Iterator
 
 from .blas import one_blas_thread
@@ -103,8 +107,6 @@ class Executor:
 
     def as_completed(self, fn: Callable, items: Iterable) -> Iterator[tuple[int, Future]]:
         """``(index, future)`` of ``fn(item)`` for every item, as the tasks finish."""
-        from concurrent.futures import as_completed
-
         futures = {self.submit(fn, item): i for i, item in enumerate(items)}
         try:
             for future in as_completed(futures):
@@ -166,10 +168,6 @@ class SerialExecutor(Executor):
 def pool_context():
     """fork on Linux when this process runs no other thread (fast, no ``__main__`` guard needed in
     user scripts), else forkserver/spawn (forking a process that runs threads can deadlock)."""
-    import multiprocessing
-    import sys
-    import threading
-
     methods = multiprocessing.get_all_start_methods()
     if sys.platform.startswith("linux") and "fork" in methods and threading.active_count() == 1:
         return multiprocessing.get_context("fork")
@@ -188,8 +186,6 @@ class ProcessExecutor(Executor):
 
     def submit(self, fn: Callable, *args) -> Future:
         if self._pool is None:
-            from concurrent.futures import ProcessPoolExecutor
-
             self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=pool_context())
         return self._pool.submit(_one_blas_thread, fn, *args)
 
@@ -284,8 +280,6 @@ class DaskExecutor(Executor):
 
     def _retried(self, action: Callable, what: str):
         """``action()``, tried again while the cluster restarts (its connections closed meanwhile)."""
-        import time
-
         for attempt in range(RESUBMITS + 1):
             try:
                 return action()

@@ -191,3 +191,131 @@ def test_layers_point_one_way(name):
 def test_leaf_modules_import_only_leaves(leaf):
     imported = {t for t in _graph()[f"pgdcli.{leaf}"] if t != "pgdcli"}
     assert imported <= set(LEAVES[leaf]), f"pgdcli.{leaf} imports {sorted(imported)}"
+
+
+# --- sizes and local imports ----------------------------------------------------------------------
+
+MAX_MODULE_LINES = 450
+MAX_FUNCTION_CODE_LINES = 60
+
+# third-party modules slow enough to import that a command which may not need them defers them into
+# the function that does (the time `pgd query` or `import pgdcli` would otherwise pay at start-up)
+HEAVY = ("numpy", "scipy.", "h5py", "matplotlib", "rich.", "yaml", "distributed", "dask", "selenium",
+         "threadpoolctl", "xarray", "pandas", "pyarrow")
+
+
+def _heavy(module: str) -> str | None:
+    """The heavy third-party name ``module`` loads (``scipy.sparse`` for ``scipy.sparse.linalg``)."""
+    for prefix in HEAVY:
+        if module == prefix.rstrip(".") and prefix.endswith("."):
+            return None  # the bare package (e.g. ``scipy``) is cheap; its subpackages are not
+        if module.startswith(prefix) or module == prefix:
+            if prefix.endswith("."):
+                return ".".join(module.split(".")[:2])
+            return prefix
+    return None
+
+
+def _top_level_imports(tree: ast.Module):
+    """Import statements that run when the module is imported (``if TYPE_CHECKING`` blocks excluded)."""
+    todo = list(tree.body)
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
+        elif isinstance(node, ast.If) and "TYPE_CHECKING" not in ast.unparse(node.test):
+            todo += node.body + node.orelse
+        elif isinstance(node, ast.Try):
+            todo += node.body + node.orelse + node.finalbody + [s for h in node.handlers for s in h.body]
+
+
+def _targets(name: str, node) -> tuple[set[str], set[str]]:
+    """``(package modules, heavy third-party names)`` an import statement of module ``name`` loads."""
+    ours, heavy = set(), set()
+    if isinstance(node, ast.Import):
+        modules = [a.name for a in node.names]
+    else:
+        base = _resolve(name, node)
+        modules = [base] + [f"{base}.{a.name}" for a in node.names]
+    for module in modules:
+        if module.split(".")[0] == "pgdcli":
+            while module and module not in MODULES:
+                module = module.rpartition(".")[0]
+            if module:
+                ours.add(module)
+        elif _heavy(module):
+            heavy.add(_heavy(module))
+    return ours, heavy
+
+
+@functools.lru_cache(maxsize=None)
+def _import_time_edges(name: str) -> tuple[frozenset[str], frozenset[str]]:
+    """``(package modules, heavy names)`` that module ``name``'s own top-level imports load."""
+    ours, heavy = set(), set()
+    parts = name.split(".")
+    ours |= {".".join(parts[:i]) for i in range(1, len(parts))}  # a submodule's packages run first
+    for node in _top_level_imports(ast.parse(MODULES[name].read_text())):
+        o, h = _targets(name, node)
+        ours |= o
+        heavy |= h
+    return frozenset(ours - {name}), frozenset(heavy)
+
+
+@functools.lru_cache(maxsize=None)
+def _loads_at_import(name: str) -> frozenset[str]:
+    """The heavy third-party names that importing package module ``name`` loads (transitively)."""
+    seen, todo, heavy = {name}, [name], set()
+    while todo:
+        ours, theirs = _import_time_edges(todo.pop())
+        heavy |= theirs
+        todo += [m for m in ours if m not in seen]
+        seen |= ours
+    return frozenset(heavy)
+
+
+def _code_lines(lines: list[str], node) -> int:
+    """Lines of ``node`` that hold code: no blank line, comment line or docstring."""
+    first = node.body[0]
+    doc = set()
+    if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+        doc = set(range(first.lineno, first.end_lineno + 1))
+    return sum(1 for i in range(node.lineno, node.end_lineno + 1)
+               if i not in doc and lines[i - 1].strip() and not lines[i - 1].strip().startswith("#"))
+
+
+def test_modules_fit_in_one_read():
+    long = {str(p.relative_to(PACKAGE.parent)): n for p in MODULES.values()
+            if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
+
+
+def test_functions_fit_on_a_screen():
+    long = []
+    for path in MODULES.values():
+        text = path.read_text()
+        lines = text.splitlines()
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if (n := _code_lines(lines, node)) > MAX_FUNCTION_CODE_LINES:
+                    long.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.name} ({n} lines)")
+    assert not long, f"functions over {MAX_FUNCTION_CODE_LINES} lines of code:\n" + "\n".join(long)
+
+
+def test_local_imports_defer_a_heavy_import():
+    """An import inside a function defers loading something heavy the module does not load already."""
+    needless = []
+    for name, path in MODULES.items():
+        tree = ast.parse(path.read_text())
+        loaded = _loads_at_import(name)
+        for func in ast.walk(tree):
+            if not isinstance(func, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(func):
+                if not isinstance(node, (ast.Import, ast.ImportFrom)):
+                    continue
+                ours, heavy = _targets(name, node)
+                for module in ours:
+                    heavy |= _loads_at_import(module)
+                if not heavy - loaded:
+                    needless.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {ast.unparse(node)}")
+    assert not needless, "imports inside functions that defer nothing heavy:\n" + "\n".join(needless)

@@ -37,11 +37,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import __version__
 from ..codebook.codebook import Codebook
-from ..progress import AmenSweep, emit
 from ..discretization.coefficients import separation_report_text
 from ..discretization.coordinates import coordinate_infos
 from ..discretization.linear import Discretization, discretize
+from ..progress import AmenSweep, emit
 from ..tensors.amen import amen_solve
 from ..tensors.tt import TT, tt_round, tt_sum
 from ..tensors.tt_matrix import TTMatrix, tt_matrix_from_terms
@@ -276,8 +277,6 @@ def field_trains(disc: Discretization, modes: list[str], solution: TT, absolute:
 
 def _codebook(problem, disc: Discretization, modes: list[str], solution: TT, report: dict, absolute: float
               ) -> Codebook:
-    from .. import __version__
-
     coords = coordinate_infos(problem, march=False)
     trains, order = field_trains(disc, modes, solution, absolute)
     fields = {u: TT(tuple(t.cores), order) for u, t in trains.items()}

@@ -12,9 +12,12 @@ import time as _time
 
 import numpy as np
 
+from .. import __version__
+from ..codebook.codebook import Codebook
 from ..discretization.coefficients import separation_report_text
 from ..discretization.coordinates import coordinate_infos
 from ..discretization.linear import discretize
+from ..tensors.cp import CPTensor
 from .enrichment import predicted_modes, run_enrichment
 from .outcome import Learned, SolverOutcome, Status
 
@@ -89,10 +92,6 @@ def _message(status: Status, history: list, target: float, max_modes: int, rank:
 
 def codebook_from_solution(problem, disc, alphas: np.ndarray, factors: list[np.ndarray], report: dict):
     """Assemble the codebook of a solved problem: lift terms + PGD terms per unknown."""
-    from .. import __version__
-    from ..codebook.codebook import Codebook
-    from ..tensors.cp import CPTensor
-
     coords = coordinate_infos(problem, march=False)
     nodal = disc.nodal_factors(factors)
     fields = {}

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import __version__
+from ..codebook.codebook import Codebook
 from ..discretization.coefficients import separation_report_text
 from ..discretization.coordinates import CoordinateInfo, coordinate_infos
 from ..tensors.tt import TT
@@ -33,9 +35,6 @@ def field_order(problem, system: NonlinearSystem) -> tuple[int, ...]:
 def failed_result(problem, system: NonlinearSystem, failure, region: str, tolerance: float, steps: int,
                   wall: float) -> SolverOutcome:
     """A not-converged outcome whose message names where (time, region) the march stopped."""
-    from ..codebook.codebook import Codebook
-    from .. import __version__
-
     coords = coordinate_infos(problem, march=True)
     order = field_order(problem, system)
     where = f" near {region}" if region else ""
@@ -66,9 +65,6 @@ def converged_result(problem, system: NonlinearSystem, result, trains: list[TT],
     of that march (``pgdcli.algorithms.march``'s report of the tensor-train march, or the grid and
     cross marches' entries).
     """
-    from ..codebook.codebook import Codebook
-    from .. import __version__
-
     coords = march_coordinates(problem, result)
     order = field_order(problem, system)
     fields = {}

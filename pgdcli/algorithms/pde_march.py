@@ -41,6 +41,7 @@ from ..errors import SolverError
 from ..progress import MarchStep, emit
 from .pde_operators import DenseOperators
 from .pde_system import PdeSystem, compile_pde_system
+from .pde_train import TrainOperators
 
 __all__ = ["PdeSystem", "compile_pde_system", "march_pde", "PdeMarchResult", "SCHEMES", "UnderResolved",
            "DENSE_LIMIT"]
@@ -118,8 +119,6 @@ def _operators(system: PdeSystem, dense: bool | None):
     size = len(system.species) * float(np.prod(system.shape))
     if (size <= DENSE_LIMIT) if dense is None else dense:
         return DenseOperators(system)
-    from .pde_train import TrainOperators
-
     return TrainOperators(system)
 
 

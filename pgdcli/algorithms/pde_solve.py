@@ -16,14 +16,16 @@ import time as _time
 
 import numpy as np
 
+from .. import __version__
+from ..codebook.codebook import Codebook
 from ..discretization.coordinates import coordinate_infos
 from ..errors import SolverError
 from ..tensors.tt import TT
 from .march_codebook import SPACE_TIME_FRACTION, march_coordinates, steps_text
 from .outcome import Learned, SolverOutcome, Status
-from .space_time import join_and_round
 from .pde_march import UnderResolved, march_pde
 from .pde_system import compile_pde_system
+from .space_time import join_and_round
 
 __all__ = ["solve_pde_march", "SLAB_NODES"]
 
@@ -97,9 +99,6 @@ def _failed(problem, system, coords, exc: SolverError, tolerance: float, wall: f
 
 def _codebook(problem, system, coords, cores: dict, report: dict):
     """The codebook of unknown name -> the cores of its train over ``(time, space..., parameters)``."""
-    from .. import __version__
-    from ..codebook.codebook import Codebook
-
     names = [c.name for c in coords]
     order = tuple(names.index(m) for m in [problem.time] + system.modes)
     report["pgdcli_version"] = __version__

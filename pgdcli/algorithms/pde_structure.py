@@ -30,6 +30,7 @@ from ..discretization.basis import make_basis
 from ..errors import SolverError
 from ..problem.general import is_general
 from ..problem.polynomial import format_monomial
+from .pde_boundary import boundary_rows, check_corners
 
 __all__ = ["PdeStructure", "pde_structure", "pde_refusal", "SCOPE", "MAX_SPACE"]
 
@@ -255,8 +256,6 @@ def _samples(problem, sep):
 def _check_corners(problem, structure: PdeStructure) -> None:
     """Boundary data of the two space coordinates that agree at the corners (to the tolerance), at the
     corners, center and random points of the parameters' box: refused before solving, in one line."""
-    from .pde_boundary import boundary_rows, check_corners
-
     axes = [make_basis("chebyshev", problem.coordinate(x).domain, CORNER_NODES) for x in structure.space]
     params = sorted({c for u in problem.unknowns for ends in u.boundary.values() for bc in ends
                      for c in bc.value.coordinates} - set(structure.space))

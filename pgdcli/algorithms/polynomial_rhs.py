@@ -164,20 +164,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
     general: list = [None] * len(unknowns)
     where = problem.source
     for eq in problem.equations:
-        ders = [(m, sep) for m, sep in eq.polynomial.items() if any(a.order > 0 for a in m)]
-        if len(ders) != 1 or len(ders[0][0]) != 1:
-            raise SolverError(f"{where}: equations[{eq.index}]: the nonlinear solver needs exactly one der(...) "
-                              f"term per equation, got {len(ders)} in '{eq.text}'")
-        (atom,), dsep = ders[0]
-        if atom.coordinate != tname or atom.order != 1:
-            raise SolverError(f"{where}: equations[{eq.index}]: only first time derivatives are supported")
-        if len(dsep.terms) != 1:
-            merged = merge_to_function(dsep)
-            if merged is not None:  # e.g. (a + 1)*der(u): one function of one coordinate
-                dsep = Separable((SepTerm(1.0, ((merged.coordinate, merged),) if merged.coordinate else ()),))
-        if len(dsep.terms) != 1 or dsep.joints:
-            raise SolverError(f"{where}: equations[{eq.index}]: the coefficient of der({atom.unknown}) must be a "
-                              f"single product of one-coordinate functions, got '{dsep}'")
+        der_monomial, atom, dsep = _time_derivative(eq, tname, where)
         s = index[atom.unknown]
         if rhs[s] is not None:
             raise SolverError(f"{where}: der({atom.unknown}) appears in two equations; write one equation per unknown")
@@ -189,7 +176,7 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
             general[s] = GeneralPart([(m, eq.polynomial[m]) for m in crossed], dterm, unknowns, params,
                                      {p: bases[p].nodes for p in params}, tname)
         for mono, sep in eq.polynomial.items():
-            if mono == ders[0][0] or mono in crossed:
+            if mono == der_monomial or mono in crossed:
                 continue
             weights, tfuncs, pvecs = [], [], []
             for term in sep.terms:
@@ -207,17 +194,40 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
             monomials.append((_Coefficient(np.array(weights), tfuncs, pvecs, joints),
                               tuple(index[a.unknown] for a in mono)))
         rhs[s] = monomials
-    initial = []
-    for u in problem.unknowns:
-        terms = [tt_rank_one(_param_vectors(term, params, bases), term.coef) for term in u.initial.terms]
-        for joint in u.initial.joints:
-            train = JointTrain(joint, tname, params, {p: bases[p].nodes for p in params}, delta,
-                               where=f"{where}: unknowns.{u.name}.initial: ", reports=separations, max_rank=cap)
-            terms.append(_JointPart(joint.term.coef, None, _param_vectors(joint.term, params, bases), train).at(0.0))
-        if not terms:
-            terms = [tt_rank_one([np.zeros(bases[p].nodes.size) for p in params])]
-        initial.append(tt_round(tt_sum(terms), 1e-15))
+    initial = [_initial_train(u, problem, params, bases, delta, cap, separations) for u in problem.unknowns]
     return NonlinearSystem(unknowns, params, bases, bases[tname], rhs, initial, general)
+
+
+def _initial_train(u, problem, params: list, bases: dict, delta: float, cap: int, separations) -> TT:
+    """The initial value of unknown ``u`` over the parameter grid, as a train (joint terms separated)."""
+    terms = [tt_rank_one(_param_vectors(term, params, bases), term.coef) for term in u.initial.terms]
+    for joint in u.initial.joints:
+        train = JointTrain(joint, problem.time, params, {p: bases[p].nodes for p in params}, delta,
+                           where=f"{problem.source}: unknowns.{u.name}.initial: ", reports=separations,
+                           max_rank=cap)
+        terms.append(_JointPart(joint.term.coef, None, _param_vectors(joint.term, params, bases), train).at(0.0))
+    if not terms:
+        terms = [tt_rank_one([np.zeros(bases[p].nodes.size) for p in params])]
+    return tt_round(tt_sum(terms), 1e-15)
+
+
+def _time_derivative(eq, tname: str, where: str):
+    """``(monomial, atom, coefficient)`` of the one ``der(u, t)`` term of an equation; SolverError otherwise."""
+    ders = [(m, sep) for m, sep in eq.polynomial.items() if any(a.order > 0 for a in m)]
+    if len(ders) != 1 or len(ders[0][0]) != 1:
+        raise SolverError(f"{where}: equations[{eq.index}]: the nonlinear solver needs exactly one der(...) "
+                          f"term per equation, got {len(ders)} in '{eq.text}'")
+    (atom,), dsep = ders[0]
+    if atom.coordinate != tname or atom.order != 1:
+        raise SolverError(f"{where}: equations[{eq.index}]: only first time derivatives are supported")
+    if len(dsep.terms) != 1:
+        merged = merge_to_function(dsep)
+        if merged is not None:  # e.g. (a + 1)*der(u): one function of one coordinate
+            dsep = Separable((SepTerm(1.0, ((merged.coordinate, merged),) if merged.coordinate else ()),))
+    if len(dsep.terms) != 1 or dsep.joints:
+        raise SolverError(f"{where}: equations[{eq.index}]: the coefficient of der({atom.unknown}) must be a "
+                          f"single product of one-coordinate functions, got '{dsep}'")
+    return ders[0][0], atom, dsep
 
 
 class _Ratio:

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import LimitError, SolverError
 from ..limits import MAX_COORDINATES, MAX_UNKNOWNS, limit
+from .reference_ode import CompiledSystem
 
 __all__ = ["check_budget", "time_nodes", "fastest_rate"]
 
@@ -99,8 +100,6 @@ def fastest_rate(problem) -> float | None:
     forward differences of the reference's right-hand side. None when the reference cannot
     compile the equations (they are refused elsewhere) or the Jacobian is not finite.
     """
-    from .reference_ode import CompiledSystem
-
     params = _linearization_points(problem)
     S = len(next(iter(params.values()))) if params else 1
     try:

@@ -39,7 +39,10 @@ import numpy as np
 
 from ..progress import ReferenceProgress
 from .compare import codebook_at_samples, codebook_on_space_grid
+from .reference import solve_reference, solve_reference_vectorized
+from .reference_base import DEFAULT_SPACE_NODES
 from .sampling import BETWEEN, CORNER_LINES, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
+from .verify import verify
 
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
            "ordinal", "points_text", "reference_space_nodes", "unchecked"]
@@ -162,8 +165,6 @@ def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: fl
     :func:`pgdcli.checks.reference.solve_reference`, which isolates the failing samples.
     ``progress`` receives :class:`~pgdcli.progress.ReferenceProgress` events.
     """
-    from .reference import solve_reference, solve_reference_vectorized
-
     t0, span = float(times[0]), float(times[-1] - times[0])
     in_time = None if progress is None else (lambda t: progress(ReferenceProgress(t - t0, span, "time")))
     values = solve_reference_vectorized(problem, points, S, times, rtol=rtol, atol=atol, progress=in_time)
@@ -330,8 +331,6 @@ _PDE_REFERENCES: dict = {}
 
 def _pde_reference(problem, codebook, seed: int, progress=None):
     """verify's report at the check sample (reused for the same nodes) and the codebook's values there."""
-    from .verify import verify
-
     key = (problem.source_text, tuple((c.name, c.nodes, c.breakpoints) for c in codebook.coordinates), seed)
     report = _PDE_REFERENCES.get(key)
     if report is not None:
@@ -355,8 +354,6 @@ REFERENCE_NODES_2D = 64
 
 def reference_space_nodes(codebook) -> dict[str, int]:
     """Collocation nodes of the gate's method-of-lines reference per space coordinate of ``codebook``."""
-    from .reference_base import DEFAULT_SPACE_NODES
-
     space = [c for c in codebook.coordinates if c.role == "space"]
     cap = 1000 if len(space) == 1 else REFERENCE_NODES_2D
     return {c.name: int(min(cap, max(DEFAULT_SPACE_NODES, np.ceil(REFERENCE_NODES_FACTOR * c.nodes))))

@@ -4,7 +4,7 @@ assembly per sample (:class:`PdeSystem`). Written here from scratch so that it s
 the PGD solver's weak-form discretization (pgdcli.discretization).
 
 ``PdeModel`` and ``PdeSystem`` are the one linear operator of a problem, built once and assembled
-per sample and time.
+per sample and time (:class:`~pgdcli.checks.collocation_system.PdeSystem`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,10 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import SolverError
+from ..problem.expressions import format_monomial
 from .collocation_grid import (SpaceGrid, barycentric_matrix, chebyshev_differentiation, chebyshev_points,
                                chebyshev_weights)
-from .reference_base import ReferenceBudgetExceeded, check_deadline, sampled_coordinates, space_coordinates
+from .reference_base import sampled_coordinates, space_coordinates
 
 __all__ = ["chebyshev_points", "chebyshev_weights", "chebyshev_differentiation", "barycentric_matrix"]
 
@@ -186,8 +187,6 @@ class PdeModel:
 
         problem, time, grid, n = self.problem, self.time, self.grid, self.grid.n
         if len(monomial) > 1:
-            from ..problem.expressions import format_monomial
-
             raise SolverError(
                 f"{problem.source}: equations[{r}]: nonlinear term '{format_monomial(monomial, time)}': the "
                 "method-of-lines reference supports equations linear in the unknowns"
@@ -226,7 +225,7 @@ class PdeModel:
 
     # -- per-sample data ---------------------------------------------------------------------------
     @staticmethod
-    def _weights(pf, coef: float, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
+    def weights(pf, coef: float, params: Mapping[str, np.ndarray], S: int) -> np.ndarray:
         w = np.full(S, float(coef))
         for name, func in pf:
             w = w * np.broadcast_to(func(params[name]), (S,))
@@ -251,7 +250,7 @@ class PdeModel:
             h[:, s * n + B] = sla.lu_solve(lu, g.T).T
         return h
 
-    def _joint_values(self, joint, params: Mapping[str, np.ndarray], S: int, t: float | None) -> np.ndarray:
+    def joint_values(self, joint, params: Mapping[str, np.ndarray], S: int, t: float | None) -> np.ndarray:
         """A non-separable coefficient on the grid at every sample, from its tree: (S, n)."""
         at = {name: params[name][:, None] for name in self.params}
         at.update({name: self.grid.values[name][None, :] for name in self.space})
@@ -264,7 +263,7 @@ class PdeModel:
         n = self.grid.n
         full = np.zeros((S, self.q * n))
         for r, joint in joints:
-            full[:, r * n:(r + 1) * n] += self._joint_values(joint, params, S, t)
+            full[:, r * n:(r + 1) * n] += self.joint_values(joint, params, S, t)
         return full[:, self.rows].reshape(-1)
 
     def joint_operators(self, entries, params: Mapping[str, np.ndarray], S: int, t: float | None) -> list:
@@ -274,7 +273,7 @@ class PdeModel:
         n, q = self.grid.n, self.q
         out = [sp.csr_matrix((self.rows.size, q * n)) for _ in range(S)]
         for r, s, L, joint in entries:
-            values = self._joint_values(joint, params, S, t)
+            values = self.joint_values(joint, params, S, t)
             place = sp.csr_matrix(([1.0], ([r], [s])), shape=(q, q))
             for i in range(S):
                 block = sp.diags(values[i]) if L is None else sp.diags(values[i]) @ L
@@ -294,174 +293,3 @@ class PdeModel:
     def interior_values(self, full: np.ndarray) -> np.ndarray:
         """Interior values (S, m) of full grid values (S, q, n)."""
         return np.concatenate([full[:, s, self.interior[s]] for s in range(self.q)], axis=1)
-
-
-class PdeSystem:
-    """``y' = -(M(t)^-1) (A(t) y + b(t))`` for a chunk of samples, block-diagonal over samples."""
-
-    def __init__(self, model: PdeModel, params: Mapping[str, np.ndarray], S: int, max_evaluations: int) -> None:
-        import scipy.sparse as sp
-
-        self.model = model
-        self.S = S
-        self.max_evaluations = max_evaluations
-        self.evaluations = 0
-        self.last_y = None
-        m = model.m
-        h = model.boundary_lift(params, S)  # (S, q n)
-        self.h = h
-        mass: dict = {}
-        ops: dict = {}
-        src: dict = {}
-        for kind, key, _, pf, coef, AZ, A in model.ops:
-            w = model._weights(pf, coef, params, S)
-            target = mass if kind == "mass" else ops
-            target[key] = [w[i] * AZ if j is None else j + w[i] * AZ for i, j in enumerate(target.get(key, [None] * S))]
-            if kind == "op":  # the known boundary part h of the state (constant in time: no mass term)
-                src[key] = src.get(key, 0.0) + np.concatenate([w[i] * (A @ h[i]) for i in range(S)])
-        for key, _, pf, coef, vec in model.sources:
-            w = model._weights(pf, coef, params, S)
-            src[key] = src.get(key, 0.0) + np.concatenate([w[i] * vec for i in range(S)])
-        self.params = params
-        self.timed_joints = [(r, j) for r, j in model.joint_sources if model.time in j.coordinates]
-        fixed = [(r, j) for r, j in model.joint_sources if model.time not in j.coordinates]
-        if fixed:
-            src[None] = src.get(None, 0.0) + model.joint_source(fixed, params, S, None)
-        self.timed_ops = [(e, *self._factors(e, h)) for e in model.joint_ops if model.time in e[3].coordinates]
-        fixed = [e for e in model.joint_ops if model.time not in e[3].coordinates]
-        if fixed:  # constant in time: with the other operators, once
-            A = model.joint_operators(fixed, params, S, None)
-            ops[None] = [a @ model.Z if j is None else j + a @ model.Z for a, j in zip(A, ops.get(None, [None] * S))]
-            src[None] = src.get(None, 0.0) + np.concatenate([a @ h[i] for i, a in enumerate(A)])
-        self.mass_solve = None  # M^-1 applied to the timed sources when the operators are premultiplied
-        self.bad = np.zeros(S, dtype=bool)
-        self.bad_reason = ""
-        self.keys = sorted(set(ops) | set(src), key=lambda k: (k is not None, repr(k)))
-        self.funcs = model.time_funcs
-        zero = sp.csr_matrix((S * m, S * m))
-        self.A = {k: sp.block_diag(ops[k], format="csr") if k in ops else zero for k in self.keys}
-        self.b = {k: np.asarray(src[k]) if k in src else np.zeros(S * m) for k in self.keys}
-        self.M = {k: sp.block_diag(mass[k], format="csr") for k in mass}
-        self.static = model.static_mass
-        if model.time is None:  # steady: no der(), nothing to invert
-            self.diagonal = self.constant = True
-            return
-        self.diagonal = all((M - sp.diags(M.diagonal())).count_nonzero() == 0 for M in self.M.values())
-        if self.static:
-            M = self.M.get(None, zero)
-            self._mass_check(M)
-            if self.bad.any():
-                return
-            if self.diagonal:
-                inv = sp.diags(1.0 / M.diagonal())
-                self.A = {k: (inv @ A).tocsr() for k, A in self.A.items()}
-                self.b = {k: inv @ b for k, b in self.b.items()}
-                self.mass_solve = inv.__matmul__
-            else:
-                from scipy.sparse.linalg import splu
-
-                lu = splu(M.tocsc())
-                self.A = {k: sp.csr_matrix(lu.solve(A.toarray())) for k, A in self.A.items()}
-                self.b = {k: lu.solve(b) for k, b in self.b.items()}
-                self.mass_solve = lu.solve
-        self.constant = self.static and self.keys in ([], [None]) and not self.timed_joints and not self.timed_ops
-
-    def _mass_check(self, M) -> None:
-        m, S = self.model.m, self.S
-        if self.diagonal:
-            d = M.diagonal().reshape(S, m)
-            bad = ~np.isfinite(d).all(axis=1) | (d == 0).any(axis=1)
-            reason = "a coefficient of der() vanishes or is not finite at this point"
-        else:
-            bad = np.zeros(S, dtype=bool)
-            dense = M.toarray()
-            for i in range(S):
-                block = dense[i * m:(i + 1) * m, i * m:(i + 1) * m]
-                bad[i] = not (np.isfinite(block).all() and np.linalg.cond(block) < 1e14)
-            reason = "the matrix of der() coefficients is singular at this point (not an ODE system there)"
-        self.bad, self.bad_reason = bad, reason
-
-    def _weight(self, key, t: float) -> float:
-        return 1.0 if key is None else float(self.funcs[key](t))
-
-    def matrix(self, t: float):
-        import scipy.sparse as sp
-
-        A = sp.csr_matrix((self.S * self.model.m,) * 2)
-        for k in self.keys:
-            A = A + (self.A[k] if k is None else self._weight(k, t) * self.A[k])
-        for (_, _, _, joint), left, right, _ in self.timed_ops:
-            c = self.model._joint_values(joint, self.params, self.S, t).reshape(-1)
-            part = left @ sp.diags(c) @ right
-            A = A + (part if self.mass_solve is None else sp.csr_matrix(self.mass_solve(part.toarray())))
-        return A
-
-    def _factors(self, entry, h: np.ndarray):
-        """``R (c L) Z = left diag(c) right`` over all samples (block-diagonal), and ``L h`` of the unknown: (S n,)."""
-        import scipy.sparse as sp
-
-        model = self.model
-        r, s, L, _ = entry
-        n, S = model.grid.n, self.S
-        select = sp.kron(sp.csr_matrix(([1.0], ([r], [0])), shape=(model.q, 1)), sp.identity(n), format="csr")
-        left = select[model.rows]  # (m, n): the equation rows kept from the block of equation r
-        right = model.Z[s * n:(s + 1) * n]  # (n, m)
-        block = h[:, s * n:(s + 1) * n]
-        if L is not None:
-            right = L @ right
-            block = (L @ block.T).T
-        return (sp.block_diag([left] * S, format="csr"), sp.block_diag([right] * S, format="csr"),
-                np.asarray(block).reshape(-1))
-
-    def _mass_at(self, t: float):
-        M = None
-        for k, Mk in self.M.items():
-            term = Mk if k is None else self._weight(k, t) * Mk
-            M = term if M is None else M + term
-        return M
-
-    def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
-        self.evaluations += 1
-        self.last_y = y
-        if self.evaluations > self.max_evaluations:
-            raise ReferenceBudgetExceeded
-        if self.evaluations & 63 == 1:
-            check_deadline()
-        out = np.zeros_like(y, dtype=float)
-        for k in self.keys:
-            w = self._weight(k, t)
-            if w != 0.0:
-                b = self.b[k] if y.ndim == 1 else self.b[k][:, None]
-                out -= w * (self.A[k] @ y + b)
-        if self.timed_joints:
-            b = self.model.joint_source(self.timed_joints, self.params, self.S, t)
-            if self.mass_solve is not None:
-                b = self.mass_solve(b)
-            out -= b if y.ndim == 1 else b[:, None]
-        for (_, _, _, joint), left, right, hs in self.timed_ops:  # R (c L) (Z y + h), c from its tree at t
-            c = self.model._joint_values(joint, self.params, self.S, t).reshape(-1)
-            part = left @ (c[:, None] * (right @ y) if y.ndim == 2 else c * (right @ y)) + \
-                (left @ (c * hs) if y.ndim == 1 else (left @ (c * hs))[:, None])
-            out -= part if self.mass_solve is None else self.mass_solve(part)
-        if self.static:
-            return out
-        M = self._mass_at(t)
-        if self.diagonal:
-            d = M.diagonal()
-            return out / (d if y.ndim == 1 else d[:, None])
-        from scipy.sparse.linalg import spsolve
-
-        return spsolve(M.tocsc(), out)
-
-    def jacobian(self, t: float, y: np.ndarray):
-        import scipy.sparse as sp
-
-        J = -self.matrix(t)
-        if self.static:
-            return J
-        M = self._mass_at(t)
-        if self.diagonal:
-            return sp.diags(1.0 / M.diagonal()) @ J
-        from scipy.sparse.linalg import splu
-
-        return sp.csr_matrix(splu(M.tocsc()).solve(J.toarray()))

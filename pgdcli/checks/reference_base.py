@@ -18,7 +18,7 @@ from ..blas import one_blas_thread
 from ..errors import SolverError
 
 __all__ = ["METHODS", "PDE_METHODS", "ReferenceResult", "ReferenceBudgetExceeded", "ReferenceTimeUp", "time_budget",
-           "check_deadline", "under_deadline", "DEFAULT_MAX_EVALUATIONS", "DEFAULT_SPACE_NODES", "TIME_UP"]
+           "check_deadline", "count_evaluation", "under_deadline", "DEFAULT_MAX_EVALUATIONS", "DEFAULT_SPACE_NODES", "TIME_UP"]
 
 #: The message of a sample not integrated because the time budget ran out.
 TIME_UP = "not checked: the time budget ran out"
@@ -91,6 +91,17 @@ def check_deadline() -> None:
     """Raise :class:`ReferenceTimeUp` once the deadline has passed (called from right-hand sides)."""
     if time.monotonic() > _DEADLINE[0]:
         raise ReferenceTimeUp
+
+
+def count_evaluation(system, y) -> None:
+    """Count one right-hand-side evaluation of ``system`` (its ``evaluations``, ``max_evaluations``,
+    ``last_y``): ReferenceBudgetExceeded past the budget, the deadline checked every 64 calls."""
+    system.evaluations += 1
+    system.last_y = y
+    if system.evaluations > system.max_evaluations:
+        raise ReferenceBudgetExceeded
+    if system.evaluations & 63 == 1:
+        check_deadline()
 
 
 @contextmanager

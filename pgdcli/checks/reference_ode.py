@@ -12,8 +12,10 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import SolverError
-from ..problem.general import evaluate as general_tree_values, is_general, tree_of
-from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_deadline, check_tolerances,
+from ..problem.expressions import format_monomial
+from ..problem.general import evaluate as general_tree_values
+from ..problem.general import is_general, tree_of
+from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, count_evaluation,
                              checked_params, checked_times, chunk_executor, chunk_size_for, run_in_chunks,
                              sample_subset)
 
@@ -99,8 +101,6 @@ class CompiledSystem:
                 coef = CompiledCoefficient(sep, time, params, S)
                 if derivatives:
                     if len(monomial) != 1:
-                        from ..problem.expressions import format_monomial
-
                         raise SolverError(
                             f"{problem.source}: equations[{r}]: '{format_monomial(monomial, time)}': der() may "
                             "only appear linearly (not multiplied by unknowns) for the reference integrator"
@@ -151,12 +151,7 @@ class CompiledSystem:
 
     # -- right-hand side ----------------------------------------------------------------------
     def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
-        self.evaluations += 1
-        self.last_y = y
-        if self.evaluations > self.max_evaluations:
-            raise ReferenceBudgetExceeded
-        if self.evaluations & 63 == 1:
-            check_deadline()
+        count_evaluation(self, y)
         K = 1 if y.ndim == 1 else y.shape[1]
         U = y.reshape(self.S, self.q, K)
         G = np.zeros((self.S, self.q, K))

@@ -15,10 +15,12 @@ from functools import partial
 from typing import Callable, Mapping
 
 import numpy as np
+from scipy.sparse.linalg import splu
 
 from ..blas import one_blas_thread
 from ..errors import SolverError
-from .collocation import PdeModel, PdeSystem
+from .collocation import PdeModel
+from .collocation_system import PdeSystem
 from .reference_base import (DEFAULT_MAX_EVALUATIONS, DEFAULT_SPACE_NODES, PDE_ATOL, PDE_METHODS, PDE_RTOL,
                              CHUNKS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, checked_params,
                              chunk_executor, reference_times, run_in_chunks, sample_subset, sampled_coordinates,
@@ -52,8 +54,6 @@ def _solve_steady_pde(model: PdeModel, params, S, times):
     A sample whose matrix is singular (a pivot below 1e-12 of the largest: pure Neumann
     conditions, say) fails rather than returning the garbage a near-zero pivot gives.
     """
-    from scipy.sparse.linalg import splu
-
     q, n, m = model.q, model.grid.n, model.m
     with np.errstate(all="ignore"):
         system = PdeSystem(model, params, S, 0)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..tensors.cp_sweep import orthogonal_sweep
-from ..tensors.tt import tt_centre_cores
+from ..tensors.tt import TT, tt_centre_cores
 
 __all__ = ["resolution_tails", "chebyshev_decay"]
 
@@ -60,8 +60,6 @@ def _row_norms(codebook, matrices) -> dict[str, dict[str, np.ndarray | None]]:
     dict
         ``{unknown: {coordinate: (m_j,) ndarray or None}}``.
     """
-    from ..tensors.tt import TT
-
     coords = codebook.coordinates
     sizes = [c.nodes for c in coords]
     total = float(np.prod(sizes))

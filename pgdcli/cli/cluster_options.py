@@ -13,6 +13,8 @@ import contextlib
 import click
 from click.core import ParameterSource
 
+from ..cluster import connect
+
 __all__ = ["SCHEDULER_ENV", "cluster_options", "open_executor", "scheduler_given"]
 
 SCHEDULER_ENV = "PGD_SCHEDULER"
@@ -57,8 +59,6 @@ def open_executor(ctx: click.Context, scheduler: str | None, workers: int | None
     if address is None and workers is None:
         yield None
         return
-    from ..cluster import connect
-
     executor = connect(address, workers, option=option)
     try:
         if not quiet:

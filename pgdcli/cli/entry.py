@@ -8,8 +8,10 @@ is imported only then.
 from __future__ import annotations
 
 import sys
+import warnings
 
 from . import guard
+from .main import cli
 from .query import one_line_error, run
 
 __all__ = ["main"]
@@ -25,8 +27,6 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 def main(argv=None) -> None:
     """Console-script entry point: the lean ``pgd query``, else the click command line."""
-    import warnings
-
     # a warning (an inaccurate codebook loaded) is one 'Warning:' line, not Python's file:line format
     warnings.showwarning = _one_line_warning
     args = sys.argv[1:] if argv is None else list(argv)
@@ -45,6 +45,4 @@ def main(argv=None) -> None:
         sys.exit(guard.EXIT_INTERNAL)
     if code is not None:
         sys.exit(code)
-    from .main import cli
-
     cli.main(args=argv, prog_name="pgd")

@@ -16,6 +16,7 @@ with it, and a plain ``pgd query`` never imports this module (:mod:`pgdcli.cli.e
 from __future__ import annotations
 
 import sys
+import traceback
 
 import click
 
@@ -121,8 +122,6 @@ def _unexpected(exc: Exception) -> int:
         error(guard.output_error_message(exc, getattr(exc, "filename", None) or "to stdout"))
         return EXIT_USAGE
     if guard.debug_enabled():
-        import traceback
-
         traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
     error(guard.internal_error_message(exc))
     return EXIT_INTERNAL

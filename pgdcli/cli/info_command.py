@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from ..errors import CodebookError
+from ..names import printable
 from .formats import INFO
 from .group import cli, format_option
 from .text import human_size, nodes_chosen_text, short_where
@@ -102,7 +103,6 @@ def _shown(value):
     """Every string of a summary safe for a terminal: control characters escaped, rich markup inert."""
     from rich.markup import escape
 
-    from ..names import printable
 
     if isinstance(value, str):
         return escape(printable(value, 2000))

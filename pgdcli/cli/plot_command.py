@@ -9,6 +9,9 @@ import click
 from ..errors import TimeBudgetExceeded
 from ..limits import DEFAULT_CHECK_SECONDS
 from .group import Failed, cli
+from .outputs import prepare_output
+from .sensitivity_command import parse_densities
+
 
 @cli.command("plot")
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
@@ -58,9 +61,6 @@ def plot_command(codebook, kind, output, field, count, at, x, y, density, over, 
     """
     from ..plot import files as plotting
     from ..plot.options import require_matplotlib
-    from .outputs import prepare_output
-    from .sensitivity_command import parse_densities
-
     require_matplotlib("pgd plot")  # before any file or folder is made
     if kind is None:  # what the options given ask for, else the solution
         kind = ("modes" if count is not None else "phase" if x is not None or y is not None

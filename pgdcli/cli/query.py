@@ -21,9 +21,11 @@ import io
 import os
 import sys
 
-from ..errors import QueryError
+from ..errors import PgdError, QueryError
+from . import guard
 from . import stream  # registers the query's output formats
 from .formats import QUERY
+from .guard import one_line
 from .stream import check_grid_size
 
 __all__ = ["run", "UsageProblem", "one_line_error"]
@@ -196,17 +198,12 @@ def point_chunks(cb, points: str | None, rest: list[str], stdin=None):
 
 
 def one_line_error(message: str) -> None:
-    from .guard import one_line
-
     sys.stderr.write(f"Error: {one_line(message)}\n")
 
 
 def _stream_rest(writer, chunks, text: str) -> int:
     """Print the evaluated first chunk and every other one; errors from here on are reported here,
     with the bytes the click command would print (the output has begun: no falling back)."""
-    from . import guard
-    from ..errors import PgdError
-
     try:
         writer.write(text)
         for chunk in chunks:

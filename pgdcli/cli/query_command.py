@@ -7,10 +7,13 @@ from pathlib import Path
 
 import click
 
+from . import query as _query
 from . import stream  # registers the query's output formats
 from .cluster_options import cluster_options, open_executor, scheduler_given
 from .formats import QUERY
-from .group import cli, format_option
+from .group import cli, format_option, stderr_console
+from .outputs import prepare_output
+
 
 @cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("codebook", type=click.Path(dir_okay=False, path_type=Path))
@@ -41,7 +44,6 @@ def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
     """
     # the parsing, checking and printing helpers live in pgdcli.cli.query and pgdcli.cli.stream, where a
     # plain `pgd query` runs without click (see main): both paths print the same bytes
-    from . import query as _query
     from ..codebook.codebook import Codebook
 
     cb = Codebook.load(codebook, evaluation_only=True)
@@ -67,8 +69,6 @@ def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
 
 def _usage(function, *args):
     """``function(*args)``, its usage problems as click's."""
-    from . import query as _query
-
     try:
         return function(*args)
     except _query.UsageProblem as exc:
@@ -79,8 +79,6 @@ def _usage(function, *args):
 
 def _to_file(ctx, cb, points, output, selected, scheduler, workers) -> None:
     """``--output``: the points evaluated in partitions (on the cluster, if one is given) into an HDF5 file."""
-    from .group import stderr_console
-    from .outputs import prepare_output
     from .query_output import H5_SUFFIXES, point_partitions, write_query
 
     prepare_output(output, "--output", H5_SUFFIXES)

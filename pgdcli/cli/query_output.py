@@ -13,7 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..codebook.partitions import partitioned, write_points
 from ..errors import QueryError
+from . import query
 
 __all__ = ["H5_SUFFIXES", "point_partitions", "write_query"]
 
@@ -24,8 +26,6 @@ READ_ROWS = 1 << 20
 
 def point_partitions(cb, points: str | None, rest: list[str]):
     """Chunks of points, arrays (rows, d) in codebook order, and a handle to close (or None)."""
-    from . import query
-
     if points is not None and points != "-" and Path(points).suffix.lower() in H5_SUFFIXES:
         return _h5_points(cb, points), None
     chunks, handle = query.point_chunks(cb, points, rest)
@@ -74,8 +74,6 @@ def _check_block(cb, block: np.ndarray, source: str, start: int) -> None:
 
 def write_query(cb, chunks, output: Path, selected: list[str], executor, console) -> int:
     """Evaluate the points in partitions and write them to ``output``; the count on stderr."""
-    from ..codebook.partitions import partitioned, write_points
-
     if console is None:
         return write_points(output, cb, partitioned(chunks), selected, executor)
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn

@@ -9,13 +9,14 @@ from pathlib import Path
 
 import click
 
+from ..errors import QueryError
 from .formats import SENSITIVITY
 from .group import cli, format_option
+from .query import UsageProblem, parse_values
 
 
 def _at(values, cb) -> dict:
     """Repeatable ``--at NAME=V[,NAME=V]`` -> {name: value}, checked against the codebook."""
-    from ..errors import QueryError
     from ..plot.options import parse_point
 
     out: dict = {}
@@ -104,8 +105,6 @@ def sensitivity_command(codebook, at, times, density, second_order, fields, fmt,
       pgd sensitivity codebooks/drag.h5 --density k=normal:0.02,0.005 --second-order --format json
     """
     from ..codebook.codebook import Codebook
-    from .query import UsageProblem, parse_values
-
     cb = Codebook.load(codebook)
     values = None
     if times is not None:

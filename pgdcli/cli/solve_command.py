@@ -13,6 +13,9 @@ import click
 from .cluster_options import cluster_options, open_executor
 from .formats import SOLVE
 from .group import Failed, cli, format_option, run_command, stderr_console, warn
+from .outputs import prepare_output
+from .progress_view import solve_progress
+from .solve_family import family_specs, solve_family
 from .text import human_size, nodes_chosen_text, short_where
 
 
@@ -60,8 +63,6 @@ def solve(ctx, specs, output, tolerance, relative_tolerance, max_modes, keep_ina
     (one task each on a cluster), a failure does not stop the others, and a
     table sums them up.
     """
-    from .solve_family import family_specs, solve_family
-
     options = (tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet)
     family = family_specs(specs)
     cluster = partial(open_executor, ctx, scheduler, workers, quiet)  # opened once the specs are checked
@@ -71,7 +72,6 @@ def solve(ctx, specs, output, tolerance, relative_tolerance, max_modes, keep_ina
 
 def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet,
            cluster=contextlib.nullcontext):
-    from .outputs import prepare_output
     from ..driver import check_solvable
     from ..driver import solve as solve_problem
     from ..problem.spec import load_spec
@@ -117,8 +117,6 @@ def _solve(spec, output, tolerance, relative_tolerance, max_modes, keep_inaccura
 
 def _solve_with_progress(console, problem, solve_problem, overrides):
     """The solve with its progress on stderr (:mod:`pgdcli.cli.progress_view`)."""
-    from .progress_view import solve_progress
-
     with solve_progress(console, problem.name) as view:
         executor = overrides.get("executor")
         if executor is not None:  # the tasks the cluster finished
@@ -128,9 +126,8 @@ def _solve_with_progress(console, problem, solve_problem, overrides):
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
     from ..algorithms.outcome import Status
-    from ..tensors.tt import TT
     from ..codebook.summary import coordinate_ratios
-
+    from ..tensors.tt import TT
     cb = result.codebook
     rep = cb.report
     march = rep.get("method") == "march"

@@ -15,8 +15,11 @@ from pathlib import Path
 import click
 
 from ..errors import PgdError
+from ..family import FamilyFailure, solve_many
 from .formats import SOLVE
 from .group import Failed, stderr_console, warn
+from .outputs import prepare_output
+from .text import human_size
 
 __all__ = ["family_specs", "solve_family"]
 
@@ -50,8 +53,6 @@ def family_specs(specs) -> list[Path] | None:
 def solve_family(specs: list[Path], output, tolerance, relative_tolerance, max_modes, keep_inaccurate, fmt, quiet,
                  cluster) -> None:
     """Build every spec (:func:`pgdcli.family.solve_many`), write the codebooks, sum up."""
-    from ..family import solve_many
-
     _check_overrides(tolerance, relative_tolerance, max_modes)
     rows = [{"spec": str(path)} for path in specs]
     problems = _checked_problems(specs, rows, output, tolerance, relative_tolerance, max_modes)
@@ -92,8 +93,6 @@ def _checked_problems(specs, rows, output, tolerance, relative_tolerance, max_mo
     an invalid spec's row gets its error. Two specs writing one file: PgdError, before any work."""
     from ..driver import check_solvable
     from ..problem.spec import load_spec
-    from .outputs import prepare_output
-
     if output is not None and Path(output).suffix.lower() in (".h5", ".hdf5"):
         raise PgdError(f"--output {output}: with several specs, --output names the folder of their codebooks")
     problems, targets = {}, {}
@@ -133,8 +132,6 @@ def _with_progress(console, outcomes, rows, todo, keep_inaccurate) -> None:
 
 def _record(row: dict, outcome, keep_inaccurate: bool) -> None:
     """A spec's row from its result (its codebook written, when it is to be kept) or its failure."""
-    from ..family import FamilyFailure
-
     if isinstance(outcome, FamilyFailure):
         kind = "" if isinstance(outcome.error, PgdError) else "internal error: "
         row.update(status="failed", error=kind + outcome.message)
@@ -164,7 +161,6 @@ def _family_table(rows: list[dict]) -> list:
     from rich.markup import escape
     from rich.table import Table
 
-    from .text import human_size
 
     table = Table(title=f"pgd solve: {len(rows)} specs", title_justify="left")
     for column, justify in (("spec", "left"), ("status", "left"), ("error / tolerance", "right"),

@@ -17,6 +17,8 @@ Imports numpy and the codebook's error types only (the lean query path).
 
 from __future__ import annotations
 
+import csv
+import json
 import os
 
 from ..errors import QueryError
@@ -89,8 +91,6 @@ def _lines(handle, source: str):
 
 
 def _cells(text: str, source: str, number: int) -> list[str]:
-    import csv
-
     try:
         return next(csv.reader([text]), [])
     except csv.Error as exc:
@@ -209,8 +209,6 @@ class JsonRows:
     @staticmethod
     def chunk(names: list[str], selected: list[str], points: list[tuple], rows: list[list[float]],
               first: bool) -> str:
-        import json  # only when asked for (the lean query path)
-
         keys = names + selected
         text = ", ".join(json.dumps(dict(zip(keys, p + tuple(r)))) for p, r in zip(points, rows))
         return ("[" if first else ", ") + text

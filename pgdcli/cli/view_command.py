@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import webbrowser
 from pathlib import Path
 
 import click
 
 from .group import cli
+from .outputs import prepare_output
 
 
 @cli.command("view")
@@ -30,8 +32,6 @@ def view_command(codebook, output, data, open_, force):
     """
     from ..codebook.codebook import Codebook
     from ..view import data_columns, write_page
-    from .outputs import prepare_output
-
     target = Path(output) if output is not None else codebook.with_suffix(".html")
     prepare_output(target, "--output", suffixes=(".html", ".htm"))
     cb = Codebook.load(codebook)
@@ -39,7 +39,5 @@ def view_command(codebook, output, data, open_, force):
     path = write_page(cb, target, source=codebook.name, data=columns, force=force)
     click.echo(str(path))
     if open_:
-        import webbrowser
-
         if not webbrowser.open(path.resolve().as_uri()):
             click.echo(f"Warning: no web browser could be started; open {path} yourself", err=True)

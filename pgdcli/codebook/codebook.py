@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import os
+import warnings
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -30,9 +31,13 @@ from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError, QueryError
 from . import io as codebook_io
 from . import summary as codebook_summary
+from .analysis import CodebookAnalysis
+from .blockwise import evaluate_blockwise
+from .domain import check_names, clip_to_domain, select_fields
 from .evaluate import Evaluator, shared_basis
-from .fields import CPTensor, TT, validate_field
+from .fields import TT, CPTensor, validate_field
 from .io import FORMAT_NAME, FORMAT_VERSION
+from .notebook import summary_html
 
 __all__ = ["InaccurateCodebookWarning", "Codebook", "CoordinateInfo", "CPTensor", "TT", "FORMAT_NAME", "FORMAT_VERSION"]
 
@@ -43,7 +48,7 @@ class InaccurateCodebookWarning(UserWarning):
     """A codebook loaded from a file marked as missing its tolerance (``pgd solve --keep-inaccurate``)."""
 
 
-class Codebook:
+class Codebook(CodebookAnalysis):
     """A separated solution that evaluates anywhere in its domain.
 
     Usually made by :func:`pgdcli.solve` (``result.codebook``) or read by :meth:`load`; each
@@ -167,8 +172,6 @@ class Codebook:
 
     def _repr_html_(self) -> str:
         """A summary card in notebooks (:func:`pgdcli.codebook.notebook.summary_html`)."""
-        from .notebook import summary_html
-
         return summary_html(self)
 
     # ------------------------------------------------------------------ evaluation
@@ -247,8 +250,6 @@ class Codebook:
         raw = [coordinates[n] for n in names]
         scalars = all(type(v) in _SCALAR_TYPES for v in raw)
         if not scalars and any(hasattr(v, "__dask_graph__") for v in raw):  # a dask array: lazily, blockwise
-            from .blockwise import evaluate_blockwise
-
             return evaluate_blockwise(self, dict(zip(names, raw)), selected)
         if not scalars and any(isinstance(self.fields[u], TT) for u in selected):
             return self._evaluate_mixed(coordinates, selected)
@@ -305,108 +306,6 @@ class Codebook:
             return {u: np.empty(shape) for u in selected}
         return self._evaluator.grid(values, selected)
 
-    def evaluate_series(self, points: Mapping[str, object], series: Mapping[str, object],
-                        fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:
-        """Unknowns at every one of ``S`` points in all coordinates but one, for each of ``T`` values
-        of that one (a time series per parameter point).
-
-        The values of :meth:`evaluate` at ``{c: points[c][:, None]} | {t: series[t][None, :]}``
-        (equal to rounding), with the cores (modes) of the other coordinates contracted once per
-        point and the series coordinate's for all its values by one matrix product
-        (:mod:`pgdcli.codebook.series`).
-
-        Parameters
-        ----------
-        points : mapping
-            Every coordinate but the series one -> scalar or 1-D array_like (broadcast together,
-            length ``S``; no coordinates besides the series one: ``S = 1``).
-        series : mapping
-            The series coordinate -> 1-D array_like of its ``T`` values (one entry).
-        fields : sequence of str, optional
-            Unknowns (default: all, in declared order).
-
-        Returns
-        -------
-        dict of str to ndarray
-            Unknown name -> values of shape ``(S, T)``.
-
-        Raises
-        ------
-        QueryError
-            Not exactly one series coordinate, missing, unknown or out-of-domain coordinates,
-            unknown fields.
-        """
-        from .series import evaluate_series
-
-        if len(series) != 1:
-            raise QueryError(f"a series runs along one coordinate, got {len(series)}: {', '.join(series) or 'none'}")
-        along = next(iter(series))
-        self._check_names({**points, along: None})
-        if along in points:
-            raise QueryError(f"coordinate {along!r} is given both as the series and among the points")
-        selected = self._select(fields)
-        j = self._names.index(along)
-        values = np.asarray(series[along], dtype=float)
-        if values.ndim > 1:
-            raise QueryError(f"coordinate {along!r}: a series must be 1-D, got shape {values.shape}")
-        others = [c for c in self.coordinates if c.name != along]
-        arrays = np.broadcast_arrays(*[np.asarray(points[c.name], dtype=float) for c in others]) if others else []
-        if any(a.ndim > 1 for a in arrays):
-            raise QueryError(f"the points of a series must be 1-D, got shape {arrays[0].shape}")
-        mats = [None] * len(self.coordinates)
-        for c, a in zip(others, arrays):
-            k = self._names.index(c.name)
-            mats[k] = self._bases[k].interpolation_matrix(self._checked(c, a.reshape(-1)))
-        rows = self._bases[j].interpolation_matrix(self._checked(self.coordinates[j], values.reshape(-1)))
-        return evaluate_series(self.fields, mats, j, rows, selected)
-
-    def gradient(self, coordinates: Mapping[str, object], wrt: Sequence[str] | None = None,
-                 fields: Sequence[str] | None = None, grid: bool = False) -> dict[str, dict[str, np.ndarray]]:
-        """Derivatives of unknowns with respect to coordinates (exact derivatives of the interpolants).
-
-        Parameters
-        ----------
-        coordinates : mapping
-            As in :meth:`evaluate` (broadcast points) or, with ``grid=True``, as in
-            :meth:`evaluate_grid` (1-D axes of a cartesian grid).
-        wrt : sequence of str, optional
-            Coordinates to differentiate with respect to (default: all).
-        fields : sequence of str, optional
-            Unknowns (default: all).
-        grid : bool
-            Whether ``coordinates`` are grid axes (default: points).
-
-        Returns
-        -------
-        dict of str to dict of str to ndarray
-            ``out[u][c]``: d u / d c, shaped like :meth:`evaluate`'s (or :meth:`evaluate_grid`'s) values.
-            Where the interpolant has a kink (a slab breakpoint, a linear element's node) the derivative
-            is the one from the right (at the upper end: from the left). See :mod:`pgdcli.codebook.gradient`.
-
-        Raises
-        ------
-        QueryError
-            Missing, unknown or out-of-domain coordinates, an unknown name in ``wrt`` or ``fields``.
-        """
-        from .gradient import gradient_grid, gradient_points
-
-        self._check_names(coordinates)
-        wrt = list(self._names if wrt is None else wrt)
-        for w in wrt:
-            if w not in self._name_set:
-                raise QueryError(f"unknown coordinate {w!r} in wrt; this codebook has {', '.join(self._names)}")
-        index = [self._names.index(w) for w in wrt]
-        selected = self._select(fields)
-        if grid:
-            axes = [self._checked(c, np.asarray(coordinates[c.name], dtype=float).reshape(-1)) for c in self.coordinates]
-            raw = gradient_grid(self.fields, self._bases, axes, index, selected)
-            return {u: dict(zip(wrt, raw[u])) for u in selected}
-        arrays = np.broadcast_arrays(*[np.asarray(coordinates[n], dtype=float) for n in self._names])
-        shape = arrays[0].shape
-        flat = [self._checked(c, a.reshape(-1)) for c, a in zip(self.coordinates, arrays)]
-        raw = gradient_points(self.fields, self._bases, flat, index, selected)
-        return {u: {w: v.reshape(shape) for w, v in zip(wrt, raw[u])} for u in selected}
-
     def _tensor_train_point(self, coordinates: Mapping[str, object]) -> dict[str, np.ndarray] | None:
         """Every unknown at one point given as Python numbers, when all are in the tensor-train stack.
 
@@ -436,54 +335,12 @@ class Codebook:
         return {u: out[u] for u in selected}
 
     def _check_names(self, given: Mapping[str, object]) -> None:
-        """Raise QueryError for the first unknown, then the first missing coordinate name."""
-        names = self._names
-        for key in given:
-            if key not in names:
-                raise QueryError(f"unknown coordinate {key!r}; this codebook has {', '.join(names)}")
-        for c in self.coordinates:
-            if c.name not in given:
-                raise QueryError(f"missing coordinate {c.name!r} (domain [{c.domain[0]:g}, {c.domain[1]:g}])")
+        check_names(self.coordinates, given)
 
     def _select(self, fields: Sequence[str] | None) -> list[str]:
-        if fields is None:
-            return self.unknown_names
-        out = []
-        for f in fields:
-            if f not in self.fields:
-                raise QueryError(f"unknown field {f!r}; this codebook has {', '.join(self.unknown_names)}")
-            out.append(f)
-        return out
+        return select_fields(self.unknown_names, fields)
 
-    @staticmethod
-    def _checked(c: CoordinateInfo, x: np.ndarray) -> np.ndarray:
-        low, high = c.domain
-        slack = 1e-12 * max(1.0, abs(low), abs(high))  # rounding in user-side arithmetic (e.g. linspace)
-        bad = ~((x >= low - slack) & (x <= high + slack))
-        if bad.any():
-            v = float(x[bad][0])
-            raise QueryError(f"coordinate {c.name!r}: value {v!r} is outside the domain [{low:g}, {high:g}]")
-        return np.clip(x, low, high)
-
-    def nodal_values(self, field_name: str) -> np.ndarray:
-        """An unknown on the full tensor grid of nodes (small codebooks only: tests and plots).
-
-        Parameters
-        ----------
-        field_name : str
-            The unknown.
-
-        Returns
-        -------
-        ndarray, shape (n_1, ..., n_d)
-            Its values at every node, coordinates in dimension order (``n_k`` nodes of the k-th).
-
-        Raises
-        ------
-        QueryError
-            No unknown has that name.
-        """
-        return self.fields[self._select([field_name])[0]].full()
+    _checked = staticmethod(clip_to_domain)
 
     @property
     def accurate(self) -> bool | None:
@@ -501,52 +358,6 @@ class Codebook:
             "ratio": measured error / tolerance}]}``; None for a codebook without it.
         """
         return codebook_summary.nodes_chosen(self.report, self.coordinate_names)
-
-    # ------------------------------------------------------------------ analysis
-    def sensitivity(self, *, times=None, at: Mapping[str, float] | None = None, densities: Mapping | None = None,
-                    second_order: bool = False, fields: Sequence[str] | None = None):
-        """Means, variances and Sobol indices over the parameters (``pgd sensitivity``).
-
-        Every coordinate that is neither time nor in ``at`` is an independent random input,
-        uniform over its domain unless ``densities`` says otherwise (``{"k": "normal:2,0.3"}``).
-        Exact for the codebook's function: one-dimensional quadratures contracted through the
-        modes or cores, no sampling. See :func:`pgdcli.codebook.sensitivity.sensitivity`.
-
-        Returns
-        -------
-        SensitivityResult
-            ``mean[u]``, ``variance[u]`` (T,), ``first[u]``, ``total[u]`` (T, inputs), ``second[u]``
-            (T, inputs, inputs) when asked, ``inputs``, ``times``.
-        """
-        from .sensitivity import sensitivity
-
-        return sensitivity(self, times=times, at=at, densities=densities, second_order=second_order, fields=fields)
-
-    def to_xarray(self, axes: Mapping[str, object] | None = None, /, *, fields: Sequence[str] | None = None,
-                  **coordinates):
-        """The unknowns on a grid as a labelled ``xarray.Dataset`` (xarray: ``pip install 'pgdcli[xarray]'``).
-
-        Parameters
-        ----------
-        axes : mapping, optional
-            Coordinate name -> values (or give them as keywords: ``cb.to_xarray(t=ts, k=[1, 2], c=0.3)``).
-            Every coordinate is needed. A sequence (even of one value) is a dimension; a scalar holds
-            the coordinate there and is a scalar coordinate of the Dataset, not a dimension.
-        fields : sequence of str, optional
-            Unknowns (default all): the Dataset's variables.
-
-        Returns
-        -------
-        xarray.Dataset
-            Variables: the unknowns over the dimensions (codebook order). Coordinates carry their
-            role, domain, nodes and discretization as attributes; the Dataset carries the name,
-            description, tolerance, relative_tolerance, measured_error (max abs against the
-            independent reference), measured_points and accurate (1 within tolerance, 0 written
-            with --keep-inaccurate, -1 not measured).
-        """
-        from .notebook import to_xarray
-
-        return to_xarray(self, {**dict(axes or {}), **coordinates}, fields=fields)
 
     # ------------------------------------------------------------------ summary
     def info(self, path: str | os.PathLike | None = None) -> dict:
@@ -622,8 +433,6 @@ class Codebook:
         """
         cb = cls(**codebook_io.load_parts(path, shared_basis, evaluation_only=evaluation_only))
         if cb.accurate is False:
-            import warnings
-
             warnings.warn(f"{path}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was "
                           f"written with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)
         return cb

@@ -24,7 +24,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..discretization.coordinates import CoordinateInfo
-from .fields import CPTensor, TT
+from .batch_eval import TTBatch
+from .fields import TT, CPTensor
 from .point import TTStack
 from .point_weights import PointData
 from .threads import batch_blas, chunk_bounds, chunk_length, run_chunks
@@ -166,8 +167,6 @@ class Evaluator:
     def tt_batch(self, flat: list[np.ndarray], selected: list[str]) -> dict[str, np.ndarray]:
         """Tensor-train unknowns at the points ``flat[j][i]`` (:class:`~pgdcli.codebook.batch_eval.TTBatch`)."""
         if self._tt_batch is None:  # prepared on the first batch (pgd query of one point never needs it)
-            from .batch_eval import TTBatch
-
             trains = {u: f for u, f in self.fields.items() if isinstance(f, TT)}
             self._tt_batch = TTBatch(trains, self.bases)
         # the CP path's BLAS and thread policy (one BLAS thread, blocks shared by our threads)

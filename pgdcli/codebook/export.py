@@ -40,6 +40,7 @@ import numpy as np
 
 from ..errors import PgdError
 from ..names import identifier_problem, printable, problem_name_problem
+from .export_c import FLOAT32_MAX, c_header, glsl_source
 from .fields import TT
 
 __all__ = ["ExportError", "TARGETS", "DEFAULT_LIMIT", "layout", "export", "size_of"]
@@ -108,8 +109,6 @@ def _check_names(cb) -> None:
 
 def _check_float32(cb, target: str) -> None:
     """Numbers a float32 cannot spell (C's float variant, GLSL) refuse the export, naming the unknown."""
-    from .export_c import FLOAT32_MAX
-
     for u, fm in cb.fields.items():
         arrays = fm.cores if isinstance(fm, TT) else (fm.weights, *fm.factors)
         largest = max((float(np.abs(a).max()) for a in arrays if a.size), default=0.0)
@@ -146,8 +145,6 @@ def export(cb, target: str, *, force: bool = False, limit: int = DEFAULT_LIMIT) 
         _check_float32(cb, target)
     if target == "json":
         return {f"{cb.name}.json": json.dumps(lay, separators=(",", ":")) + "\n"}, size
-    from .export_c import c_header, glsl_source
-
     if target == "c":
         return {f"pgd_{ident}.h": c_header(lay, ident)}, size
     return {f"pgd_{ident}.glsl": glsl_source(lay, ident)}, size

@@ -6,11 +6,15 @@ module does not import the class (it is imported by it). numpy and h5py only (th
 
 from __future__ import annotations
 
+import io
 import json
 import os
+import tempfile
+from pathlib import Path
 
 import numpy as np
 
+from .. import __version__
 from ..discretization.basis import KINDS
 from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError
@@ -49,8 +53,6 @@ def save(cb, path: str | os.PathLike) -> "os.PathLike":
 
 def to_bytes(cb) -> bytes:
     """The codebook file's bytes (format :data:`FORMAT_VERSION`)."""
-    import io
-
     import h5py
 
     buffer = io.BytesIO()
@@ -69,9 +71,6 @@ def write_atomic(path: str | os.PathLike, data: bytes | str, *, what: str = "the
         The folder cannot be created or written, or the disk is full: ``path`` is left as it
         was and no temporary file remains.
     """
-    import tempfile
-    from pathlib import Path
-
     path = Path(path)
     payload = data.encode() if isinstance(data, str) else data
     try:
@@ -113,8 +112,6 @@ def _array(group, name: str, values, digests: dict) -> None:
 
 def write_contents(cb, f) -> None:
     """Write a codebook's groups and attributes into an open HDF5 file (the layout of docs/codebook-format.md)."""
-    from .. import __version__
-
     f.attrs["encoding-type"] = FORMAT_NAME
     f.attrs["encoding-version"] = FORMAT_VERSION
     f.attrs["pgdcli-version"] = __version__

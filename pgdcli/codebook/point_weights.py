@@ -19,6 +19,7 @@ import numpy as np
 
 from ..discretization.coordinates import CoordinateInfo
 from ..errors import QueryError
+from .domain import domain_slack
 
 __all__ = ["PointData", "PointWeights", "outside_error"]
 
@@ -34,7 +35,7 @@ class PointData:
 
     def __init__(self, c: CoordinateInfo, basis, modes: np.ndarray):
         low, high = c.domain
-        slack = 1e-12 * max(1.0, abs(low), abs(high))  # as Codebook._checked
+        slack = domain_slack(low, high)
         self.name, self.domain = c.name, c.domain
         self.low, self.high = float(low), float(high)
         self.lower, self.upper = low - slack, high + slack

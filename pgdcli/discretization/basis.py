@@ -29,6 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .chebyshev import (barycentric_columns, barycentric_rows, chebyshev_unit_nodes, clenshaw_curtis_unit_weights,
+                        map_to_domain)
+
 __all__ = [
     "Basis1D",
     "ChebyshevBasis",
@@ -123,42 +126,6 @@ class Basis1D:
         raise NotImplementedError
 
 
-def chebyshev_unit_nodes(n: int) -> np.ndarray:
-    """The n Chebyshev-Lobatto points on [-1, 1], ascending, shape (n,)."""
-    # sin form of -cos(pi j / (n - 1)): symmetric to the last bit, exact 0 at the centre
-    m = n - 1
-    return np.sin(np.pi * (2.0 * np.arange(n) - m) / (2.0 * m))
-
-
-def _clenshaw_curtis_unit_weights(n: int) -> np.ndarray:
-    """Clenshaw-Curtis weights on [-1, 1] for the n Chebyshev-Lobatto points (Trefethen's clencurt)."""
-    m = n - 1
-    if m == 1:
-        return np.array([1.0, 1.0])
-    theta = np.pi * np.arange(n) / m
-    w = np.zeros(n)
-    inner = theta[1:-1]
-    v = np.ones(m - 1)
-    if m % 2 == 0:
-        w[0] = w[-1] = 1.0 / (m * m - 1)
-        for k in range(1, m // 2):
-            v -= 2.0 * np.cos(2 * k * inner) / (4 * k * k - 1)
-        v -= np.cos(m * inner) / (m * m - 1)
-    else:
-        w[0] = w[-1] = 1.0 / (m * m)
-        for k in range(1, (m - 1) // 2 + 1):
-            v -= 2.0 * np.cos(2 * k * inner) / (4 * k * k - 1)
-    w[1:-1] = 2.0 * v / m
-    return w
-
-
-def _map_to_domain(unit: np.ndarray, domain: tuple[float, float]) -> np.ndarray:
-    low, high = domain
-    x = low + (high - low) * (unit + 1.0) / 2.0
-    x[0], x[-1] = low, high  # exact ends: queries at the domain bounds hit nodes
-    return x
-
-
 @dataclass(frozen=True, eq=False)
 class ChebyshevBasis(Basis1D):
     """Chebyshev-Gauss-Lobatto nodal spectral basis."""
@@ -172,8 +139,8 @@ class ChebyshevBasis(Basis1D):
             raise ValueError(f"a Chebyshev basis needs at least 2 nodes, got {n}")
         low, high = map(float, self.domain)
         object.__setattr__(self, "kind", "chebyshev")
-        object.__setattr__(self, "nodes", _map_to_domain(chebyshev_unit_nodes(n), (low, high)))
-        object.__setattr__(self, "weights", _clenshaw_curtis_unit_weights(n) * (high - low) / 2.0)
+        object.__setattr__(self, "nodes", map_to_domain(chebyshev_unit_nodes(n), (low, high)))
+        object.__setattr__(self, "weights", clenshaw_curtis_unit_weights(n) * (high - low) / 2.0)
         bary = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
         bary[0] *= 0.5
         bary[-1] *= 0.5
@@ -324,11 +291,11 @@ class PiecewiseChebyshevBasis(Basis1D):
         bp[0], bp[-1] = float(self.domain[0]), float(self.domain[1])
         unit = chebyshev_unit_nodes(m)
         nodes, weights = np.empty(n), np.zeros(n)
-        local_w = _clenshaw_curtis_unit_weights(m)
+        local_w = clenshaw_curtis_unit_weights(m)
         for s in range(slabs):
             a, b = bp[s], bp[s + 1]
             idx = slice(s * (m - 1), s * (m - 1) + m)
-            nodes[idx] = _map_to_domain(unit.copy(), (a, b))
+            nodes[idx] = map_to_domain(unit.copy(), (a, b))
             weights[idx] += local_w * (b - a) / 2.0
         bary = np.where(np.arange(m) % 2 == 0, 1.0, -1.0)
         bary[0] *= 0.5
@@ -388,53 +355,6 @@ class PiecewiseChebyshevBasis(Basis1D):
     time_mass = ChebyshevBasis.time_mass
     time_load = ChebyshevBasis.time_load
     time_weights = ChebyshevBasis.time_weights
-
-
-def barycentric_columns(x: np.ndarray, nodes: np.ndarray, bary: np.ndarray, out: np.ndarray,
-                        work: np.ndarray) -> np.ndarray:
-    """Barycentric cardinal functions on ``nodes`` at the points ``x``, points last.
-
-    Parameters
-    ----------
-    x : ndarray, shape (p,)
-    nodes, bary : ndarray, shape (m,)
-        The nodes and their barycentric weights.
-    out, work : ndarray, shape (m, p)
-        Receives the values (returned) / scratch; views of any strides.
-
-    Returns
-    -------
-    ndarray, shape (m, p): ``out``
-        Column ``i`` holds the cardinal functions at ``x[i]``: the textbook arithmetic,
-        ``c = bary / (x - nodes)``, ``c / c.sum()``, with a point on node ``k`` given the unit
-        vector ``e_k``. Such a point is found through its sum, which is not finite
-        (``bary / 0 = inf``), so no (m, p) comparison is made unless needed.
-    """
-    diff = np.subtract(x, nodes[:, None], out=work)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = np.divide(bary[:, None], diff, out=out)
-        total = np.add.reduce(c, axis=0)
-    odd = np.flatnonzero(~np.isfinite(total))
-    if odd.size:
-        exact = diff[:, odd] == 0.0
-        hit = exact.any(axis=0)
-        c[:, odd[hit]] = exact[:, hit]
-        total[odd[hit]] = 1.0  # the sum of a unit vector
-    return np.divide(c, total, out=c)
-
-
-def barycentric_rows(x: np.ndarray, nodes: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    """Barycentric cardinal rows of the points ``x`` (shape (p,)) on ``nodes`` (shape (m,), or
-    (p, m): each point's own nodes), shape (p, m); a point on a node gets the unit row."""
-    diff = x[:, None] - nodes
-    exact = diff == 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = bary / diff
-    hit = exact.any(axis=1)
-    if hit.any():
-        c[hit] = exact[hit]
-    c /= c.sum(axis=1, keepdims=True)
-    return c
 
 
 def make_basis(kind: str, domain, size: int, breakpoints=None) -> Basis1D:

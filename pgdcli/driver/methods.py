@@ -21,7 +21,6 @@ from ..algorithms.march import solve_march
 from ..algorithms.outcome import SolverOutcome, Status
 from ..algorithms.pde_solve import solve_pde_march
 from ..algorithms.pde_system import pde_refusal
-from ..discretization.coefficients import CanonicalTermsError
 from ..errors import SolverError
 from ..problem.general import has_general
 from .method import Kept, Method, MethodChoice, Try

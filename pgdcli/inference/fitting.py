@@ -28,6 +28,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..checks.reference import solve_reference
+from ..codebook.codebook import Codebook
+from ..codebook.gradient import TrajectoryModel
 from ..errors import PgdError
 from .data import FitError, check_finite, fixed_values, read_data, split_columns
 
@@ -124,8 +127,6 @@ class _Model:
     """
 
     def __init__(self, cb, coords, observed, sigma, fixed, free):
-        from ..codebook.gradient import TrajectoryModel
-
         self.cb, self.observed, self.free = cb, observed, free
         rows = len(next(iter(coords.values()))) if coords else 1
         self.rows = rows
@@ -152,8 +153,6 @@ class _Model:
     def values(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """Every unknown at the data rows for the free coordinates ``x``: shape (rows,) each."""
         if self.trajectory is not None:
-            from ..codebook.gradient import TrajectoryModel
-
             names = self.cb.unknown_names
             axis = self.cb.coordinate_names[self.trajectory.axis]
             point = self.point.copy()
@@ -272,7 +271,6 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
     """
     from scipy.optimize import least_squares  # noqa: F401 -- imported before `began`, as qmc below
 
-    from ..codebook.codebook import Codebook
 
     cb = codebook if isinstance(codebook, Codebook) else Codebook.load(codebook)
     if not isinstance(data, Mapping):
@@ -356,7 +354,6 @@ def _message(res, at_bound: Sequence[str]) -> str:
 
 def _reference_check(cb, result: FitResult, coords: Mapping, model: _Model, label: str) -> None:
     """Re-solve at the estimate with the independent reference; store the misfits."""
-    from ..checks.reference import solve_reference
     from ..problem.spec import parse_spec
 
     try:

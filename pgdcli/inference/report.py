@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..plot.files import save_figure
+from ..plot.options import require_matplotlib
+
 __all__ = ["summary", "plot_fit"]
 
 
@@ -23,12 +26,9 @@ def summary(result) -> str:
 
 def plot_fit(result, path, dpi: int = 150):
     """Data (markers) and the fitted curve (lines) of every observed unknown; saved as PNG/SVG."""
-    from ..plot.options import require_matplotlib
-
     require_matplotlib("pgd fit --plot")
     from matplotlib.figure import Figure
 
-    from ..plot.files import save_figure
 
     varying = [n for n in result.coordinates if np.ptp(result.fitted[n]) > 0]
     xname = varying[0] if varying else None

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 from typing import Callable, Iterable
-import os
 
+from ..codebook.codebook import Codebook
 from ..errors import PgdError, QueryError
 from .draw import draw_convergence, draw_error, draw_modes, draw_solution
 from .modes import convergence_data, modes_data
@@ -41,8 +43,6 @@ def save_figure(fig, path: str | os.PathLike, *, dpi: int = DEFAULT_DPI) -> Path
     The image is ``figsize * dpi`` pixels (PNG) or ``figsize * 72`` points (SVG);
     no tight bounding box, so the size is exactly the figure's.
     """
-    import tempfile
-
     import matplotlib
 
     path = Path(path)
@@ -107,8 +107,6 @@ def render(codebook_path: str | os.PathLike, kind: str = DEFAULT_KIND, output: s
     of a phase portrait; ``densities``: the inputs' densities of a sensitivity plot
     (``{"k": "normal:2,0.3"}``).
     """
-    from ..codebook.codebook import Codebook
-
     require_matplotlib("pgd plot")
     if kind not in KINDS:
         raise QueryError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")

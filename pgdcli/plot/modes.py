@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from ..errors import PgdError, QueryError
+from ..tensors.tt import TT, tt_centre_cores
 from .options import DEFAULT_COUNT, LINE_POINTS, count_points, field_name, time_coordinate_of
 
 __all__ = ["modes_data", "tt_hosvd_modes", "convergence_data"]
@@ -48,8 +49,6 @@ def modes_data(codebook, count: int = DEFAULT_COUNT, field: str | None = None, *
         above ``max(unfolding shape) * eps * sigma_1``, numpy's ``matrix_rank``) and
         ``singular_values`` (all min(n, r_{k-1} r_k) of them, decreasing).
     """
-    from ..tensors.tt import TT
-
     name = field_name(codebook, field)
     if int(count) != count or count < 1:
         raise QueryError(f"--count: expected an integer >= 1, got {count}")
@@ -111,8 +110,6 @@ def tt_hosvd_modes(fm) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         (m,) the singular values in decreasing order, ``m = min(nodes_j,
         r_{k-1} r_k)``.
     """
-    from ..tensors.tt import tt_centre_cores
-
     out = {}
     for k, centre in enumerate(tt_centre_cores(fm.cores)):
         r0, n, r1 = centre.shape

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import QueryError
+from .draw import figure_title, line_style, new_figure
 from .options import LINE_POINTS, REFERENCE_MARKERS, count_points, is_steady, point_label
 from .solution import line_points, reference_solver, reference_values
 
@@ -94,7 +95,6 @@ def draw_phase(data: dict, *, fig=None, figsize=None):
     """Figure of :func:`phase_data`: codebook curves as lines (a dot at the start), the reference as open markers."""
     from matplotlib.lines import Line2D
 
-    from .draw import figure_title, line_style, new_figure
 
     fig = new_figure(fig, figsize or (7.0, 5.2))
     ax = fig.subplots()

@@ -6,6 +6,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .draw import figure_title, line_style, new_figure
 from .options import LINE_POINTS, count_points, field_name
 
 __all__ = ["sensitivity_data", "draw_sensitivity", "plot_sensitivity"]
@@ -41,8 +42,6 @@ def draw_sensitivity(data: dict, *, fig=None, figsize=None):
     """Figure of :func:`sensitivity_data`: (a) the mean with a band of one standard deviation, (b) the
     first-order (solid) and total (dashed) index of every input, one color an input; a steady codebook:
     bars."""
-    from .draw import figure_title, line_style, new_figure
-
     field, inputs = data["field"], data["inputs"]
     if data["time"] is None:
         fig = new_figure(fig, figsize or (6.4, 4.2))

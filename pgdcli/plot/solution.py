@@ -7,6 +7,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from ..checks.reference import solve_reference
 from ..checks.reference_base import TIME_UP, time_budget
 from ..errors import PgdError, QueryError, TimeBudgetExceeded
 from .options import (DEFAULT_AT_CURVES, LINE_POINTS, MAP_POINTS, REFERENCE_MARKERS, count_points, domain_midpoint,
@@ -32,10 +33,6 @@ def reference_solver(codebook, *, source: str = "<codebook>", method: str | None
 
     if not codebook.spec_text.strip():
         raise PgdError(f"{source}: the codebook has no embedded spec; a reference solution needs one")
-    try:
-        from ..checks.reference import solve_reference
-    except ImportError as exc:  # pragma: no cover - only while pgdcli.checks.reference is missing
-        raise PgdError(f"the reference solver is not available ({exc})") from None
     problem = parse_spec(codebook.spec_text, source=source, allow_nonlinear=True)
 
     started = time.monotonic()

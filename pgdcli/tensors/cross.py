@@ -36,8 +36,8 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.linalg import qr
 
-from .tt_svd import tt_from_full, truncation_rank
 from .tt import TT, tt_round, tt_sum
+from .tt_svd import truncation_rank, tt_from_full
 
 __all__ = ["CrossResult", "tt_cross", "tt_from_full", "maxvol", "tt_values_at", "tt_point_function"]
 

@@ -9,7 +9,8 @@ Sums concatenate cores (ranks add), Hadamard products take Kronecker products
 of core slices (ranks multiply) and :func:`round` brings the ranks back down
 with a QR sweep followed by truncated SVDs (Oseledets 2011), which is
 SVD-robust and rank-adaptive: the truncation error is bounded by the
-requested relative tolerance in the Frobenius norm.
+requested relative tolerance in the Frobenius norm. The sweeps themselves, on plain
+lists of cores, are in :mod:`pgdcli.tensors.tt_sweeps`.
 
 This module imports numpy only.
 """
@@ -21,7 +22,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .tt_allocate import rank_within, truncate_allocated
+from .tt_allocate import truncate_allocated
+from .tt_sweeps import orthogonalize_left, orthogonalize_right, pad_ranks, round_stacked, truncate_sweep
 
 __all__ = ["TT", "tt_round", "tt_round_shared", "tt_round_many", "tt_sum", "tt_hadamard", "tt_rank_one",
            "tt_constant", "tt_ones", "tt_centre_cores", "tt_concatenate", "is_ones"]
@@ -157,7 +159,7 @@ class TT:
 
     def norm(self) -> float:
         """Frobenius norm via orthogonalization (accurate to rounding, no Gram cancellation)."""
-        cores = _orthogonalize_left(list(self.cores))
+        cores = orthogonalize_left(list(self.cores))
         return float(np.linalg.norm(cores[-1]))
 
 
@@ -227,26 +229,6 @@ def tt_hadamard(x: TT, y: TT) -> TT:
     return TT(cores, order)
 
 
-def _orthogonalize_left(cores: list[np.ndarray]) -> list[np.ndarray]:
-    """Left-orthogonalize cores 0..d-2 by QR; the norm moves into the last core."""
-    for k in range(len(cores) - 1):
-        r0, n, r1 = cores[k].shape
-        q, r = np.linalg.qr(cores[k].reshape(r0 * n, r1))
-        cores[k] = q.reshape(r0, n, q.shape[1])
-        cores[k + 1] = np.tensordot(r, cores[k + 1], axes=(1, 0))
-    return cores
-
-
-def _orthogonalize_right(cores: list[np.ndarray]) -> list[np.ndarray]:
-    """Right-orthogonalize cores 1..d-1 by QR; the norm moves into the first core."""
-    for k in range(len(cores) - 1, 0, -1):
-        r0, n, r1 = cores[k].shape
-        q, r = np.linalg.qr(cores[k].reshape(r0, n * r1).T)
-        cores[k] = q.T.reshape(q.shape[1], n, r1)
-        cores[k - 1] = np.tensordot(cores[k - 1], r.T, axes=(2, 0))
-    return cores
-
-
 def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
              max_rank: int | None = None, allocate: bool = False) -> TT:
     """Recompress to the smallest ranks within a Frobenius error bound.
@@ -264,7 +246,7 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
     cores = list(x.cores)
     if d == 1:
         return TT(cores, order)
-    cores = _orthogonalize_right(cores)
+    cores = orthogonalize_right(cores)
     norm = np.linalg.norm(cores[0])
     if norm == 0.0:
         return TT([np.zeros((1, c.shape[1], 1)) for c in cores], order)
@@ -273,21 +255,7 @@ def tt_round(x: TT, tolerance: float = 0.0, *, absolute: float | None = None,
         if max_rank is not None:
             raise ValueError("tt_round: allocate does not take a max_rank")
         return TT(truncate_allocated(cores, delta), order)
-    return _truncate(cores, delta / np.sqrt(d - 1), max_rank, order)
-
-
-def _truncate(cores: list[np.ndarray], delta: float, max_rank: int | None,
-              order: tuple[int, ...] | None = None) -> TT:
-    """Left-to-right truncated SVDs of right-orthogonal cores 1..d-1, each dropping at most ``delta``."""
-    for k in range(len(cores) - 1):
-        r0, n, r1 = cores[k].shape
-        u, s, vt = np.linalg.svd(cores[k].reshape(r0 * n, r1), full_matrices=False)
-        rank = rank_within(s, delta)
-        if max_rank is not None:
-            rank = min(rank, max_rank)
-        cores[k] = u[:, :rank].reshape(r0, n, rank)
-        cores[k + 1] = np.tensordot(s[:rank, None] * vt[:rank], cores[k + 1], axes=(1, 0))
-    return TT(cores, order)
+    return TT(truncate_sweep(cores, delta / np.sqrt(d - 1), max_rank), order)
 
 
 def tt_round_shared(firsts: Sequence[np.ndarray], shared: Sequence[np.ndarray], *, absolute: float,
@@ -304,56 +272,12 @@ def tt_round_shared(firsts: Sequence[np.ndarray], shared: Sequence[np.ndarray], 
     allocate : bool
         As :func:`tt_round`'s.
     """
-    cores = _orthogonalize_right([np.eye(shared[0].shape[0])[None]] + list(shared))
+    cores = orthogonalize_right([np.eye(shared[0].shape[0])[None]] + list(shared))
     carried = cores[0][0]  # (r_1, r_1'): what the orthogonalization moved into the first core
     trains = ([np.tensordot(first, carried, axes=(2, 0))] + cores[1:] for first in firsts)
     if allocate:
         return [TT(truncate_allocated(train, absolute)) for train in trains]
-    return [_truncate(train, absolute / np.sqrt(len(shared)), None) for train in trains]
-
-
-def _pad_to(cores: list[np.ndarray], ranks: list[int]) -> list[np.ndarray]:
-    """Zero-pad the bonds of one train to ``ranks`` (length d + 1); the tensor is unchanged."""
-    out = []
-    for k, c in enumerate(cores):
-        r0, n, r1 = c.shape
-        if (r0, r1) == (ranks[k], ranks[k + 1]):
-            out.append(c)
-            continue
-        p = np.zeros((ranks[k], n, ranks[k + 1]))
-        p[:r0, :, :r1] = c
-        out.append(p)
-    return out
-
-
-def _reduce_wide_ends(cores: list[np.ndarray]) -> None:
-    """Cut bonds above what the outer modes allow, in place, on stacked cores ``(B, r0, n, r1)``.
-
-    A sum of trains has bond ranks that add up (the march's stage sums: 13 trains),
-    far above ``n`` at the outer bonds, where no tensor can have more. The full
-    sweep of the rounding then pays QRs of ``(n r1, r0)`` unfoldings with the large
-    ``r0``. Reducing first, from the last core while ``n r1 < r0`` and from the first
-    while ``r0 n < r1`` (orthogonal transformations: the tensor is unchanged), leaves
-    that sweep small matrices; on coupled.yaml (n = 20, sums of rank 50-80) it
-    replaces QRs of 400 x 60 by 20 x 60 ones.
-    """
-    b, d = cores[0].shape[0], len(cores)
-    for k in range(d - 1, 0, -1):
-        _, r0, n, r1 = cores[k].shape
-        if n * r1 >= r0:
-            break
-        q, r = np.linalg.qr(cores[k].reshape(b, r0, n * r1).transpose(0, 2, 1))  # r: (B, n r1, r0)
-        cores[k] = q.transpose(0, 2, 1).reshape(b, n * r1, n, r1)
-        _, ra, na, _ = cores[k - 1].shape
-        cores[k - 1] = (cores[k - 1].reshape(b, ra * na, r0) @ r.transpose(0, 2, 1)).reshape(b, ra, na, n * r1)
-    for k in range(d - 1):
-        _, r0, n, r1 = cores[k].shape
-        if r0 * n >= r1:
-            break
-        q, r = np.linalg.qr(cores[k].reshape(b, r0 * n, r1))  # r: (B, r0 n, r1)
-        cores[k] = q.reshape(b, r0, n, r0 * n)
-        _, _, nb, rb = cores[k + 1].shape
-        cores[k + 1] = (r @ cores[k + 1].reshape(b, r1, nb * rb)).reshape(b, r0 * n, nb, rb)
+    return [TT(truncate_sweep(train, absolute / np.sqrt(len(shared)), None)) for train in trains]
 
 
 def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None = None) -> list[TT]:
@@ -372,28 +296,9 @@ def tt_round_many(trains: Sequence[TT], *, absolute: float, max_rank: int | None
         return [tt_round(t, absolute=absolute, max_rank=max_rank) for t in trains]
     order = _common_order(trains)
     ranks = [1] + [max(t.cores[k].shape[2] for t in trains) for k in range(d - 1)] + [1]
-    cores = [np.stack(cs) for cs in zip(*[_pad_to(list(t.cores), ranks) for t in trains])]  # (B, r0, n, r1)
-    b = len(trains)
-    _reduce_wide_ends(cores)
-    for k in range(d - 1, 0, -1):
-        _, r0, n, r1 = cores[k].shape
-        q, r = np.linalg.qr(cores[k].reshape(b, r0, n * r1).transpose(0, 2, 1))
-        cores[k] = q.transpose(0, 2, 1).reshape(b, q.shape[2], n, r1)
-        _, ra, na, _ = cores[k - 1].shape
-        cores[k - 1] = (cores[k - 1].reshape(b, ra * na, r0) @ r.transpose(0, 2, 1)).reshape(b, ra, na, r.shape[1])
-    delta = absolute / np.sqrt(d - 1)
-    for k in range(d - 1):
-        _, r0, n, r1 = cores[k].shape
-        u, s, vt = np.linalg.svd(cores[k].reshape(b, r0 * n, r1), full_matrices=False)
-        tail = np.sqrt(np.cumsum((s * s)[:, ::-1], axis=1))[:, ::-1]
-        rank = max(1, int(np.max(np.sum(tail > delta, axis=1))))
-        if max_rank is not None:
-            rank = min(rank, max_rank)
-        cores[k] = u[:, :, :rank].reshape(b, r0, n, rank)
-        _, _, nb, rb = cores[k + 1].shape
-        sv = s[:, :rank, None] * vt[:, :rank]
-        cores[k + 1] = (sv @ cores[k + 1].reshape(b, r1, nb * rb)).reshape(b, rank, nb, rb)
-    return [TT([c[i] for c in cores], order) for i in range(b)]
+    cores = [np.stack(cs) for cs in zip(*[pad_ranks(list(t.cores), ranks) for t in trains])]  # (B, r0, n, r1)
+    cores = round_stacked(cores, absolute / np.sqrt(d - 1), max_rank)
+    return [TT([c[i] for c in cores], order) for i in range(len(trains))]
 
 
 def tt_concatenate(trains: Sequence[TT]) -> TT:
@@ -439,7 +344,7 @@ def tt_centre_cores(cores: Sequence[np.ndarray]) -> list[np.ndarray]:
     each way, O(d) factorizations in all.
     """
     d = len(cores)
-    right = _orthogonalize_right([np.asarray(x, dtype=float) for x in cores])
+    right = orthogonalize_right([np.asarray(x, dtype=float) for x in cores])
     centres = [right[0]]
     for k in range(d - 1):
         r0, n, r1 = centres[-1].shape

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..codebook.export import layout
 from ..errors import PgdError
+from ..inference.data import read_data, split_columns
 
 __all__ = ["ViewError", "PAGE_LIMIT", "payload", "numbers_size", "check_size", "data_columns"]
 
@@ -80,8 +81,6 @@ def _meta(cb) -> dict:
 
 def data_columns(cb, path: str | os.PathLike) -> dict:
     """A ``pgd fit`` data file read and checked against the codebook: ``{"label", "columns"}``."""
-    from ..inference.data import read_data, split_columns
-
     label = os.path.basename(str(path))
     data = read_data(path, label=str(path))
     split_columns(cb, data, str(path))  # the same checks as pgd fit: columns, domains
