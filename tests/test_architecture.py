@@ -201,7 +201,8 @@ MAX_FUNCTION_CODE_LINES = 60
 # third-party modules slow enough to import that a command which may not need them defers them into
 # the function that does (the time `pgd query` or `import pgdcli` would otherwise pay at start-up)
 HEAVY = ("numpy", "scipy.", "h5py", "matplotlib", "rich.", "yaml", "distributed", "dask", "selenium",
-         "threadpoolctl", "xarray", "pandas", "pyarrow")
+         "threadpoolctl", "xarray", "pandas", "pyarrow",
+         "pathlib", "tempfile")  # the standard library's slower imports: a one-point query loads neither
 
 
 def _heavy(module: str) -> str | None:

@@ -9,8 +9,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
@@ -71,6 +69,9 @@ def write_atomic(path: str | os.PathLike, data: bytes | str, *, what: str = "the
         The folder cannot be created or written, or the disk is full: ``path`` is left as it
         was and no temporary file remains.
     """
+    import tempfile
+    from pathlib import Path
+
     path = Path(path)
     payload = data.encode() if isinstance(data, str) else data
     try:

@@ -15,7 +15,6 @@ when every partition is in.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
@@ -98,6 +97,8 @@ def write_points(path: str | os.PathLike, codebook, partitions: Iterable[np.ndar
     int
         Points written.
     """
+    import tempfile
+
     import h5py
 
     path = Path(path)
