@@ -26,6 +26,8 @@ from .reference_base import (DEFAULT_MAX_EVALUATIONS, DEFAULT_SPACE_NODES, PDE_A
                              chunk_executor, reference_times, run_in_chunks, sample_subset, sampled_coordinates,
                              space_coordinates, start_time)
 from .reference_ode import parse_cached, scores
+from .reference_pde_modal import METHOD_NAME as MODAL_METHOD
+from .reference_pde_modal import modal_states
 from .reference_pde_points import (at_points, checked_space_points, clipped_to_domain, interpolation_matrices,
                                    values_at_space_points)
 
@@ -225,7 +227,9 @@ def _space_nodes(problem, space_nodes) -> dict[str, int]:
 
 def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, chunk_size, progress,
                  max_evaluations, executor=None):
-    """Full-grid values (S, q, T_unique, n) at the unique sorted times, success, messages, the model."""
+    """Full-grid values (S, q, T_unique, n) at the unique sorted times, success, messages, the model, the
+    unique times and the inverse map, and the method that computed them (:mod:`.reference_pde_modal`
+    for a time-invariant linear system whose samples share one operator, with the default BDF)."""
     t0 = start_time(problem)
     unique, inverse = np.unique(times, return_inverse=True)
     model = _pde_model(problem.source_text, problem.source, tuple(sorted(nodes.items()))) \
@@ -236,6 +240,12 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     messages = [""] * S
     if chunk_size is None:  # whatever runs the chunks (samples sharing a call share its steps)
         chunk_size = max(1, min(_PDE_MAX_CHUNK, _PDE_CHUNK_STATES // max(model.m, 1), math.ceil(S / CHUNKS)))
+    if method == "BDF" and S:  # the default: a time-invariant linear system is solved exactly, once for all
+        exact = modal_states(model, arrays, S, t0, unique)
+        if exact is not None:
+            if progress is not None:
+                progress(S)
+            return exact, np.ones(S, dtype=bool), messages, model, unique, inverse, MODAL_METHOD
     settings = (t0, unique, method, float(rtol), float(atol), int(max_evaluations))
     key = tuple(sorted(nodes.items()))
     # a problem without spec text cannot be rebuilt in a worker: solve it here
@@ -244,7 +254,7 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     with chunk_executor(jobs, executor) as chunks:
         run_in_chunks(S, chunk_size, chunks, progress, values, success, messages, arrays,
                       lambda chunk: _solve_group_pde(model, *chunk, *settings), task)
-    return values, success, messages, model, unique, inverse
+    return values, success, messages, model, unique, inverse, method
 
 
 def solve_reference_pde(
@@ -336,7 +346,7 @@ def solve_reference_pde(
 
     points = checked_space_points(problem, space_points, space, grid)
 
-    states, success, messages, model, unique, inverse = _grid_states(
+    states, success, messages, model, unique, inverse, method = _grid_states(
         problem, arrays, S, times, nodes=nodes, method=method, rtol=rtol, atol=atol, jobs=jobs,
         chunk_size=chunk_size, progress=progress, max_evaluations=max_evaluations, executor=executor)
     if points is None:
@@ -393,7 +403,7 @@ def solve_reference_space(problem, params, times, *, method, rtol, atol, jobs, c
         def report(done: int) -> None:  # progress in samples, as for ODEs
             progress(S if done >= G else int(S * done / G))
 
-        states, ok, msgs, model, unique, inverse = _grid_states(
+        states, ok, msgs, model, unique, inverse, method = _grid_states(
             problem, unique_params, G, times, nodes=nodes, method=method, rtol=rtol, atol=atol, jobs=jobs,
             chunk_size=chunk_size, progress=report if progress is not None else None,
             max_evaluations=max_evaluations, executor=executor)

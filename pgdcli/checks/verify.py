@@ -239,6 +239,8 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
                            progress=report_progress, space_nodes=nodes)
         if nonlinear:
             settings.update(method=f"{result.method}, nonlinear method of lines", rtol=result.rtol, atol=result.atol)
+        elif result.method != settings.get("method"):  # solved exactly instead of integrated
+            settings.update(method=result.method)
         if time is None:  # the placeholder time axis, as the codebook values have it
             result.values = {u: v[:, None] for u, v in result.values.items()}
         approx = codebook_on_space_grid(cb, sample_points, S, time, all_times, space_grid, unknowns)

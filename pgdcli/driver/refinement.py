@@ -72,7 +72,8 @@ def solve_rounds(problem, choice: MethodChoice, settings: Settings, callback=Non
         verdict = loop.judge(result, kept)  # refine: more nodes (None), or the verdict
         if verdict is not None:
             solved = loop.method.summary(kept, loop.tries)
-            return gate.finish(result, solved, loop.resolution, verdict, loop.started), loop.learned
+            finished = gate.finish(result, solved, loop.resolution, verdict, loop.started, loop.check_seconds)
+            return finished, loop.learned
 
 
 class _Loop:
@@ -87,6 +88,7 @@ class _Loop:
         self.target = self.method.first_target(settings, learned)
         self.solves = 0
         self.fallbacks: list[str] = []
+        self.check_seconds = 0.0  # the error gate's share of the build
 
     @property
     def problem(self):
@@ -107,8 +109,10 @@ class _Loop:
         self.learned = self.learned.after(outcome)
         attempt = Try(self.target, outcome)
         if method.measures(outcome, self.tries):
+            checking = _time.perf_counter()
             attempt.check, attempt.warnings = gate.measure(problem, outcome.codebook, self.settings, self.callback,
                                                            self.solves)
+            self.check_seconds += _time.perf_counter() - checking
         self.tries.append(attempt)
         return attempt
 
