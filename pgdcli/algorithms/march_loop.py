@@ -37,7 +37,11 @@ from .stepping import Stepper
 from .stiffness import StiffnessDetected, StiffnessWatch
 from .step_control import MAX_GROWTH_OF_NORM, MIN_STEP, StepControl, output_times, step_refusal
 
-__all__ = ["Schedule", "march_steps"]
+__all__ = ["Schedule", "march_steps", "FLOOR_GROWTH"]
+
+#: ``solver.integrator: auto`` takes an explicit step below the floor for a stiff or multiscale problem
+#: (and marches again with the stiff stepper) only while the state is at most this many times its initial size.
+FLOOR_GROWTH = 2.0
 
 
 @dataclass
@@ -114,7 +118,9 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
     while t < t_final:
         # the last step takes what is left, also a remainder below the step-size floor
         h = t_final - t if h > t_final - t - MIN_STEP * span else h
-        _refuse(space, stepper, schedule, t, y, h, span, max_steps, stiffness is not None)
+        # a step below the floor with the state still of its initial size: a fast transient, not a blow-up
+        _refuse(space, stepper, schedule, t, y, h, span, max_steps,
+                stiffness is not None and space.largest(y) <= FLOOR_GROWTH * scale0)
         trial = stepper.step(space, t, y, f, h)
         ratio = control.ratio(trial.error, h)
         if ratio > 1.0:
