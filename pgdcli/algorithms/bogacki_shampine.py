@@ -23,6 +23,7 @@ class BogackiShampine32(ExplicitRungeKutta):
     order = 3
     error_estimator_order = 2
     n_stages = 3
+    stability_limit = 2.5  # where its stability region meets the negative real axis
     C = np.array([0.0, 1 / 2, 3 / 4])
     A = np.array([[0.0, 0.0, 0.0],
                   [1 / 2, 0.0, 0.0],

@@ -49,6 +49,7 @@ class Dop853(ExplicitRungeKutta):
     E3, E5 = DOP853.E3, DOP853.E5
     D, A_EXTRA, C_EXTRA = DOP853.D, DOP853.A_EXTRA, DOP853.C_EXTRA
     extra_stages = len(DOP853.C_EXTRA)
+    stability_limit = 6.0  # where its stability region meets the negative real axis (Hairer's dop853.f tests 6.1)
 
     def error_weights(self) -> list[np.ndarray]:
         return [self.E5, self.E3]

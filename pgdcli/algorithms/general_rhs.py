@@ -29,7 +29,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..tensors.cross import tt_cross, tt_values_at
+from ..problem.derivative import DERIVATIVE_FUNCTIONS, derivative
 from ..problem.general import evaluate, is_general, render, tree_names, tree_of
+from ..problem.trees import evaluate_tree, values_by_name
 from ..tensors.tt import TT
 
 __all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries", "underflow_hint"]
@@ -90,6 +92,7 @@ class GeneralPart:
         names = set().union(*(tree_names(tree) for _, trees in self.monomials for tree in trees))
         self.needed = [(name, i) for i, name in enumerate(unknowns) if name in names]
         self.params, self.nodes, self.time = list(params), nodes, time
+        self.slopes = None  # per needed unknown, per monomial: its factors' derivative trees (Jacobians)
         self.right_sets = None  # warm start of the next cross
         self.rank = 4  # the rank of the last cross: its cost
 
@@ -101,18 +104,59 @@ class GeneralPart:
 
     def point_values(self, t: float, indices: np.ndarray, arrays: Mapping[str, np.ndarray]) -> np.ndarray:
         """``G_s(t, p)`` at P grid multi-indices (P, d) from the needed unknowns' values there (name -> (P,))."""
-        values = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
-        values.update(arrays)
-        return self._evaluate(t, values, indices.shape[0])
+        return self._evaluate(t, self._point_inputs(indices, arrays), indices.shape[0])
 
     def grid_values(self, t: float, arrays: Mapping[str, np.ndarray]) -> np.ndarray:
         """``G_s(t, p)`` on the whole grid from the needed unknowns' arrays (name -> grid shape)."""
+        return self._evaluate(t, self._grid_inputs(arrays), self._grid_shape())
+
+    def point_jacobian(self, t: float, indices: np.ndarray, arrays: Mapping[str, np.ndarray]) -> dict:
+        """``{j: dG_s/du_j}`` at P grid multi-indices (as :meth:`point_values`), j the needed unknowns' indices."""
+        return self._jacobian(t, self._point_inputs(indices, arrays), indices.shape[0])
+
+    def grid_jacobian(self, t: float, arrays: Mapping[str, np.ndarray]) -> dict:
+        """``{j: dG_s/du_j}`` on the whole grid (as :meth:`grid_values`), j the needed unknowns' indices."""
+        return self._jacobian(t, self._grid_inputs(arrays), self._grid_shape())
+
+    def _grid_shape(self) -> tuple:
+        return tuple(self.nodes[p].size for p in self.params)
+
+    def _point_inputs(self, indices: np.ndarray, arrays: Mapping[str, np.ndarray]) -> dict:
+        values = {p: self.nodes[p][indices[:, k]] for k, p in enumerate(self.params)}
+        values.update(arrays)
+        return values
+
+    def _grid_inputs(self, arrays: Mapping[str, np.ndarray]) -> dict:
         d = len(self.params)
         values = {p: self.nodes[p].reshape([-1 if j == k else 1 for j in range(d)]) for k, p in enumerate(self.params)}
         values.update(arrays)
-        return self._evaluate(t, values, tuple(self.nodes[p].size for p in self.params))
+        return values
+
+    def _jacobian(self, t: float, values: dict, shape) -> dict:
+        """The product rule over every monomial's factors, with their derivative trees (built once)."""
+        if self.slopes is None:
+            self.slopes = {name: [[derivative(tree, ("name", name)) for tree in trees] for _, trees in self.monomials]
+                           for name, _ in self.needed}
+        values[self.time] = t
+        leaf = values_by_name(values)
+        out = {}
+        with np.errstate(all="ignore"):
+            factors = [[evaluate(tree, values) for tree in trees] for _, trees in self.monomials]
+            scale = -1.0 / self.der_term.evaluate(**values)
+            for name, j in self.needed:
+                total = np.zeros(shape)
+                for (sep, _), own, slopes in zip(self.monomials, factors, self.slopes[name]):
+                    for k, slope in enumerate(slopes):
+                        if slope != ("num", 0.0):
+                            term = sep.evaluate(**values) * evaluate_tree(slope, leaf, DERIVATIVE_FUNCTIONS)
+                            for other in own[:k] + own[k + 1:]:
+                                term = term * other
+                            total = total + term
+                out[j] = total * scale
+        return out
 
     def _evaluate(self, t: float, values: dict, shape) -> np.ndarray:
+        """``G_s`` from every leaf's values (parameters, unknowns; the time set here)."""
         values[self.time] = t
         total = np.zeros(shape)
         with np.errstate(all="ignore"):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..tensors.cross import tt_point_function, tt_values_at
+from .jacobian import ArrayJacobian, jacobian_at, stiffest_rate, time_derivative
 from .march_loop import Schedule, march_steps
 from .polynomial_rhs import NonlinearSystem
 from .stepping import Stepper, Trial
@@ -103,6 +104,11 @@ class GridRhs:
             return value
         return _one_value(train.full().reshape(-1) if self.indices is None else tt_values_at(train, self.indices))
 
+    def coefficient(self, s: int, m: int, t: float) -> np.ndarray | float:
+        """The coefficient of monomial ``m`` of equation ``s`` at the nodes at time ``t``."""
+        term = self.fixed.get((s, m))
+        return self._at_nodes(self.system.rhs[s][m][0].at(t)) if term is None else term
+
     def __call__(self, t: float, Y: np.ndarray) -> np.ndarray:
         out = np.zeros_like(Y)
         for s, monomials in enumerate(self.system.rhs):
@@ -160,6 +166,8 @@ class ArraySpace:
 
     def __init__(self, rhs: GridRhs, y: np.ndarray, slots: int):
         self.rhs, self.system, self.stats = rhs, rhs.system, rhs.stats
+        nodes = self.system.time_basis.nodes
+        self.span = float(nodes[-1] - nodes[0])
         self.buffer = np.empty((2 + slots,) + y.shape)
         self.buffer[0] = y
 
@@ -201,6 +209,14 @@ class ArraySpace:
         the stages before the next one reads it; a replay rejects none)."""
         self.buffer[0] = trial.y_new
         return self.buffer[0], trial.f_new.copy() if copy else trial.f_new
+
+    def jacobian(self, t: float, y: np.ndarray) -> ArrayJacobian:
+        """``df/du`` (exact) and ``df/dt`` at the nodes, for linearly implicit steppers."""
+        return ArrayJacobian(jacobian_at(self.rhs, t, y), time_derivative(self.rhs, t, y, self.span))
+
+    def decay_rate(self, t: float, y: np.ndarray) -> float:
+        """The fastest decay rate of the exact Jacobian at (up to 256 of) the nodes (stiffness detection)."""
+        return stiffest_rate(jacobian_at(self.rhs, t, y))
 
     def rounding(self, h: float) -> float:
         return 0.0

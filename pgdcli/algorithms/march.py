@@ -57,7 +57,9 @@ from .march_loop import march_steps
 from .outcome import Learned, SolverOutcome
 from .stepping import Stepper
 from .step_control import LOCAL_FRACTION, STAGE_FRACTION, STATE_FRACTION
+from .steppers import AUTO, DEFAULT, METHODS, STIFF
 from .steppers import stepper as named_stepper
+from .stiffness import StiffnessDetected
 from .train_steps import MarchFailure, TrainSpace
 
 __all__ = ["NonlinearSystem", "MarchResult", "MarchFailure", "compile_system", "evaluate_rhs", "round_terms",
@@ -164,6 +166,7 @@ def solve_march(problem, tolerance: float, callback=None, learned: Learned = Lea
     separations: list = []
     system = compile_system(problem, tolerance, separations)
     run = _Run(problem, system, tolerance, separations, callback, started)
+    run.stiff = learned.stiff
     march_state = getattr(opts, "march", "auto")  # solver.march: the grid's array or a tensor train
     check_forced_grid(problem)  # the automatic resolution may have grown the grid since the first check
     nodes = int(np.prod(system.shape))
@@ -175,14 +178,14 @@ def solve_march(problem, tolerance: float, callback=None, learned: Learned = Lea
         # auto on a grid the grid march could take: the cross gets a budget, and the grid march what it left
         found = _solve_by_cross(run, CROSS_BUDGET * nodes if march_state == "auto" and fits else None)
         if found is not None:
-            return found
+            return run.finished(found)
         abandoned = run.cross_note
     if march_state == "grid" or (march_state == "auto" and fits):
         outcome = _solve_on_grid(run)
     else:
         outcome = _solve_by_train(run)
     outcome.cross_abandoned = abandoned
-    return outcome
+    return run.finished(outcome)
 
 
 class _Run:
@@ -198,6 +201,8 @@ class _Run:
         self.callback, self.started = callback, started
         self.steps = 0
         self.cross_note: str | None = None  # why the cross was given up (the grid march's report says it)
+        self.stiff: str | None = None  # why the march switched to the stiff stepper
+        self.integrator = DEFAULT  # the stepper of the last march
         auto = getattr(problem.solver, "time_slabs", "auto") == "auto"
         # linear time elements: the nodes are the slabs already
         auto = auto and problem.time_coordinate.discretization == "chebyshev"
@@ -219,29 +224,60 @@ class _Run:
         return converged_result(self.problem, self.system, result, trains, report, self.tolerance, self.separations,
                                 self.wall())
 
+    def stepped(self, run_march, detects: bool = True):
+        """``run_march(stepper)`` with ``solver.integrator``'s stepper, and the report entries that name it.
+
+        With ``auto`` a march held at its stability limit (:class:`~pgdcli.algorithms.stiffness.StiffnessDetected`,
+        only where the state has a Jacobian: ``detects``) starts again with the stiff stepper, and so do the
+        later solves of the problem (``self.stiff`` from :class:`~pgdcli.algorithms.outcome.Learned`).
+        """
+        asked = self.problem.solver.integrator
+        if asked == AUTO and self.stiff:
+            return self._run_with(run_march, STIFF, f"solver.integrator: auto, {self.stiff}")
+        try:
+            why = ("auto, not stiff" if detects else "auto (stiffness is detected on arrays of nodes, not on "
+                                                     "tensor trains)") if asked == AUTO else asked
+            return self._run_with(run_march, asked, f"solver.integrator: {why}")
+        except StiffnessDetected as exc:
+            self.stiff = f"{exc}; marched again with {METHODS[STIFF].title}"
+            return self._run_with(run_march, STIFF, f"solver.integrator: auto, {self.stiff}")
+
+    def _run_with(self, run_march, name: str, why: str):
+        self.integrator = DEFAULT if name == AUTO else name
+        result = run_march(named_stepper(name))
+        return result, {"integrator": self.integrator, "integrator_reason": why}
+
+    def finished(self, outcome: SolverOutcome) -> SolverOutcome:
+        """The outcome, saying which stepper marched when not the default, and whether the problem was stiff."""
+        outcome.stiff = self.stiff
+        if outcome.converged and self.integrator != DEFAULT:
+            outcome.summary += f" with {METHODS[self.integrator].title}" + (" (stiff)" if self.stiff else "")
+        return outcome
+
 
 def _solve_by_train(run: _Run) -> SolverOutcome:
     """:func:`solve_march` with the state a tensor train: :func:`march`."""
     opts, system = run.problem.solver, run.system
     try:
-        result = march(system, run.tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=run,
-                       slab_nodes=run.slab_nodes, stepper=named_stepper(opts.integrator))
+        result, entries = run.stepped(lambda stepper: march(
+            system, run.tolerance, max_rank=opts.max_rank, max_steps=opts.max_steps, callback=run,
+            slab_nodes=run.slab_nodes, stepper=stepper), detects=False)
     except MarchFailure as failure:
         return run.failed(failure, blowup_region(system, failure.state) if failure.state is not None else "")
     # one unknown at a time: batching would give every unknown the largest ranks of all
     trains = join_and_round([[st[i] for st in result.states] for i in range(len(system.unknowns))],
                             run.space_time_delta, np.random.default_rng(7), batched=False, stats=result.roundings)
     ranks = np.array([[list(r) for r in node] for node in result.ranks], dtype=int)
-    return run.converged(result, trains, _march_report(result.roundings, ranks))
+    return run.converged(result, trains, {**_march_report(result.roundings, ranks), **entries})
 
 
 def _solve_on_grid(run: _Run) -> SolverOutcome:
     """:func:`solve_march` on a small grid: :func:`pgdcli.algorithms.grid_march.march_on_grid`."""
     system = run.system
     try:
-        result = march_on_grid(system, run.tolerance, run.space_time_delta, max_steps=run.problem.solver.max_steps,
-                               callback=run, slab_nodes=run.slab_nodes,
-                               stepper=named_stepper(run.problem.solver.integrator))
+        result, entries = run.stepped(lambda stepper: march_on_grid(
+            system, run.tolerance, run.space_time_delta, max_steps=run.problem.solver.max_steps, callback=run,
+            slab_nodes=run.slab_nodes, stepper=stepper))
     except GridMarchFailure as failure:
         return run.failed(failure, grid_region(system, failure.values))
     trains = result.trains
@@ -253,7 +289,7 @@ def _solve_on_grid(run: _Run) -> SolverOutcome:
     # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
     bonds = [list(train.ranks[1:]) for train in trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "grid",
-              "grid_chunks": int(result.chunks)}  # no roundings, crosses or products to count
+              "grid_chunks": int(result.chunks), **entries}  # no roundings, crosses or products to count
     if run.cross_note is not None:  # auto tried the cross march first
         report["cross_abandoned"] = run.cross_note
     return run.converged(result, trains, report)
@@ -267,9 +303,9 @@ def _solve_by_cross(run: _Run, budget: int | None = None) -> SolverOutcome | Non
     """
     system, opts = run.system, run.problem.solver
     try:
-        result = march_by_cross(system, run.tolerance, run.space_time_delta, max_rank=opts.max_rank,
-                                max_steps=opts.max_steps, callback=run, slab_nodes=run.slab_nodes, budget=budget,
-                                stepper=named_stepper(opts.integrator))
+        result, entries = run.stepped(lambda stepper: march_by_cross(
+            system, run.tolerance, run.space_time_delta, max_rank=opts.max_rank, max_steps=opts.max_steps,
+            callback=run, slab_nodes=run.slab_nodes, budget=budget, stepper=stepper))
     except GridMarchFailure as failure:
         return run.failed(failure, grid_region(system, failure.values, failure.indices))
     if not result.converged and budget is not None:
@@ -282,7 +318,7 @@ def _solve_by_cross(run: _Run, budget: int | None = None) -> SolverOutcome | Non
     bonds = [list(train.ranks[1:]) for train in result.trains]
     report = {"node_ranks": np.array([bonds] * len(result.times), dtype=int), "march": "cross",
               "cross_trajectories": int(result.evaluations), "cross_sweeps": int(result.sweeps),
-              "cross_error": float(result.cross_error), "pilot_points": int(result.pilot_points)}
+              "cross_error": float(result.cross_error), "pilot_points": int(result.pilot_points), **entries}
     return run.converged(result, result.trains, report)
 
 

@@ -13,7 +13,9 @@ also provides what a march needs beyond a step:
 - ``after_stage_noise(h) -> h``: what to do when the error estimate is the stages' noise;
 - ``check(trial, t, y)``: refuse an accepted step (a rank cap);
 - ``largest(y)``: the largest nodal value (the blow-up watch), ``ranks(y)``: for progress;
-- ``kind``: what the state is, for messages.
+- ``kind``: what the state is, for messages;
+- optionally ``jacobian(t, y)`` (linearly implicit steppers) and ``decay_rate(t, y)`` (stiffness
+  detection, :mod:`pgdcli.algorithms.stiffness`).
 
 The grid's array (:class:`pgdcli.algorithms.grid_steps.ArraySpace`) and the tensor trains
 (:class:`pgdcli.algorithms.train_steps.TrainSpace`) are the two spaces. The returned
@@ -32,9 +34,14 @@ from ..progress import MarchStep, emit
 from .blowup import BlowupWatch
 from .general_rhs import underflow_hint
 from .stepping import Stepper
+from .stiffness import StiffnessDetected, StiffnessWatch
 from .step_control import MAX_GROWTH_OF_NORM, MIN_STEP, StepControl, output_times, step_refusal
 
-__all__ = ["Schedule", "march_steps"]
+__all__ = ["Schedule", "march_steps", "FLOOR_GROWTH"]
+
+#: ``solver.integrator: auto`` takes an explicit step below the floor for a stiff or multiscale problem
+#: (and marches again with the stiff stepper) only while the state is at most this many times its initial size.
+FLOOR_GROWTH = 2.0
 
 
 @dataclass
@@ -47,7 +54,7 @@ class Schedule:
     times: list = field(default_factory=list)  # every stored time, the initial one first
     rejected: int = 0
     local_sum: np.ndarray | None = None  # per unknown: the accepted local error estimates added up
-    estimate: float = 0.0  # per step, the largest unknown's local error and the state's rounding, added up
+    estimate: float = 0.0  # per step, the largest unknown's local error and the state's rounding, added up (max: per-step control)
     step_sizes: list = field(default_factory=list)
     weights: dict = field(default_factory=dict, repr=False)  # step -> its dense-output weights (replays)
 
@@ -93,11 +100,14 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
         Blow-up, step-size underflow, ``max_steps``, or what ``space.check`` refuses.
     SolverError
         The stepper needs what the space does not provide (``Stepper.requires``).
+    StiffnessDetected
+        An explicit stepper with ``detect_stiffness`` was held at its stability limit.
     """
     _check_requires(space, stepper)
     t, t_final = float(nodes[0]), float(nodes[-1])
     span = t_final - t
-    control = StepControl(span, local_tol, stepper.error_estimator_order)
+    control = StepControl(span, local_tol, stepper.error_estimator_order, stepper.error_per_step)
+    stiffness = StiffnessWatch(stepper, t_final) if stepper.detect_stiffness and hasattr(space, "decay_rate") else None
     scale0 = max(1.0, space.norm(y))
     f = space.rhs(t, y)
     store([y])
@@ -108,11 +118,9 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
     while t < t_final:
         # the last step takes what is left, also a remainder below the step-size floor
         h = t_final - t if h > t_final - t - MIN_STEP * span else h
-        refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
-                               lambda: underflow_hint(space.system.general, space.stats), stepper.title,
-                               stepper.order)
-        if refusal:
-            raise space.failure(refusal, t, y)
+        # a step below the floor with the state still of its initial size: a fast transient, not a blow-up
+        _refuse(space, stepper, schedule, t, y, h, span, max_steps,
+                stiffness is not None and space.largest(y) <= FLOOR_GROWTH * scale0)
         trial = stepper.step(space, t, y, f, h)
         ratio = control.ratio(trial.error, h)
         if ratio > 1.0:
@@ -131,10 +139,31 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
         h = control.accepted(h, ratio)
         emit(callback, MarchStep(t, t_final, len(schedule.steps), space.ranks(y), float(nodes[0])))
         if t < t_final:
-            blowup = watch(t, schedule.step_sizes, y)
-            if blowup is not None:
-                raise space.failure("the solution blows up", t, y, blowup)
+            _watch(space, watch, stiffness, schedule, t, y, h)
     return schedule
+
+
+def _refuse(space, stepper: Stepper, schedule: Schedule, t: float, y, h: float, span: float, max_steps: int,
+            switch: bool) -> None:
+    """Raise when the march cannot try a step of length ``h`` (the caps): ``space.failure``, or with ``switch``
+    (``solver.integrator: auto``) :class:`StiffnessDetected` for an explicit step below the floor."""
+    refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
+                           lambda: underflow_hint(space.system.general, space.stats), stepper.title,
+                           stepper.order, stepper.explicit)
+    if refusal and switch and h < MIN_STEP * span:
+        raise StiffnessDetected.floor(stepper.title, t, MIN_STEP * span)
+    if refusal:
+        raise space.failure(refusal, t, y)
+
+
+def _watch(space, blowup_watch: BlowupWatch, stiffness: StiffnessWatch | None, schedule: Schedule, t: float, y,
+           h: float) -> None:
+    """After an accepted step: stiffness (when watched) and a coming blow-up end the march."""
+    if stiffness is not None:
+        stiffness(space, t, y, h, len(schedule.steps))
+    blowup = blowup_watch(t, schedule.step_sizes, y)
+    if blowup is not None:
+        raise space.failure("the solution blows up", t, y, blowup)
 
 
 def _check_requires(space, stepper: Stepper) -> None:
@@ -152,4 +181,7 @@ def _record(schedule: Schedule, space, trial, t: float, h: float, t_new: float, 
     schedule.steps.append((t, h, t_new, outs))
     schedule.step_sizes.append(h)
     schedule.local_sum += trial.local
-    schedule.estimate += trial.error + space.rounding(h)
+    if schedule.stepper.error_per_step:  # a stiff problem damps its local errors: the largest, not their sum
+        schedule.estimate = max(schedule.estimate, trial.error + space.rounding(h))
+    else:
+        schedule.estimate += trial.error + space.rounding(h)

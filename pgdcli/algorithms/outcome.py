@@ -57,6 +57,8 @@ class SolverOutcome:
         A coordinate whose lack of nodes stopped the solver early: more nodes there, and solve again.
     cross_abandoned : str or None
         Why a cross of trajectories was given up for the grid march in this solve.
+    stiff : str or None
+        Why the march switched to its stiff stepper in this solve (``solver.integrator: auto``).
     """
 
     codebook: object
@@ -69,6 +71,7 @@ class SolverOutcome:
     wall_time: float = 0.0
     under_resolved: str | None = None
     cross_abandoned: str | None = None
+    stiff: str | None = None
     #: A solution another solve can start from (the tensor-train solver's), or None.
     start: object = None
 
@@ -99,17 +102,22 @@ class Learned:
         fewer, so the next solves take the grid march when it can hold the grid.
     start : object or None
         The last solution a solver can start from (the tensor-train solver's, interpolated to new nodes).
+    stiff : str or None
+        The march found the problem stiff: the next solves march with the stiff stepper from the start.
     """
 
     target: float | None = None
     cross_abandoned: str | None = None
     start: object = None
+    stiff: str | None = None
 
     def after(self, outcome: SolverOutcome) -> "Learned":
         """What is known after ``outcome`` too."""
         learned = self
         if outcome.cross_abandoned and not self.cross_abandoned:
             learned = dataclasses.replace(learned, cross_abandoned=outcome.cross_abandoned)
+        if outcome.stiff and not self.stiff:
+            learned = dataclasses.replace(learned, stiff=outcome.stiff)
         if outcome.start is not None and outcome.converged:
             learned = dataclasses.replace(learned, start=outcome.start)
         return learned

@@ -14,7 +14,7 @@ import numpy as np
 from ..discretization.basis import chebyshev_unit_nodes
 
 __all__ = ["StepControl", "MAX_GROWTH", "SAFETY", "LOCAL_FRACTION", "STATE_FRACTION", "STAGE_FRACTION",
-           "MIN_STEP", "MAX_GROWTH_OF_NORM", "MAX_STAGE_TIGHTENINGS", "output_times", "step_refusal"]
+           "MIN_STEP", "STIFF_MIN_STEP", "MAX_GROWTH_OF_NORM", "MAX_STAGE_TIGHTENINGS", "output_times", "step_refusal"]
 
 # Step-size control. The error per unit step grows along these solutions, so the
 # usual safety factor 0.9 made every other step a rejection; 0.8 removes them on the
@@ -28,6 +28,9 @@ LOCAL_FRACTION, STATE_FRACTION, STAGE_FRACTION = 0.3, 0.02, 0.05
 # by MAX_GROWTH_OF_NORM, ends the march (near a finite-time singularity the steps
 # shrink geometrically, so waiting for a floating-point underflow costs hundreds of steps).
 MIN_STEP = 1e-7
+# A stiff stepper's first steps resolve transients many decades shorter than the time domain
+# (kinetics over [0, 1e5] with a transient of 1e-6): its floor is only the arithmetic's.
+STIFF_MIN_STEP = 1e-14
 # Below this order an explicit pair's small steps may be its accuracy, not its stability (step_refusal).
 LOW_ORDER = 5
 MAX_GROWTH_OF_NORM = 1e6
@@ -53,19 +56,25 @@ class StepControl:
     order : int
         The embedded estimate's order ``p`` (scipy's ``error_estimator_order``): the local error
         is O(h^(p+1)) per step, O(h^p) per unit step.
+    per_step : bool
+        Bound the error per step by ``local_tol`` instead of the error per unit step by
+        ``local_tol / span``: for stiff steppers, whose local errors in a fast transient are damped
+        by the dynamics instead of adding up (the error gate measures the result either way).
     """
 
-    def __init__(self, span: float, local_tol: float, order: int):
-        self.span, self.local_tol = span, local_tol
-        self.exponent = -1.0 / order
+    def __init__(self, span: float, local_tol: float, order: int, per_step: bool = False):
+        self.span, self.local_tol, self.per_step = span, local_tol, per_step
+        self.exponent = -1.0 / (order + 1) if per_step else -1.0 / order
         self.noise_step = NOISE_STEP ** (7.0 / order)
         self.just_rejected = False
         self.last_rejection: tuple[float, float, float] | None = None  # (t, h, ratio) of the last rejected step
         self.tightenings = 0
 
     def ratio(self, error: float, h: float) -> float:
-        """The step's error over its allowance (error per unit step); inf when not finite."""
-        return error / (self.local_tol * h / self.span) if error < float("inf") else float("inf")
+        """The step's error over its allowance (per unit step or per step); inf when not finite."""
+        if not error < float("inf"):
+            return float("inf")
+        return error / self.local_tol if self.per_step else error / (self.local_tol * h / self.span)
 
     def rejected(self, t: float, h: float, ratio: float) -> float | None:
         """After a rejected trial step from ``t``: the next trial step, or None when the stage
@@ -105,9 +114,11 @@ def output_times(t: float, h: float, t_new: float, nodes: np.ndarray, last_store
 
 
 def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: float, hint,
-                 method: str = "DOP853", order: int = 8) -> str | None:
+                 method: str = "DOP853", order: int = 8, explicit: bool = True) -> str | None:
     """Why a march cannot try another step (the caps), or None; ``hint()`` adds to a step-size underflow,
-    ``method`` and ``order`` name the explicit method."""
+    ``method`` and ``order`` name the method (``explicit``: held to a stability limit on stiff problems)."""
+    if steps + rejected >= max_steps and not explicit:
+        return f"max_steps={max_steps} reached (steps of {h:.2g} with {method}: raise solver.max_steps)"
     if steps + rejected >= max_steps:
         # an explicit method on a stiff problem steps at its stability limit, whatever the tolerance:
         # say so when the steps are that small, so the user knows what raising max_steps buys
@@ -119,8 +130,9 @@ def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: floa
         if h * max_steps < span:
             return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain; "
                     f"steps this small on a smooth solution are the stability limit of the explicit {method} "
-                    "on a stiff problem: raise solver.max_steps or shorten the time domain)")
+                    "on a stiff problem: use solver.integrator: rodas4 or auto, raise solver.max_steps or shorten "
+                    "the time domain)")
         return f"max_steps={max_steps} reached"
-    if h < MIN_STEP * span:
+    if h < (MIN_STEP if explicit else STIFF_MIN_STEP) * span:
         return "step size underflow (the solution blows up or is stiff" + hint() + ")"
     return None

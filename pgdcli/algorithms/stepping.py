@@ -97,6 +97,10 @@ class Stepper:
     n_stages: int = NotImplemented
     extra_stages: int = 0  # stages the dense output adds after the step's (DOP853: 3)
     requires: tuple[str, ...] = ()  # optional StateSpace methods the stepper calls ("jacobian")
+    explicit: bool = True  # held to a stability limit on stiff problems (the march watches for it)
+    error_per_step: bool = False  # bound the error per step, not per unit step (StepControl)
+    stability_limit: float = 0.0  # explicit: the stable h |lambda| on the negative real axis
+    detect_stiffness: bool = False  # solver.integrator: auto (pgdcli.algorithms.stiffness)
 
     @property
     def slots(self) -> int:

@@ -156,28 +156,37 @@ def ordinal(n: int) -> str:
     return f"{n}{suffix}"
 
 
-def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float, progress=None):
+#: The stiff reference (``check_codebook(stiff=True)``): Radau IIA of order 5 at these tolerances.
+STIFF_METHOD, STIFF_RTOL, STIFF_ATOL = "Radau", 1e-12, 1e-14
+
+
+def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float, progress=None,
+               stiff: bool = False):
     """Reference values ``{unknown: (S, T)}`` and a success mask ``(S,)``.
 
     One vectorized DOP853 call with output at ``times`` (its dense output agrees with
     node-to-node integration to the reference's own accuracy, at a fraction of the cost);
     if that call fails (a sample blows up), the node-to-node integration of
     :func:`pgdcli.checks.reference.solve_reference`, which isolates the failing samples.
-    ``progress`` receives :class:`~pgdcli.progress.ReferenceProgress` events.
+    A ``stiff`` problem (an explicit method would crawl at its stability limit) is integrated
+    by :data:`STIFF_METHOD` instead, the same two ways. ``progress`` receives :class:`~pgdcli.progress.ReferenceProgress` events.
     """
     t0, span = float(times[0]), float(times[-1] - times[0])
     in_time = None if progress is None else (lambda t: progress(ReferenceProgress(t - t0, span, "time")))
-    values = solve_reference_vectorized(problem, points, S, times, rtol=rtol, atol=atol, progress=in_time)
+    fast = dict(method=STIFF_METHOD, rtol=STIFF_RTOL, atol=STIFF_ATOL) if stiff else dict(rtol=rtol, atol=atol)
+    values = solve_reference_vectorized(problem, points, S, times, progress=in_time, **fast)
     if values is not None:
         return values, np.ones(S, dtype=bool)
     in_points = None if progress is None else (lambda done: progress(ReferenceProgress(done, S)))
-    ref = solve_reference(problem, points, times, method="DOP853", rtol=max(rtol, 1e-12), atol=max(atol, 1e-12),
-                          progress=in_points)
+    method, rtol, atol = (STIFF_METHOD, STIFF_RTOL, STIFF_ATOL) if stiff else ("DOP853", max(rtol, 1e-12),
+                                                                                max(atol, 1e-12))
+    ref = solve_reference(problem, points, times, method=method, rtol=rtol, atol=atol, progress=in_points)
     return ref.values, np.asarray(ref.success, dtype=bool)
 
 
 def check_codebook(problem, codebook, *, tolerance: float | None = None, relative_tolerance: float = 0.0,
-                   seed: int = 0, rtol: float = 1e-13, atol: float = 1e-13, progress=None) -> CheckResult:
+                   seed: int = 0, rtol: float = 1e-13, atol: float = 1e-13, progress=None,
+                   stiff: bool = False) -> CheckResult:
     """Error of a codebook of an ODE problem against scipy's DOP853 at the check sample.
 
     Parameters
@@ -192,6 +201,8 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
         Tolerances of the reference integration.
     progress : callable, optional
         Called with :class:`~pgdcli.progress.ReferenceProgress` events as the reference integrates.
+    stiff : bool
+        Integrate the reference with :data:`STIFF_METHOD` at :data:`STIFF_RTOL`, :data:`STIFF_ATOL`.
 
     Returns
     -------
@@ -207,7 +218,7 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     time = problem.time
     times, time_node = nodes_and_midpoints(codebook, time)
     S = group.size if names else 1
-    reference, ok = _reference(problem, points, S, times, rtol, atol, progress)
+    reference, ok = _reference(problem, points, S, times, rtol, atol, progress, stiff)
     unknowns = [u.name for u in problem.unknowns]
     approx = codebook_at_samples(codebook, points, time, times, unknowns)
     err, ratio, per_unknown = error_and_ratio(reference, approx, ok, tol, relative_tolerance)
@@ -216,7 +227,7 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     which = ("every time node and the midpoints between them" if int(time_node.sum()) == all_nodes else
              f"{int(time_node.sum())} of the {all_nodes} time nodes (every {stride}, the last) and the midpoints "
              f"after them")
-    method = (f"DOP853 (rtol = atol = {rtol:.0e}) at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
+    method = (f"{_reference_text(stiff, rtol)} at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
               f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes and one from each "
               f"corner of the others (up to {CORNER_LINES}); {which}")
     if not ok.any():
@@ -240,6 +251,11 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
                        coordinate_ratio=coordinate_ratio, line_points=line_points,
                        tail_ratio=tail_ratios(codebook, tol), tolerance=tol,
                        relative_tolerance=relative_tolerance, method=method)
+
+
+def _reference_text(stiff: bool, rtol: float) -> str:
+    """The reference of the check, for its ``method`` text."""
+    return f"{STIFF_METHOD} (rtol {STIFF_RTOL:.0e}, atol {STIFF_ATOL:.0e})" if stiff else f"DOP853 (rtol = atol = {rtol:.0e})"
 
 
 def error_and_ratio(reference: dict, approx: dict, ok: np.ndarray, tolerance: float,

@@ -211,13 +211,8 @@ def _integrate(problem, params, S, t0, times, method, rtol, atol, max_evaluation
     out[:, :, ~late] = y0[:, :, None]  # times at t0
     if not late.any():
         return out, np.zeros(S, dtype=bool), ""
-    options: dict = {}
-    if method in ("Radau", "BDF"):
-        from scipy.sparse import block_diag
-
-        options["jac_sparsity"] = block_diag([np.ones((q, q))] * S, format="csc")
-        options["vectorized"] = True
-    elif method == "LSODA":
+    options = _implicit_options(method, q, S)
+    if method == "LSODA":
         options["lband"] = options["uband"] = q - 1
     # Integrate from output time to output time, so that every reported value is the end of a real
     # step: dense output (t_eval) of DOP853 is an order lower and was measured 30x less accurate.
@@ -363,8 +358,10 @@ def solve_reference_ode(problem, params, times, *, method, rtol, atol, jobs, chu
 
 def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int, times: np.ndarray, *,
                                rtol: float = 1e-13, atol: float = 1e-13, max_evaluations: int = 200_000,
-                               progress: Callable[[float], None] | None = None) -> dict[str, np.ndarray] | None:
-    """All samples of an ODE problem in one DOP853 call with output at ``times``, or None.
+                               progress: Callable[[float], None] | None = None,
+                               method: str = "DOP853") -> dict[str, np.ndarray] | None:
+    """All samples of an ODE problem in one DOP853 call (or ``method``: Radau for a stiff problem, with the
+    block-diagonal sparsity of its Jacobian) with output at ``times``, or None.
 
     The fast path of :func:`solve_reference`: no failure isolation, so None when any
     sample fails (a blow-up, a singular ``der()`` coefficient, the evaluation budget);
@@ -385,14 +382,24 @@ def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int
             if system.bad.any() or not np.isfinite(y0).all():
                 return None
             fun = system if progress is None else _reporting(system, float(times[0]), float(times[-1]), progress)
-            sol = solve_ivp(fun, (float(times[0]), float(times[-1])), y0.reshape(-1), method="DOP853",
-                            rtol=rtol, atol=atol, t_eval=times)
+            sol = solve_ivp(fun, (float(times[0]), float(times[-1])), y0.reshape(-1), method=method,
+                            rtol=rtol, atol=atol, t_eval=times, **_implicit_options(method, system.q, S))
     except (ReferenceBudgetExceeded, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError):
         return None
     if sol.status != 0 or sol.y.shape[1] != times.size or not np.isfinite(sol.y).all():
         return None
     values = sol.y.reshape(S, len(names), times.size)
     return {u: values[:, i, :] for i, u in enumerate(names)}
+
+
+def _implicit_options(method: str, q: int, S: int) -> dict:
+    """solve_ivp's options of an implicit method on S independent samples of q unknowns: their Jacobian is
+    block diagonal (finite differences of few columns each), and the right-hand side vectorized."""
+    if method not in ("Radau", "BDF"):
+        return {}
+    from scipy.sparse import block_diag
+
+    return {"jac_sparsity": block_diag([np.ones((q, q))] * S, format="csc"), "vectorized": True}
 
 
 def _reporting(system, t0: float, t1: float, progress: Callable[[float], None]):

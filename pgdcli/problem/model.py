@@ -99,7 +99,7 @@ class SolverOptions:
     max_steps: int = 20000  # march: cap on accepted + rejected time steps
     time_slabs: int | str = "auto"  # time basis: 'auto' (march: one slab per accepted step; pgd: 1) or a count
     march: str = "auto"  # ODE march state: 'auto' (the grid when it has at most 2^21 values) | 'grid' | 'train'
-    integrator: str = "dop853"  # ODE march: the explicit pair stepping it, 'dop853' | 'bs32'
+    integrator: str = "auto"  # ODE march: its stepper, 'auto' (dop853, rodas4 when stiff) | 'dop853' | 'bs32' | 'rodas4'
 
 
 @dataclass(frozen=True)

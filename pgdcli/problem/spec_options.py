@@ -23,9 +23,9 @@ __all__ = ["FORMULATIONS", "METHODS", "MARCHES", "INTEGRATORS", "default_name", 
 FORMULATIONS = ("minres", "galerkin")
 METHODS = ("auto", "pgd", "amen", "march")
 MARCHES = ("auto", "grid", "cross", "train")
-#: The names of the time march's steppers (``pgdcli.algorithms.steppers.METHODS``, a layer this one
-#: does not import; a test keeps them equal).
-INTEGRATORS = ("dop853", "bs32")
+#: The names of the time march's steppers and ``auto`` (``pgdcli.algorithms.steppers.CHOICES``, a layer
+#: this one does not import; a test keeps them equal).
+INTEGRATORS = ("auto", "dop853", "bs32", "rodas4")
 
 
 def default_name(source: str, name: str | None) -> str:

@@ -51,7 +51,8 @@ BINARY: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
 # ----------------------------------------------------------------------------------------------
 # evaluation and walks
 # ----------------------------------------------------------------------------------------------
-def evaluate_tree(tree: tuple, leaf: Callable[[tuple], np.ndarray]) -> np.ndarray:
+def evaluate_tree(tree: tuple, leaf: Callable[[tuple], np.ndarray],
+                  functions: Mapping[str, Callable] = FUNCTIONS) -> np.ndarray:
     """The tree's value, numpy-vectorized (NaN/inf or numpy warnings where undefined).
 
     Parameters
@@ -61,6 +62,9 @@ def evaluate_tree(tree: tuple, leaf: Callable[[tuple], np.ndarray]) -> np.ndarra
         ``leaf(node) -> array`` for every leaf: numbers (``('num', v)``) and variables
         (``('var',)``, ``('coord', n)``, ``('name', n)``); arrays broadcastable together.
         :func:`values_at` and :func:`values_by_name` make the two in use.
+    functions : mapping, optional
+        The functions of ``call`` nodes (derivative trees add ``sign``:
+        :data:`pgdcli.problem.derivative.DERIVATIVE_FUNCTIONS`).
 
     Returns
     -------
@@ -69,13 +73,13 @@ def evaluate_tree(tree: tuple, leaf: Callable[[tuple], np.ndarray]) -> np.ndarra
     """
     kind = tree[0]
     if kind == "call":
-        return FUNCTIONS[tree[1]](evaluate_tree(tree[2], leaf))
+        return functions[tree[1]](evaluate_tree(tree[2], leaf, functions))
     if kind == "neg":
-        return np.negative(evaluate_tree(tree[1], leaf))
+        return np.negative(evaluate_tree(tree[1], leaf, functions))
     operation = BINARY.get(kind)
     if operation is None:
         return leaf(tree)
-    return operation(evaluate_tree(tree[1], leaf), evaluate_tree(tree[2], leaf))
+    return operation(evaluate_tree(tree[1], leaf, functions), evaluate_tree(tree[2], leaf, functions))
 
 
 def values_at(x: np.ndarray) -> Callable[[tuple], np.ndarray]:

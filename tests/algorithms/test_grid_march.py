@@ -122,6 +122,7 @@ equations:
   - "der(u) = r*(u - u**3)"
 solver:
   tolerance: 1e-6
+  integrator: dop853  # explicit on purpose (auto switches to RODAS4 here)
 """
     # the march controls an RMS over the grid; the error gate tightens it until the nodes meet the max error
     from pgdcli.driver.method import Settings

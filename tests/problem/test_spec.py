@@ -310,7 +310,7 @@ C2 = "\n  t: {domain: [0, 1], nodes: 4}\n  k: "
         (dict(solver=" {formulation: ritz}"), "solver.formulation: expected one of minres, galerkin, got 'ritz'"),
         (dict(solver=" {update: maybe}"), "solver.update: expected true or false, got 'maybe'"),
         (dict(solver=" {march: tensor}"), "solver.march: expected one of auto, grid, cross, train, got 'tensor'"),
-        (dict(solver=" {integrator: rk4}"), "solver.integrator: expected one of dop853, bs32, got 'rk4'"),
+        (dict(solver=" {integrator: rk4}"), "solver.integrator: expected one of auto, dop853, bs32, rodas4, got 'rk4'"),
         (dict(solver=" {restarts: 3}"), "solver: unknown key 'restarts' (allowed: tolerance, relative_tolerance, max_nodes, max_modes,"),
         (dict(solver=" 3"), "solver: expected a mapping, got 3"),
         # output
