@@ -41,6 +41,7 @@ from ..progress import ReferenceProgress
 from .compare import codebook_at_samples, codebook_on_space_grid
 from .reference import solve_reference, solve_reference_vectorized
 from .reference_base import DEFAULT_SPACE_NODES
+from .resolution import resolution_tails
 from .sampling import BETWEEN, CORNER_LINES, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
 from .verify import verify
 
@@ -292,8 +293,6 @@ def error_and_ratio(reference: dict, approx: dict, ok: np.ndarray, tolerance: fl
 
 def tail_ratios(codebook, tolerance: float) -> dict[str, float]:
     """Per coordinate, the largest Chebyshev tail over the unknowns divided by the tolerance (0 if unknown)."""
-    from .resolution import resolution_tails
-
     tails = resolution_tails(codebook)
     return {c.name: max(float(np.nan_to_num(tails[u][c.name])) for u in tails) / tolerance
             for c in codebook.coordinates}
