@@ -245,7 +245,9 @@ class _Run:
     def _run_with(self, run_march, name: str, why: str):
         self.integrator = DEFAULT if name == AUTO else name
         result = run_march(named_stepper(name))
-        return result, {"integrator": self.integrator, "integrator_reason": why}
+        # ``stiff``: the codebook's reference integrator must be stiff too (the gate, ``pgd verify``)
+        return result, {"integrator": self.integrator, "integrator_reason": why,
+                        "stiff": int(not getattr(METHODS[self.integrator], "explicit", True))}
 
     def finished(self, outcome: SolverOutcome) -> SolverOutcome:
         """The outcome, saying which stepper marched when not the default, and whether the problem was stiff."""

@@ -196,7 +196,8 @@ def verify(
     problem = _parse_problem(cb, source)
     time = problem.time
     space = [c.name for c in space_coordinates(problem)]
-    method, rtol, atol = _reference_tolerances(bool(space), opts["method"], opts["rtol"], opts["atol"])
+    method, rtol, atol = _reference_tolerances(bool(space), opts["method"], opts["rtol"], opts["atol"],
+                                               stiff=bool(cb.report.get("stiff", 0)))
     n_samples = default_samples(problem) if opts["samples"] is None else opts["samples"]
     sample_points, S, settings = parameter_points(problem, points, n_samples, opts["sampling"], opts["seed"],
                                                   opts["max_corners"])
@@ -318,12 +319,15 @@ def _load(codebook) -> tuple:
     return Codebook.load(codebook), str(codebook), str(codebook)
 
 
-def _reference_tolerances(space: bool, method, rtol, atol) -> tuple[str, float, float]:
+def _reference_tolerances(space: bool, method, rtol, atol, stiff: bool = False) -> tuple[str, float, float]:
     """The reference's method and tolerances: DOP853 at 1e-12, or for the (stiff) method of lines BDF/Radau
-    at rtol 1e-10."""
+    at rtol 1e-10, or for a codebook marched by a stiff stepper (its report's ``stiff``) Radau at rtol
+    1e-12, atol 1e-14, as its error gate."""
     if space:
         method = method if method in PDE_METHODS else "BDF"
         rtol = 1e-10 if rtol is None else rtol
+    elif stiff and method is None:
+        method, rtol, atol = "Radau", 1e-12 if rtol is None else rtol, 1e-14 if atol is None else atol
     else:
         method = "DOP853" if method is None else method
         rtol = 1e-12 if rtol is None else rtol

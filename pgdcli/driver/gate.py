@@ -14,7 +14,6 @@ import numpy as np
 
 from ..algorithms.outcome import SolverOutcome, Status
 from ..algorithms.result import SolveResult
-from ..algorithms.steppers import METHODS
 from ..checks import check as checks
 from ..checks.resolution import resolution_tails
 from ..errors import PgdError
@@ -37,7 +36,7 @@ def measure(problem, codebook, settings: Settings, callback=None, solve: int = 1
     """
     pde = any(c.role == "space" for c in problem.coordinates) or problem.time is None
     # a march by a stiff stepper: an explicit reference would crawl at its stability limit
-    stiff = not pde and not getattr(METHODS.get(codebook.report.get("integrator")), "explicit", True)
+    stiff = not pde and bool(codebook.report.get("stiff", 0))
     what = "the method-of-lines reference" if pde else f"scipy's {checks.STIFF_METHOD if stiff else 'DOP853'}"
     emit(callback, PhaseStarted("check", f"error gate against {what}", solve))
     try:

@@ -44,7 +44,7 @@ def test_robertson_codebook_meets_its_tolerance_at_random_points_faces_and_corne
     assert result.converged and result.accurate
     report = result.codebook.report
     # DOP853 cannot resolve the first transient (~1e-4) in steps above its floor on [0, 1000]
-    assert report["integrator"] == "rodas4"
+    assert report["integrator"] == "rodas4" and report["stiff"] == 1
     assert report["integrator_reason"].startswith("solver.integrator: auto, stiff or multiscale: at t = 0 the "
                                                   "explicit DOP853 needed steps below")
     rng = np.random.default_rng(2024)
@@ -62,3 +62,7 @@ def test_robertson_codebook_meets_its_tolerance_at_random_points_faces_and_corne
         error = np.abs(values[name] - reference[i])
         ratio = error / (tolerance + relative * np.abs(reference[i]))
         assert ratio.max() <= 1.0, (name, error.max(), t[np.argmax(ratio)], k[np.argmax(ratio)])
+    # pgd verify takes the stiff reference by itself (DOP853 would crawl at its stability limit)
+    checked = pgdcli.verify(result.codebook, samples=2, times=4, max_corners=2, jobs=1)
+    assert checked.settings["method"] == "Radau" and checked.settings["rtol"] == 1e-12
+    assert checked.passed()
