@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 
-from . import __version__
+import pgdcli  # its __version__ read at call time (a test may stand in another)
 from .errors import ClusterError
 from .executors import DaskExecutor
 
@@ -86,11 +86,11 @@ def _check_workers(client, address: str, option: str, timeout: float) -> None:
         if isinstance(value, BaseException):
             raise ClusterError(f"{option} {address}: the worker {worker} cannot import pgdcli (install it where "
                                f"the workers run: pip install 'pgdcli[dask]')")
-        if value != __version__:
+        if value != pgdcli.__version__:
             raise ClusterError(f"{option} {address}: the worker {worker} runs pgdcli {value}, this is "
-                               f"{__version__} (install the same version on the workers)")
+                               f"{pgdcli.__version__} (install the same version on the workers)")
 
 
 def _worker_version() -> str:
     """pgdcli's version where this runs."""
-    return __version__
+    return pgdcli.__version__

@@ -240,7 +240,7 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
                            progress=report_progress, space_nodes=nodes)
         if nonlinear:
             settings.update(method=f"{result.method}, nonlinear method of lines", rtol=result.rtol, atol=result.atol)
-        elif result.method != settings.get("method"):  # solved exactly instead of integrated
+        elif time is not None and result.method != method:  # solved exactly instead of integrated
             settings.update(method=result.method)
         if time is None:  # the placeholder time axis, as the codebook values have it
             result.values = {u: v[:, None] for u, v in result.values.items()}

@@ -164,7 +164,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "coordinates": {c.name: c.nodes for c in cb.coordinates},
         "slabs": {c.name: len(c.breakpoints) - 1 for c in cb.coordinates if c.breakpoints},
         "wall_time": float(result.wall_time),
-        "check_time": float(rep["check_time"]) if "check_time" in rep else None,
+        "gate_time": float(rep["gate_time"]) if "gate_time" in rep else None,
         "output": None if target is None else str(target),
         **({"separated_coefficients": cb.info()["separated_coefficients"]} if "separated_coefficients" in rep else {}),
     }
@@ -183,7 +183,7 @@ def _finite_or_none(value) -> float | None:
 
 def _time_text(summary: dict) -> str:
     """The build's wall time and the error gate's share of it."""
-    wall, check = summary["wall_time"], summary.get("check_time")
+    wall, check = summary["wall_time"], summary.get("gate_time")
     if check is None or not wall > 0:
         return f"{wall:.2f} s"
     return f"{wall:.2f} s, of which the error gate {check:.2f} s ({100 * check / wall:.0f}%)"

@@ -77,7 +77,7 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
         **({"steps": int(rep["steps"]), "rejected_steps": int(rep.get("rejected_steps", 0))} if "steps" in rep else {}),
         "tolerance": float(rep.get("tolerance", np.nan)),
         "solve_time": float(rep.get("wall_time", np.nan)),
-        "check_time": float(rep["check_time"]) if "check_time" in rep else None,
+        "gate_time": float(rep["gate_time"]) if "gate_time" in rep else None,
         "pgdcli_version": str(rep.get("pgdcli_version", "")),
     }
     if "march" in rep:  # which march: 'grid' (the whole array, compressed once), 'cross' or 'train'

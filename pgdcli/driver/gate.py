@@ -99,7 +99,7 @@ def finish(result: SolveResult, solved: str, resolution, verdict, started: float
 
     ``solved`` is the solver's part of the message (:meth:`~pgdcli.driver.method.Method.summary`);
     ``resolution`` is the :class:`~pgdcli.adapt.Resolution` that gave ``verdict``; ``check_seconds``
-    the time the error gate took over all the solves (the report's ``check_time``).
+    the time the error gate took over all the solves (the report's ``gate_time``).
     """
     check, cb = result.check, result.codebook
     rep = cb.report
@@ -107,7 +107,7 @@ def finish(result: SolveResult, solved: str, resolution, verdict, started: float
     rep["accurate"] = -1 if verdict.accurate is None else int(verdict.accurate)
     rep.update(resolution.report_entries(verdict.reason))
     wall = rep["wall_time"] = _time.perf_counter() - started
-    rep["check_time"] = float(check_seconds)
+    rep["gate_time"] = float(check_seconds)
     tol = _tolerance_text(check)
     if verdict.accurate is False:
         where = ", ".join(f"{k}={v:.6g}" for k, v in check.where.items())
