@@ -160,11 +160,11 @@ def test_jacobian_of_polynomial_and_general_terms_matches_finite_differences(poi
         np.testing.assert_allclose(J[:, :, j], column.T, rtol=1e-6, atol=1e-7)
 
 
-# a nonlinear relaxation with rates up to 5000: stiff for DOP853 over t in [0, 20]
+# a nonlinear relaxation with rates up to 5000: stiff for DOP853 over t in [0, 5]
 RELAXATION = """
 name: stiff_relaxation
 coordinates:
-  t: {domain: [0, 20]}
+  t: {domain: [0, 5]}
   k: {domain: [1000, 5000]}
 unknowns:
   u: {initial: 2}
@@ -185,7 +185,7 @@ def test_auto_integrator_switches_to_rodas4_on_a_stiff_problem_and_says_why():
     assert "marched again with RODAS4" in report["integrator_reason"]
     assert "with RODAS4 (stiff)" in result.message and "Radau" in report["check_method"]
     cb = result.codebook
-    t, k = 13.3, 3210.0
+    t, k = 3.3, 3210.0
     exact = solve_ivp(lambda s, u: -k * (u - np.cos(s)) - u ** 3 + np.cos(s) ** 3, (0, t), [2.0], method="Radau",
                       rtol=1e-11, atol=1e-13).y[0, -1]
     assert abs(float(cb(t=t, k=k)["u"]) - exact) <= 1e-6
