@@ -78,12 +78,7 @@ def separate_joint(joint, nodes: Mapping[str, np.ndarray], tolerance: float, *, 
     if fewest_terms and len(names) in (3, 4) and int(np.prod([nodes[c].size for c in names])) <= DENSE_LIMIT:
         orders = [list(p) for p in itertools.permutations(names) if p <= p[::-1]]
     try:
-        best = None
-        for order in orders:
-            separation = separate_function(joint.evaluate_tree, {c: nodes[c] for c in order}, delta, max_rank)
-            if best is None or separation.terms < best[0].terms:
-                best = (separation, order)
-        separation, names = best
+        separation, names = _fewest_terms(joint, nodes, orders, delta, max_rank)
     except FloatingPointError:
         raise SolverError(f"{where}the coefficient '{text}' is not finite at some nodes of "
                           f"{', '.join(names)}") from None
@@ -95,6 +90,33 @@ def separate_joint(joint, nodes: Mapping[str, np.ndarray], tolerance: float, *, 
     # the bound is on the whole part, the measured error is on the joint function alone
     separation.error *= scale
     return separation, names
+
+
+def _fewest_terms(joint, nodes: Mapping[str, np.ndarray], orders: Sequence[list], delta: float,
+                  max_rank: int) -> tuple[Separation, list[str]]:
+    """The separation with the fewest canonical terms over ``orders`` of the joint's coordinates.
+
+    An order whose ranks exceed the cap does not stop the search: ``exp(-((x - a)**2 + (y - b)**2)/w)``
+    ordered (x, y, a, b) needs the square of the rank it needs ordered (x, a, y, b).
+
+    Raises
+    ------
+    SeparationRankError
+        When every order does: the one that got closest (the smallest error left).
+    FloatingPointError
+    """
+    best, refused = None, None
+    for order in orders:
+        try:
+            separation = separate_function(joint.evaluate_tree, {c: nodes[c] for c in order}, delta, max_rank)
+        except SeparationRankError as exc:
+            refused = exc if refused is None or exc.error < refused.error else refused
+            continue
+        if best is None or separation.terms < best[0].terms:
+            best = (separation, order)
+    if best is None:
+        raise refused
+    return best
 
 
 def nodal_terms(sep, nodes: Mapping[str, np.ndarray], tolerance: float, *, where: str = "",

@@ -138,3 +138,21 @@ def test_the_order_with_the_fewest_canonical_terms_is_kept():
                      * np.sin(np.multiply.outer(nodes["t"], nodes["w"]))[:, None, :], 1e-9)
     spec_order_terms = int(np.prod([c.shape[2] for c in ordered[:-1]]))
     assert report["coordinates"][1] == "t" and report["terms"] < spec_order_terms
+
+
+def test_an_order_past_the_rank_cap_does_not_stop_the_search_for_one_within_it():
+    # a Gaussian at (a, b): ordered (x, y, a, b) its ranks are the square of those ordered (x, a, y, b)
+    sep = _joint("exp(-((x - a)**2 + (y - b)**2)/0.01)", coordinates=("t", "x", "y", "a", "b"))
+    nodes = {"x": np.linspace(0, 1, 33), "y": np.linspace(0, 1, 33), "a": np.linspace(0.3, 0.7, 17),
+             "b": np.linspace(0.3, 0.7, 17)}
+    with pytest.raises(SeparationRankError):
+        separate_function(lambda v: np.exp(-((v["x"] - v["a"]) ** 2 + (v["y"] - v["b"]) ** 2) / 0.01), nodes,
+                          1e-9, max_rank=40)
+    reports = []
+    terms = nodal_terms(sep, nodes, 1e-7, reports=reports, max_rank=40)
+    (report,) = reports
+    assert report["ranks"][1] == 1 and max(report["ranks"]) <= 40
+    grid = dict(zip(nodes, np.meshgrid(*nodes.values(), indexing="ij")))
+    total = sum(coef * np.einsum("x,y,a,b->xyab", *(v[c] for c in nodes)) for coef, v in terms)
+    exact = np.exp(-((grid["x"] - grid["a"]) ** 2 + (grid["y"] - grid["b"]) ** 2) / 0.01)
+    assert np.max(np.abs(total - exact)) <= 1e-7
