@@ -42,6 +42,8 @@ from nonlinear_pde import cheb
 ROOT = Path(__file__).resolve().parents[1]
 USER = ROOT / "tests" / "user_problems"
 MAX_DOUBLINGS = 3
+#: Most unknowns of one stacked solve (BDF's sparse LU): a larger grid is swept in chunks of its points.
+CHUNK_UNKNOWNS = 200_000
 #: Run without names. Gray-Scott (t up to 20, slim pulses) and 2-D Fisher-KPP (a front from a corner) are
 #: run only when named: the error gate's reference needs 513 nodes (1-D) and 57 x 57 nodes (2-D, dense
 #: LU factorizations) on every sample to agree to a thousandth of the tolerance: builds of tens of
@@ -85,7 +87,28 @@ PROBLEMS = {
         reaction=lambda U, p: [-U[0] * U[1] ** 2 + p["F"] * (1 - U[0]), U[0] * U[1] ** 2 - (p["F"] + 0.06) * U[1]],
         jacobian=lambda U, p: [[-U[1] ** 2 - p["F"], -2 * U[0] * U[1]], [U[1] ** 2, 2 * U[0] * U[1] - p["F"] - 0.06]],
         values=None),
+    # linear heat with a source of space and time: ``source(X, t, p)`` (X the space mesh), ``kinds`` per axis
+    "moving_source": dict(
+        path=ROOT / "problems" / "moving_source.yaml",
+        diffusion=lambda p: [p["kappa"]], reaction=lambda U, p: [0.0 * U[0]], jacobian=lambda U, p: [[0.0]],
+        source=lambda X, t, p: [np.exp(-(X[0] - 0.5 - p["v"] * t) ** 2 / 0.01)],
+        values=None, kinds=("value",)),
+    "moving_heater": dict(
+        path=ROOT / "problems" / "moving_heater.yaml",
+        diffusion=lambda p: [p["kappa"]], reaction=lambda U, p: [0.0 * U[0]], jacobian=lambda U, p: [[0.0]],
+        source=lambda X, t, p: [np.sin(np.pi * X[0]) * np.exp(-((X[0] - 0.3 - p["v"] * t) ** 2 + (X[1] - 0.5) ** 2)
+                                                               / 0.04)],
+        values=None, kinds=("value", "gradient")),
+    "hotplate": dict(
+        path=ROOT / "problems" / "hotplate.yaml",
+        diffusion=lambda p: [0.1], reaction=lambda U, p: [0.0 * U[0]], jacobian=lambda U, p: [[0.0]],
+        source=lambda X, t, p: [p["A"] * np.exp(-((X[0] - p["a"]) ** 2 + (X[1] - p["b"]) ** 2) / 0.01)],
+        values=None, kinds=("value", "value")),
 }
+
+
+class TimeUp(Exception):
+    """A sweep stopped at its deadline."""
 
 
 class Sweep:
@@ -95,7 +118,7 @@ class Sweep:
     coordinate (``values(p)``: per species, the data at the low and high end).
     """
 
-    def __init__(self, problem, spec: dict, n: int, grid: dict):
+    def __init__(self, problem, spec: dict, n: int, grid: dict, deadline: float = float("inf")):
         self.space = [co for co in problem.coordinates if co.role == "space"]
         self.d, self.n, self.spec = len(self.space), n, spec
         self.x = [cheb(n, *co.domain)[0] for co in self.space]
@@ -105,10 +128,10 @@ class Sweep:
         shape = (self.G,) + (1,) * self.d
         self.p = {k: v.reshape(shape) for k, v in grid.items()}
         self.q = len(problem.unknowns)
-        kind = "gradient" if spec["values"] is None else "value"
+        kinds = spec.get("kinds") or ("gradient" if spec["values"] is None else "value",) * self.d
         B, inner = np.array([0, n - 1]), np.arange(1, n - 1)
         self.Z = []  # per space axis (the same conditions for every species on it)
-        for Da in D:
+        for Da, kind in zip(D, kinds):
             C = np.eye(n)[B] if kind == "value" else Da[B]
             Z = np.zeros((n, n - 2))
             Z[inner, np.arange(n - 2)] = 1
@@ -120,6 +143,7 @@ class Sweep:
             for k, (lo, hi) in enumerate(spec["values"](self.p)):
                 self.lift[k] = np.broadcast_to(lo, shape) * (1 - s) + np.broadcast_to(hi, shape) * s
         mesh = np.meshgrid(*self.x, indexing="ij")
+        self.mesh, self.deadline = mesh, deadline
         values = {co.name: m for co, m in zip(self.space, mesh)}
         values.update({k: v for k, v in self.p.items()})
         u0 = [np.broadcast_to(u.initial.evaluate(**{c: values[c] for c in u.initial.coordinates}), (self.G,) +
@@ -143,8 +167,12 @@ class Sweep:
         return out
 
     def rhs(self, t, y):
+        if time.perf_counter() > self.deadline:
+            raise TimeUp(t)
         U = self.full(y)
         F = self.spec["reaction"](U, self.p)
+        if "source" in self.spec:
+            F = [f + g for f, g in zip(F, self.spec["source"](self.mesh, t, self.p))]
         c = self.spec["diffusion"](self.p)
         inner = (slice(None),) + (slice(1, -1),) * self.d
         out = []
@@ -177,23 +205,28 @@ class Sweep:
             rows.append(row)
         return sp.bmat(rows, format="csc")
 
-    def values_at(self, sol, times, points, samples, axes):
-        """The sweep at (samples S, times T, points P): interpolated over the parameter grid ``axes``."""
-        from pgdcli.checks.collocation import barycentric_matrix, chebyshev_weights
 
-        w = chebyshev_weights(self.n)
-        W = [barycentric_matrix(x, w, points[:, a]) for a, x in enumerate(self.x)]
-        weights = [_bary(nodes, samples[name]) for name, nodes in axes.items()]  # (S, c_a) each
-        out = np.empty((self.q, weights[0].shape[0], times.size, points.shape[0]))
-        for j, t in enumerate(times):
-            U = self.full(sol(t))
-            for k in range(self.q):
-                V = np.tensordot(weights[0], U[k].reshape([a.size for a in axes.values()] + [self.n] * self.d),
-                                 axes=(1, 0))  # (S, c_2, ..., space...)
-                for wa in weights[1:]:
-                    V = np.einsum("sc,sc...->s...", wa, V)
-                out[k, :, j] = V @ W[0].T if self.d == 1 else np.einsum("sij,pi,pj->sp", V, W[0], W[1])
-        return out
+def values_at(parts, times, points, samples, axes):
+    """The sweep at (samples S, times T, points P), interpolated over the parameter grid ``axes``.
+
+    ``parts``: ``(Sweep, dense solution)`` of consecutive chunks of the grid's points."""
+    from pgdcli.checks.collocation import barycentric_matrix, chebyshev_weights
+
+    first = parts[0][0]
+    w = chebyshev_weights(first.n)
+    W = [barycentric_matrix(x, w, points[:, a]) for a, x in enumerate(first.x)]
+    weights = [_bary(nodes, samples[name]) for name, nodes in axes.items()]  # (S, c_a) each
+    out = np.empty((first.q, weights[0].shape[0], times.size, points.shape[0]))
+    for j, t in enumerate(times):
+        full = [m.full(sol(t)) for m, sol in parts]
+        for k in range(first.q):
+            U = np.concatenate([f[k] for f in full])
+            V = np.tensordot(weights[0], U.reshape([a.size for a in axes.values()] + [first.n] * first.d),
+                             axes=(1, 0))  # (S, c_2, ..., space...)
+            for wa in weights[1:]:
+                V = np.einsum("sc,sc...->s...", wa, V)
+            out[k, :, j] = V @ W[0].T if first.d == 1 else np.einsum("sij,pi,pj->sp", V, W[0], W[1])
+    return out
 
 
 def _bary(nodes, x):
@@ -203,66 +236,108 @@ def _bary(nodes, x):
     return barycentric_matrix(nodes, chebyshev_weights(nodes.size), np.asarray(x, dtype=float))
 
 
-def sweep(problem, spec, n: int, counts: dict, tol: float, samples, times, points):
-    """One stacked solve on ``n`` space nodes and ``counts`` parameter nodes: (seconds, values at the points)."""
+def sweep(problem, spec, n: int, counts: dict, tol: float, samples, times, points, deadline: float = float("inf")):
+    """Stacked solves on ``n`` space nodes and ``counts`` parameter nodes: ``(seconds, values at the points, note)``.
+
+    The grid's points are stacked into solves of at most :data:`CHUNK_UNKNOWNS` unknowns (one solve when
+    they fit). Past ``deadline`` (``time.perf_counter()``), the values are None and the note says how far
+    the sweep went."""
     params = [co for co in problem.coordinates if co.role == "parameter"]
     axes = {co.name: cheb(counts[co.name], *co.domain)[0] for co in params}
     mesh = np.meshgrid(*axes.values(), indexing="ij")
     grid = {name: g.ravel() for name, g in zip(axes, mesh)}
-    m = Sweep(problem, spec, n, grid)
-    started = time.perf_counter()
-    sol = solve_ivp(m.rhs, problem.time_coordinate.domain, m.y0, method="BDF", jac=m.jac, rtol=1e-3 * tol,
-                    atol=1e-3 * tol, dense_output=True)
+    size = mesh[0].size
+    d = sum(co.role == "space" for co in problem.coordinates)
+    per = max(1, CHUNK_UNKNOWNS // ((n - 2) ** d * len(problem.unknowns)))
+    starts = range(0, size, per)
+    parts, started = [], time.perf_counter()
+    for k, lo in enumerate(starts):
+        started_chunk = time.perf_counter()
+        m = Sweep(problem, spec, n, {name: g[lo:lo + per] for name, g in grid.items()}, deadline)
+        try:
+            sol = solve_ivp(m.rhs, problem.time_coordinate.domain, m.y0, method="BDF", jac=m.jac, rtol=1e-3 * tol,
+                            atol=1e-3 * tol, dense_output=True)
+        except TimeUp as up:
+            # the chunks are of one size: each takes about as long as the finished ones, and longer than
+            # the one stopped has run so far
+            wall, done = time.perf_counter() - started, time.perf_counter() - started_chunk
+            each = max(done, (wall - done) / k if k else 0.0)
+            return (wall, None, f"stopped at its budget in solve {k + 1} of {len(starts)} (at t = {up.args[0]:.3g}); "
+                    f"all {len(starts)}: at least {len(starts) * each:.0f} s")
+        if sol.status != 0:
+            return time.perf_counter() - started, None, sol.message
+        parts.append((m, sol.sol))
     wall = time.perf_counter() - started
-    if sol.status != 0:
-        return wall, None
-    return wall, m.values_at(sol.sol, times, points, samples, axes)
+    return wall, values_at(parts, times, points, samples, axes), f"{len(starts)} solve(s)"
 
 
-def run_problem(name: str) -> str:
-    spec = PROBLEMS[name]
-    problem = pgdcli.load_spec(spec["path"])
-    tol = problem.solver.tolerance
-    started = time.perf_counter()
-    result = pgdcli.solve(problem)
-    build = time.perf_counter() - started
-    cb = result.codebook
-    if not result.accurate:
-        return f"| {name} | refused after {build:.1f} s: {result.message} | | | |"
-    rng = np.random.default_rng(14)
+def check_points(problem, seed: int = 14):
+    """5 parameter samples x 4 times x 15 space points (300 points), and the reference's values (q, S, T, P)."""
+    rng = np.random.default_rng(seed)
     params = [co for co in problem.coordinates if co.role == "parameter"]
     space = [co for co in problem.coordinates if co.role == "space"]
     samples = {co.name: rng.uniform(*co.domain, 5) for co in params}
     times = np.sort(rng.uniform(*problem.time_coordinate.domain, 4))
     points = np.stack([rng.uniform(*co.domain, 15) for co in space], axis=1)
     ref = solve_reference_nonlinear_pde(problem, samples, times, points if len(space) > 1 else points[:, 0])
-    names = list(problem.unknown_names)
-    exact = np.stack([ref.values[u] for u in names])  # (q, S, T, P)
+    return samples, times, points, np.stack([ref.values[u] for u in problem.unknown_names])
+
+
+def codebook_error(problem, cb, samples, times, points, exact) -> float:
+    """Max abs error of the codebook at the check points."""
+    space = [co for co in problem.coordinates if co.role == "space"]
     T = np.repeat(times, points.shape[0])
     err = 0.0
-    for s in range(5):
+    for s in range(exact.shape[1]):
         where = {problem.time: T, **{co.name: np.tile(points[:, a], times.size) for a, co in enumerate(space)},
                  **{k: np.full(T.size, v[s]) for k, v in samples.items()}}
         got = cb.evaluate(where)
         err = max(err, max(float(np.abs(got[u].reshape(times.size, -1) - exact[i, s]).max())
-                           for i, u in enumerate(names)))
-    nodes = {co.name: cb.coordinate(co.name).nodes for co in problem.coordinates if co.name != problem.time}
-    n, counts = nodes[space[0].name], {co.name: nodes[co.name] for co in params}
-    total, tries = 0.0, []
+                           for i, u in enumerate(problem.unknown_names)))
+    return err
+
+
+def measure(name: str, budget: float = float("inf")) -> dict:
+    """The build and its error at 300 points; the sweeps, doubled until one meets the tolerance or ``budget``
+    seconds of sweeping have passed."""
+    spec = PROBLEMS[name]
+    problem = pgdcli.load_spec(spec["path"])
+    tol = problem.solver.tolerance
+    started = time.perf_counter()
+    result = pgdcli.solve(problem)
+    out = {"build": time.perf_counter() - started, "tol": tol, "result": result}
+    if not result.accurate:
+        return out
+    cb = result.codebook
+    samples, times, points, exact = check_points(problem)
+    out["error"] = codebook_error(problem, cb, samples, times, points, exact)
+    out["nodes"] = nodes = {co.name: cb.coordinate(co.name).nodes for co in problem.coordinates
+                            if co.name != problem.time}
+    space = [co for co in problem.coordinates if co.role == "space"]
+    n, counts = nodes[space[0].name], {co.name: nodes[co.name] for co in problem.coordinates if co.role == "parameter"}
+    total, tries, deadline = 0.0, [], time.perf_counter() + budget
     with threadpool_limits(1):
         for _ in range(MAX_DOUBLINGS + 1):
-            wall, values = sweep(problem, spec, n, counts, tol, samples, times, points)
+            wall, values, note = sweep(problem, spec, n, counts, tol, samples, times, points, deadline)
             total += wall
             sweep_err = np.inf if values is None else float(np.abs(values - exact).max())
-            tries.append(f"{n} x {'x'.join(str(c) for c in counts.values())}: {sweep_err:.2g}")
-            if sweep_err <= tol:
+            tries.append(f"{n} x {'x'.join(str(c) for c in counts.values())}: "
+                         + (f"{sweep_err:.2g}" if values is not None else note))
+            if sweep_err <= tol or time.perf_counter() > deadline:
                 break
             n, counts = 2 * n - 1, {k: 2 * c - 1 for k, c in counts.items()}
-    grid = int(np.prod(list(counts.values())))
-    met = "" if sweep_err <= tol else "NOT within the tolerance: "
-    return (f"| {name} | {build:.1f} s, {err:.2g} (tolerance {tol:g}); nodes {nodes} | {met}{wall:.1f} s "
-            f"({wall / build:.2g}x the build; {total:.1f} s with the coarser tries), {grid} grid points, "
-            f"{sweep_err:.2g} | {'; '.join(tries)} |")
+    out.update(sweep=wall, total=total, sweep_error=sweep_err, grid=int(np.prod(list(counts.values()))), tries=tries)
+    return out
+
+
+def run_problem(name: str) -> str:
+    m = measure(name)
+    if "error" not in m:
+        return f"| {name} | refused after {m['build']:.1f} s: {m['result'].message} | | | |"
+    met = "" if m["sweep_error"] <= m["tol"] else "NOT within the tolerance: "
+    return (f"| {name} | {m['build']:.1f} s, {m['error']:.2g} (tolerance {m['tol']:g}); nodes {m['nodes']} | {met}"
+            f"{m['sweep']:.1f} s ({m['sweep'] / m['build']:.2g}x the build; {m['total']:.1f} s with the coarser tries), "
+            f"{m['grid']} grid points, {m['sweep_error']:.2g} | {'; '.join(m['tries'])} |")
 
 
 def main(argv):
