@@ -14,7 +14,7 @@ import pgdcli  # its __version__ read at call time (a test may stand in another)
 from .errors import ClusterError
 from .executors import DaskExecutor
 
-__all__ = ["connect", "CONNECT_TIMEOUT"]
+__all__ = ["connect", "local_cluster", "CONNECT_TIMEOUT"]
 
 #: Seconds to reach a scheduler, and to wait for its first worker.
 CONNECT_TIMEOUT = 10.0
@@ -44,7 +44,7 @@ def connect(address: str | None = None, workers: int | None = None, *, option: s
     """
     timeout = CONNECT_TIMEOUT if timeout is None else timeout
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client
     except ImportError:
         raise ClusterError(f"{option}: a Dask cluster needs the optional package distributed: "
                            f"pip install 'pgdcli[dask]'") from None
@@ -52,8 +52,7 @@ def connect(address: str | None = None, workers: int | None = None, *, option: s
         if workers is None or int(workers) < 1:
             raise ClusterError(f"--workers: expected a number of worker processes >= 1, got {workers!r}")
         try:
-            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
+            cluster = local_cluster(int(workers))
         except Exception as exc:  # noqa: BLE001 - the machine refused: ports, processes
             raise ClusterError(f"--workers {workers}: cannot start a local Dask cluster "
                                f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
@@ -72,6 +71,27 @@ def connect(address: str | None = None, workers: int | None = None, *, option: s
         raise
     executor.refresh()
     return executor
+
+
+def local_cluster(workers: int):
+    """A ``distributed.LocalCluster`` of ``workers`` processes (one thread each, logs silenced) that
+    closes cleanly after its nanny replaced a dead worker.
+
+    distributed's cluster object can miss the arrival of a worker its nanny started in place of a
+    killed one (the scheduler's "add" message lost in the restart), and then fail on the departure of
+    that worker when it closes (a ``KeyError`` out of ``close()``, the cluster left half closed). The
+    departure of a worker it never saw arrive is ignored instead.
+    """
+    from distributed import LocalCluster
+
+    class _LocalCluster(LocalCluster):
+        def _update_worker_status(self, op, msg):
+            if op == "remove" and msg not in self.scheduler_info.get("workers", {}):
+                return
+            super()._update_worker_status(op, msg)
+
+    return _LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                         silence_logs=logging.CRITICAL)
 
 
 def _check_workers(client, address: str, option: str, timeout: float) -> None:

@@ -22,7 +22,7 @@ import pgdcli
 from pgdcli import Codebook, executors, parse_spec
 from pgdcli.checks.verify import verify
 from pgdcli.cli.main import cli
-from pgdcli.cluster import connect
+from pgdcli.cluster import connect, local_cluster
 from pgdcli.errors import ClusterError
 from pgdcli.family import FamilyFailure, solve_many
 from pgdcli.tensors import fiber_cross
@@ -53,8 +53,7 @@ solver:
 @pytest.fixture(scope="module")
 def cluster():
     """A LocalCluster of two worker processes (one thread each) and a client of it."""
-    local = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                     silence_logs=50)
+    local = local_cluster(2)
     client = distributed.Client(local)
     yield client
     client.close()
@@ -369,3 +368,11 @@ def test_workers_of_another_pgdcli_version_are_refused(cluster, monkeypatch):
     monkeypatch.setattr(pgdcli, "__version__", "0.0.0-elsewhere")
     with pytest.raises(ClusterError, match="runs pgdcli .*, this is 0.0.0-elsewhere"):
         connect(cluster.scheduler.address)
+
+
+def test_a_local_cluster_closes_after_a_departure_it_never_saw_arrive():
+    with local_cluster(1) as local:
+        known = set(local.scheduler_info["workers"])
+        local._update_worker_status("remove", "tcp://127.0.0.1:1")  # what a missed "add" leads to
+        assert set(local.scheduler_info["workers"]) == known
+    assert local.status.name == "closed"
