@@ -125,6 +125,7 @@ def test_cross_codebook_against_solve_ivp_off_the_grid():
     assert worst <= 1e-5
 
 
+@pytest.mark.slow
 def test_the_10d_rigid_body_against_solve_ivp_off_the_grid():
     """problems/rigid_body10.yaml: 10^9 grid nodes, built by the cross (~40 s), at random points of its box."""
     result = pgdcli.solve(load_spec(PROBLEMS / "rigid_body10.yaml"))

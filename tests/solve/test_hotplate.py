@@ -9,10 +9,12 @@ smooth integrand), the series cut where its tail is below 1e-8."""
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import numpy as np
 import pytest
+from scipy.special import roots_legendre
 
 import pgdcli
 from conftest import PROBLEMS
@@ -21,10 +23,16 @@ KAPPA, WIDTH = 0.1, 0.01
 DOMAINS = {"x": (0.0, 1.0), "y": (0.0, 1.0), "t": (0.0, 1.0), "A": (0.0, 1.0), "a": (0.3, 0.7), "b": (0.3, 0.7)}
 
 
+@functools.cache
+def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and weights of the n-point Gauss-Legendre rule on [0, 1]."""
+    s, weights = roots_legendre(n)
+    return (s + 1.0) / 2.0, weights / 2.0
+
+
 def sine_coefficients(centres: np.ndarray, modes: int, quadrature: int = 800) -> np.ndarray:
     """F_m(c) = 2 int_0^1 exp(-(x - c)^2 / w) sin(m pi x) dx for m = 1..modes: shape (len(centres), modes)."""
-    s, weights = np.polynomial.legendre.leggauss(quadrature)
-    x, weights = (s + 1.0) / 2.0, weights / 2.0
+    x, weights = gauss_legendre(quadrature)
     gauss = np.exp(-(x[None, :] - centres[:, None]) ** 2 / WIDTH) * weights
     return 2.0 * gauss @ np.sin(np.pi * np.outer(x, np.arange(1, modes + 1)))
 
