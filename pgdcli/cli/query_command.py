@@ -57,6 +57,8 @@ def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
     if output is None and (workers is not None or scheduler_given(ctx, scheduler)[1] == "--scheduler" and scheduler):
         # PGD_SCHEDULER alone leaves a query to stdout here: it evaluates each point on its own
         raise click.UsageError("--scheduler and --workers evaluate into --output FILE.h5; add --output")
+    if output is not None and ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT:
+        raise click.UsageError(f"--format {fmt} prints to stdout; --output writes HDF5: give one of them")
     if output is not None:
         return _to_file(ctx, cb, points, output, selected, scheduler, workers)
     chunks, handle = _usage(_query.point_chunks, cb, points, ctx.args)

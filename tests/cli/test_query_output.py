@@ -71,3 +71,12 @@ def test_bad_points_are_one_error_line_and_no_file(spring, tmp_path):
 def test_the_output_must_be_an_hdf5_file(spring, tmp_path):
     result = run("query", spring, "--t", "1", "--k", "2", "--c", "0.3", "--output", tmp_path / "v.csv")
     assert result.exit_code == 2 and "unsupported file type" in result.stderr
+
+
+@pytest.mark.parametrize("fmt", ["csv", "json"])
+def test_a_format_with_an_output_file_is_refused(spring, tmp_path, fmt):
+    out = tmp_path / "v.h5"
+    result = run("query", spring, "--t", "1", "--k", "2", "--c", "0.3", "--format", fmt, "--output", out)
+    lines = result.stderr.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1 and "--format" in lines[0] and "--output" in lines[0], result.stderr
+    assert not out.exists()
