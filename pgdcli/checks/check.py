@@ -172,6 +172,26 @@ def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: fl
     A ``stiff`` problem (an explicit method would crawl at its stability limit) is integrated
     by :data:`STIFF_METHOD` instead, the same two ways. ``progress`` receives :class:`~pgdcli.progress.ReferenceProgress` events.
     """
+    if not problem.source_text:  # a problem built in code: nothing names it
+        return _integrate_reference(problem, points, S, times, rtol, atol, progress, stiff)
+    key = (problem.source_text, tuple((n, np.asarray(v).tobytes()) for n, v in points.items()), S,
+           np.asarray(times).tobytes(), rtol, atol, stiff)
+    if key not in _ODE_REFERENCES:
+        _ODE_REFERENCES.clear()
+        _ODE_REFERENCES[key] = _integrate_reference(problem, points, S, times, rtol, atol, progress, stiff)
+    values, ok = _ODE_REFERENCES[key]
+    return {u: v.copy() for u, v in values.items()}, ok.copy()
+
+
+#: The last ODE reference, by problem, sample, times and method: a solve retried at the same nodes with a
+#: tighter target (a smaller residual, a tighter march) is checked at the same sample, and the reference
+#: is most of a check's time.
+_ODE_REFERENCES: dict = {}
+
+
+def _integrate_reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float, progress=None,
+                         stiff: bool = False):
+    """:func:`_reference`'s integration (not cached)."""
     t0, span = float(times[0]), float(times[-1] - times[0])
     in_time = None if progress is None else (lambda t: progress(ReferenceProgress(t - t0, span, "time")))
     fast = dict(method=STIFF_METHOD, rtol=STIFF_RTOL, atol=STIFF_ATOL) if stiff else dict(rtol=rtol, atol=atol)

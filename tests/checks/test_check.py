@@ -236,6 +236,27 @@ def test_march_without_parameters_checks_its_one_point():
     assert rep["check_error"] == pytest.approx(true, rel=1e-2, abs=1e-13) and true <= 1e-10
 
 
+def test_a_second_check_at_the_same_sample_reuses_the_reference(solved, monkeypatch):
+    """A solve retried at the same nodes is checked at the same sample: one integration, the same numbers,
+    and a different codebook still measured by its own values."""
+    cb = solved("logistic").codebook
+    problem = load_spec(PROBLEMS / "logistic.yaml")
+    calls = []
+    integrate = check._integrate_reference
+    monkeypatch.setattr(check, "_integrate_reference", lambda *a, **k: calls.append(1) or integrate(*a, **k))
+    monkeypatch.setattr(check, "_ODE_REFERENCES", {})
+    first = check.check_codebook(problem, cb)
+    fm = cb.fields["u"]
+    wrong = Codebook(cb.coordinates, {"u": TT((*fm.cores[:-1], fm.cores[-1] * (1.0 + 1e-4)), fm.mode_order)})
+    second = check.check_codebook(problem, wrong)
+    again = check.check_codebook(problem, cb)
+    assert len(calls) == 1
+    assert again.error == first.error and again.ratio == first.ratio
+    assert second.error > 1e3 * first.error
+    check.check_codebook(problem, cb, seed=1)  # another sample: integrated
+    assert len(calls) == 2
+
+
 def test_a_march_the_reference_cannot_check_says_so(monkeypatch, tmp_path):
     """If scipy cannot integrate the problem the march stands, unchecked, and says so everywhere."""
     from pgdcli.errors import PgdError
