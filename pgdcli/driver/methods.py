@@ -311,6 +311,12 @@ def choose_method(problem) -> MethodChoice:
     if not march:
         if asked in ("pgd", "amen"):
             return MethodChoice((METHODS[asked],), f"solver.method: {asked}")
+        if problem.time is not None and not any(c.role == "space" for c in problem.coordinates):
+            # one polynomial in time over the whole interval cannot hold a fast transient (a stiff decay):
+            # the march steps through it
+            return MethodChoice((METHODS["pgd"], METHODS["amen"], METHODS["march"]),
+                                "a linear problem: the enrichment first, the tensor-train solver if it stalls, "
+                                "the time march if neither meets the tolerance")
         return MethodChoice((METHODS["pgd"], METHODS["amen"]),
                             "a linear problem: the enrichment first, the tensor-train solver if it stalls")
     if problem.time is None:

@@ -63,13 +63,17 @@ def solve_rounds(problem, choice: MethodChoice, settings: Settings, callback=Non
             continue
         kept = loop.method.keep(loop.tries)
         if kept is None:  # the first solve at these nodes failed
-            if loop.fall_back(attempt) or loop.more_nodes(attempt):
+            if loop.fall_back(attempt) or loop.more_nodes(attempt) or loop.march_instead(
+                    "stopped: " + attempt.outcome.message.removeprefix("not converged: ")):
                 continue
             return loop.failed(attempt), loop.learned
         if kept.stopped is not None and loop.fall_back(loop.tries[-1], kept.stopped):  # it could go no further
             continue
         result = loop.kept_result(kept)
         verdict = loop.judge(result, kept)  # refine: more nodes (None), or the verdict
+        if verdict is not None and verdict.accurate is False and loop.march_instead(f"missed the tolerance: "
+                                                                                    f"{verdict.reason}"):
+            continue
         if verdict is not None:
             solved = loop.method.summary(kept, loop.tries)
             finished = gate.finish(result, solved, loop.resolution, verdict, loop.started, loop.check_seconds)
@@ -83,6 +87,7 @@ class _Loop:
         self.started = _time.perf_counter()
         self.choice, self.settings, self.callback, self.learned = choice, settings, callback, learned
         self.method: Method = choice.methods[0]
+        self.original = problem
         self.resolution = Resolution(problem, self.method.marches)
         self.tries: list[Try] = []
         self.target = self.method.first_target(settings, learned)
@@ -173,6 +178,19 @@ class _Loop:
         self.resolution.marches = other.marches
         self.learned = dataclasses.replace(self.learned, target=None)  # another solver's target means nothing here
         self.restart()
+        return True
+
+    def march_instead(self, why: str) -> bool:
+        """A method of the choice that marches in time takes over from one that failed or missed the tolerance
+        (its time a polynomial over the whole interval), at the problem's first nodes; ``why`` completes
+        "the <method> ..." in the report."""
+        if self.method.marches:
+            return False
+        later = self.choice.methods[self.choice.methods.index(self.method) + 1:]
+        other = next((m for m in later if m.marches), None)
+        if other is None or not self.switch(other, f"the {self.method.title} {why}"):
+            return False
+        self.resolution = Resolution(self.original, other.marches)
         return True
 
     def more_nodes(self, attempt: Try) -> bool:

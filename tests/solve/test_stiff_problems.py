@@ -66,3 +66,43 @@ def test_robertson_codebook_meets_its_tolerance_at_random_points_faces_and_corne
     checked = pgdcli.verify(result.codebook, samples=2, times=4, max_corners=2, jobs=1)
     assert checked.settings["method"] == "Radau" and checked.settings["rtol"] == 1e-12
     assert checked.passed()
+
+
+# a linear decay chain A -> B -> C whose first step is fast (a transient of 1/200 in a horizon of 5): one
+# polynomial in time over the interval would need hundreds of nodes; the march steps through it
+CHAIN = """
+name: fast_chain
+coordinates:
+  t: {domain: [0, 5]}
+  k2: {domain: [0.2, 2]}
+unknowns:
+  a: {initial: 1}
+  b: {initial: 0}
+  c: {initial: 0}
+equations:
+  - "der(a) = -200*a + 0.5*b"
+  - "der(b) = 200*a - 0.5*b - k2*b"
+  - "der(c) = k2*b"
+solver:
+  tolerance: 1e-6
+  max_nodes: 65
+"""
+
+
+def test_a_linear_problem_with_a_fast_transient_falls_back_to_the_march():
+    from scipy.linalg import expm
+
+    result = pgdcli.solve(pgdcli.parse_spec(CHAIN, source="fast_chain.yaml"))
+    assert result.accurate, result.message
+    report = result.codebook.report
+    assert "missed the tolerance" in report["method_fallback"] and "march ran instead" in report["method_fallback"]
+    assert any("march ran instead" in w for w in result.warnings)
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for k2 in [0.2, 2.0, *rng.uniform(0.2, 2.0, 6)]:
+        times = np.concatenate([[0.0, 1e-3, 5.0], rng.uniform(0.0, 0.05, 6), rng.uniform(0.0, 5.0, 6)])
+        A = np.array([[-200.0, 0.5, 0.0], [200.0, -0.5 - k2, 0.0], [0.0, k2, 0.0]])
+        exact = np.stack([expm(A * t) @ [1.0, 0.0, 0.0] for t in times], axis=1)  # (3, T)
+        got = result.codebook(t=times, k2=k2)
+        worst = max(worst, *(float(np.max(np.abs(got[u] - exact[i]))) for i, u in enumerate("abc")))
+    assert worst <= 1e-6, worst
