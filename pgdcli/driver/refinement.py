@@ -27,10 +27,14 @@ from ..progress import PhaseStarted, emit
 from . import gate
 from .method import Kept, Method, MethodChoice, Settings, Try
 
-__all__ = ["solve_rounds", "CHECK_ATTEMPTS"]
+__all__ = ["solve_rounds", "CHECK_ATTEMPTS", "POLYNOMIAL_TIME_NODES"]
 
 #: Most solves at one set of nodes: the first and the tighter ones.
 CHECK_ATTEMPTS = 3
+#: Time nodes past which a method that holds time in one polynomial over the interval (the enrichment, the
+#: tensor-train solver) hands a problem over to the time march, when the choice has one: a solution
+#: that needs more holds a transient or many oscillations, which the march steps through at less cost.
+POLYNOMIAL_TIME_NODES = 65
 
 
 def solve_rounds(problem, choice: MethodChoice, settings: Settings, callback=None,
@@ -71,13 +75,16 @@ def solve_rounds(problem, choice: MethodChoice, settings: Settings, callback=Non
             continue
         result = loop.kept_result(kept)
         verdict = loop.judge(result, kept)  # refine: more nodes (None), or the verdict
-        if verdict is not None and verdict.accurate is False and loop.march_instead(f"missed the tolerance: "
-                                                                                    f"{verdict.reason}"):
+        if verdict is None:  # more nodes: the polynomial in time may have grown past its use
+            if loop.past_polynomial_time():
+                loop.march_instead(f"would need more than {POLYNOMIAL_TIME_NODES} nodes in time (a transient or "
+                                   f"many oscillations in one polynomial over the interval)")
             continue
-        if verdict is not None:
-            solved = loop.method.summary(kept, loop.tries)
-            finished = gate.finish(result, solved, loop.resolution, verdict, loop.started, loop.check_seconds)
-            return finished, loop.learned
+        if verdict.accurate is False and loop.march_instead(f"missed the tolerance: {verdict.reason}"):
+            continue
+        solved = loop.method.summary(kept, loop.tries)
+        finished = gate.finish(result, solved, loop.resolution, verdict, loop.started, loop.check_seconds)
+        return finished, loop.learned
 
 
 class _Loop:
@@ -179,6 +186,14 @@ class _Loop:
         self.learned = dataclasses.replace(self.learned, target=None)  # another solver's target means nothing here
         self.restart()
         return True
+
+    def past_polynomial_time(self) -> bool:
+        """The automatic time nodes of a method that does not march are past :data:`POLYNOMIAL_TIME_NODES`."""
+        time = self.problem.time
+        if self.method.marches or time is None:
+            return False
+        c = self.problem.coordinate(time)
+        return c.auto and total_nodes(c) > POLYNOMIAL_TIME_NODES
 
     def march_instead(self, why: str) -> bool:
         """A method of the choice that marches in time takes over from one that failed or missed the tolerance

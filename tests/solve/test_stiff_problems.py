@@ -89,13 +89,16 @@ solver:
 """
 
 
-def test_a_linear_problem_with_a_fast_transient_falls_back_to_the_march():
+@pytest.mark.parametrize("max_nodes, why", [(65, "missed the tolerance: coordinate 't' lacks resolution"),
+                                             (513, "would need more than 65 nodes in time")])
+def test_a_linear_problem_with_a_fast_transient_falls_back_to_the_march(max_nodes, why):
     from scipy.linalg import expm
 
-    result = pgdcli.solve(pgdcli.parse_spec(CHAIN, source="fast_chain.yaml"))
+    spec = CHAIN.replace("max_nodes: 65", f"max_nodes: {max_nodes}")
+    result = pgdcli.solve(pgdcli.parse_spec(spec, source="fast_chain.yaml"))
     assert result.accurate, result.message
     report = result.codebook.report
-    assert "missed the tolerance" in report["method_fallback"] and "march ran instead" in report["method_fallback"]
+    assert why in report["method_fallback"] and "march ran instead" in report["method_fallback"]
     assert any("march ran instead" in w for w in result.warnings)
     rng = np.random.default_rng(5)
     worst = 0.0
