@@ -152,6 +152,8 @@ def _refuse(space, stepper: Stepper, schedule: Schedule, t: float, y, h: float, 
                            stepper.order, stepper.explicit)
     if refusal and switch and h < MIN_STEP * span:
         raise StiffnessDetected.floor(stepper.title, t, MIN_STEP * span)
+    if refusal and switch and stepper.explicit and h * max_steps < span:  # at the cap, far from the end
+        raise StiffnessDetected.capped(stepper.title, t, h, max_steps, span)
     if refusal:
         raise space.failure(refusal, t, y)
 

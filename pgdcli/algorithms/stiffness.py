@@ -43,6 +43,13 @@ class StiffnessDetected(Exception):
                    f"{step * rate:.2g}, its limit {limit:.2g})", time)
 
     @classmethod
+    def capped(cls, method: str, time: float, step: float, max_steps: int, span: float):
+        """``max_steps`` spent with steps too short to cross the time domain in as many: the explicit stepper's
+        stability limit, or a transient too fast for it."""
+        return cls(f"stiff: at t = {time:.4g} the explicit {method} reached max_steps={max_steps} with steps of "
+                   f"{step:.2g} ({span / step:.2g} of them per time domain)", time)
+
+    @classmethod
     def floor(cls, method: str, time: float, step: float):
         """Steps below the explicit march's floor: a transient many decades shorter than the time domain."""
         return cls(f"stiff or multiscale: at t = {time:.4g} the explicit {method} needed steps below {step:.2g}, "

@@ -109,3 +109,42 @@ def test_a_linear_problem_with_a_fast_transient_falls_back_to_the_march(max_node
         got = result.codebook(t=times, k2=k2)
         worst = max(worst, *(float(np.max(np.abs(got[u] - exact[i]))) for i, u in enumerate("abc")))
     assert worst <= 1e-6, worst
+
+
+# a filter of time constant 1e-3 driven by a sine: the explicit march is held to steps of ~1e-3 by accuracy on
+# the fast mode (below its stability limit, so the watch does not call it stiff) and runs into max_steps
+FILTER = """
+name: filter
+coordinates:
+  t: {domain: [0, 2]}
+  w: {domain: [0.5, 2]}
+constants: {tau: 0.001}
+unknowns:
+  v1: {initial: 1}
+  v2: {initial: 0}
+equations:
+  - "tau*der(v1) = sin(w*t) - v1"
+  - "der(v2) = 0.5*(v1 - v2)"
+solver:
+  tolerance: 1e-5
+  method: march
+  max_steps: 1000
+"""
+
+
+@pytest.mark.slow
+def test_an_explicit_march_at_max_steps_far_from_the_end_switches_to_rodas4():
+    result = pgdcli.solve(pgdcli.parse_spec(FILTER, source="filter.yaml"))
+    assert result.accurate, result.message
+    report = result.codebook.report
+    assert report["integrator"] == "rodas4" and "reached max_steps=1000" in report["integrator_reason"]
+    rng = np.random.default_rng(11)
+    worst = 0.0
+    for w in [0.5, 2.0, *rng.uniform(0.5, 2.0, 5)]:
+        times = np.sort(np.concatenate([[0.0, 2.0], rng.uniform(0.0, 0.01, 4), rng.uniform(0.0, 2.0, 8)]))
+        ref = solve_ivp(lambda t, y: [(np.sin(w * t) - y[0]) / 1e-3, 0.5 * (y[0] - y[1])], (0.0, 2.0), [1.0, 0.0],
+                        method="Radau", rtol=1e-12, atol=1e-14, jac=lambda t, y: [[-1e3, 0.0], [0.5, -0.5]],
+                        t_eval=times)
+        got = result.codebook(t=times, w=w)
+        worst = max(worst, float(np.max(np.abs(got["v1"] - ref.y[0]))), float(np.max(np.abs(got["v2"] - ref.y[1]))))
+    assert worst <= 1e-5, worst
