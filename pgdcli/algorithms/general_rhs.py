@@ -31,14 +31,10 @@ import numpy as np
 from ..tensors.cross import tt_cross, tt_values_at
 from ..problem.derivative import DERIVATIVE_FUNCTIONS, derivative
 from ..problem.general import evaluate, is_general, render, tree_names, tree_of
-from ..problem.trees import evaluate_tree, values_by_name
+from ..problem.trees import NON_SMOOTH, calls, evaluate_tree, values_by_name
 from ..tensors.tt import TT
 
 __all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries", "underflow_hint"]
-
-#: Functions whose derivatives jump: the march's error control needs ever smaller steps where their
-#: argument crosses its kink at some node of the parameter grid (every node marches with one step).
-NON_SMOOTH = ("abs",)
 
 #: Share of the stage rounding's RMS budget given to the cross.
 CROSS_SHARE = 0.5
@@ -214,18 +210,11 @@ def underflow_hint(parts: Sequence, stats: dict) -> str:
         return ("; or a function of the unknowns is undefined there: its values were not finite "
                 f"{stats['cross_nonfinite']} times, e.g. sqrt or log of a negative number, or a division by zero")
     kinks = sorted({render(tree) for part in parts for _, trees in part.monomials for tree in trees
-                    if _calls(tree, NON_SMOOTH)})
+                    if calls(tree, NON_SMOOTH)})
     if kinks:
-        return (f"; or not smooth: {', '.join(kinks)} has a kink where its argument is 0, and every node of the "
-                "parameter grid marches with the same steps")
+        return (f"; or not smooth: {', '.join(kinks)} has a kink or a jump where an argument crosses a switch point, "
+                "and every node of the parameter grid marches with the same steps")
     return ""
-
-
-def _calls(tree: tuple, names: Sequence[str]) -> bool:
-    """True if the tree calls one of the functions."""
-    if tree[0] == "call":
-        return tree[1] in names or _calls(tree[2], names)
-    return tree[0] not in ("num", "name") and any(_calls(child, names) for child in tree[1:])
 
 
 def report_entries(stats: dict) -> dict:

@@ -19,7 +19,7 @@ from .separable import Separable, constant_tree_value, joint_of, merge_to_functi
 from .terms import Func1D, SepTerm
 from .trees import FUNCTIONS, format_number, is_nonneg_int, num, t_div, t_mul, t_pow
 
-__all__ = ["SeparatedAlgebra", "MAX_POWER"]
+__all__ = ["SeparatedAlgebra", "MAX_POWER", "call_tree"]
 
 #: Largest integer exponent expanded by repeated multiplication.
 MAX_POWER = 1_000
@@ -170,6 +170,24 @@ class SeparatedAlgebra:
         # a function of two or more coordinates jointly (sin(w*t)): kept as a tree, separated by the solvers
         return joint_of(("call", name, arg.tree()))
 
+    def apply_multi(self, name: str, args: list, comparison: str | None, node: ast.Call) -> Separable:
+        """``name(*args)`` of unknown-free arguments (for ``where``, the condition's two operands first):
+        a function of one coordinate when all arguments are, else a non-separable part."""
+        if name == "smoothstep" and args[0].constant_value is not None and args[0].constant_value == args[1].constant_value:
+            raise self.error(f"{self.quote(node)}: smoothstep(edge0, edge1, x) needs edge0 != edge1 (use step(x - edge0))")
+        functions = [merge_to_function(arg) for arg in args]
+        coordinates = {f.coordinate for f in functions if f is not None and f.coordinate is not None}
+        if all(f is not None for f in functions) and len(coordinates) <= 1:
+            tree = call_tree(name, [f.tree for f in functions], comparison)
+            if not coordinates:
+                with np.errstate(all="ignore"):
+                    value = constant_tree_value(tree)
+                if not math.isfinite(value):
+                    raise self.error(f"{self.quote(node)} is not a finite real number")
+                return Separable.constant(value)
+            return Separable.of_function(Func1D(coordinates.pop(), tree))
+        return joint_of(call_tree(name, [arg.tree() for arg in args], comparison))
+
     def _unsafe_factors(self, single: tuple, rest: Separable, log_base: float) -> set[str]:
         """The coordinates whose factor of ``exp(single + rest)`` must stay in the joint factor ``exp(rest + ...)``.
 
@@ -244,3 +262,11 @@ class SeparatedAlgebra:
             else:
                 factors.append((coordinate, Func1D(coordinate, t_pow(num(base), func.tree))))
         return Polynomial.from_separable(Separable((SepTerm(coef, tuple(factors)),)))
+
+
+def call_tree(name: str, children: list, comparison: str | None = None) -> tuple:
+    """The tree of ``name(*children)``; for ``where`` the first two children are the operands of
+    its condition, compared by ``comparison`` (``lt le gt ge``)."""
+    if name == "where":
+        return ("call", name, (comparison, children[0], children[1]), *children[2:])
+    return ("call", name, *children)

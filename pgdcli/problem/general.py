@@ -28,15 +28,17 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from .trees import FUNCTIONS, evaluate_tree, leaf_names, render_text, values_by_name
+from .trees import FUNCTIONS, arity, evaluate_tree, leaf_names, render_text, signature, values_by_name
 
 __all__ = ["FUNCTIONS", "GENERAL", "is_general", "tree_of", "build_tree", "mentions", "render", "evaluate",
-           "tree_names", "has_general"]
+           "tree_names", "has_general", "call_problem", "condition_problem", "COMPARE_OPS"]
 
 #: The ``coordinate`` of a general atom (not an identifier, so no coordinate can have it).
 GENERAL = "<general>"
 
 _BINARY_OPS = {ast.Add: "add", ast.Sub: "sub", ast.Mult: "mul", ast.Div: "div", ast.Pow: "pow"}
+#: The comparisons a ``where`` condition may make, by syntax node.
+COMPARE_OPS = {ast.Lt: "lt", ast.LtE: "le", ast.Gt: "gt", ast.GtE: "ge"}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -113,10 +115,44 @@ def build_tree(node: ast.AST, names) -> tuple:
     if isinstance(node, ast.BinOp) and type(node.op) in _BINARY_OPS:
         return _fold((_BINARY_OPS[type(node.op)], build_tree(node.left, names), build_tree(node.right, names)))
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
-        if node.keywords or len(node.args) != 1:
-            raise names.refuse(node, f"{node.func.id}() takes exactly one argument:")
-        return _fold(("call", node.func.id, build_tree(node.args[0], names)))
+        problem = call_problem(node)
+        if problem:
+            raise names.refuse(node, problem)
+        name = node.func.id
+        children = [_condition_tree(arg, names) if name == "where" and k == 0 else build_tree(arg, names)
+                    for k, arg in enumerate(node.args)]
+        if name == "smoothstep" and children[0][0] == children[1][0] == "num" and children[0] == children[1]:
+            raise names.refuse(node, "smoothstep(edge0, edge1, x) needs edge0 != edge1 (use step(x - edge0))")
+        return _fold(("call", name, *children))
     raise names.refuse(node)
+
+
+def call_problem(node: ast.Call) -> str:
+    """What is wrong with the arguments of a call of a function of :data:`FUNCTIONS` ('' if nothing)."""
+    name = node.func.id
+    count = arity(name)
+    if node.keywords or len(node.args) != count:
+        plural = "one argument" if count == 1 else f"{count} arguments"
+        return f"{name}() takes exactly {plural}: {signature(name)}"
+    if name == "where":
+        return condition_problem(node.args[0])
+    return ""
+
+
+def condition_problem(node: ast.AST) -> str:
+    """What is wrong with the condition of ``where(condition, a, b)`` ('' if nothing)."""
+    usage = "the condition of where(condition, a, b) must be one comparison with <, <=, > or >=, e.g. where(y < 0, a, b)"
+    if not isinstance(node, ast.Compare):
+        return usage
+    if len(node.ops) != 1:
+        return f"{usage}; nest where() for a range: where(x > 0, where(x < 1, a, b), b)"
+    if type(node.ops[0]) not in COMPARE_OPS:
+        return f"{usage}; equality of computed numbers is not reliable"
+    return ""
+
+
+def _condition_tree(node: ast.Compare, names) -> tuple:
+    return (COMPARE_OPS[type(node.ops[0])], build_tree(node.left, names), build_tree(node.comparators[0], names))
 
 
 def _fold(tree: tuple) -> tuple:

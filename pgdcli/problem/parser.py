@@ -18,10 +18,10 @@ from typing import Mapping, Sequence
 
 from ..errors import ExpressionError
 from .algebra import SeparatedAlgebra
-from .general import GENERAL, build_tree, mentions, render
+from .general import COMPARE_OPS, GENERAL, build_tree, call_problem, mentions, render
 from .polynomial import Atom, Polynomial
 from .separable import Separable
-from .trees import FUNCTIONS
+from .trees import FUNCTIONS, SIGNATURES, signature
 
 __all__ = ["ParseOptions", "Parser", "GeneralNames", "MAX_TERMS", "MAX_PRODUCTS", "where_prefix", "shorten"]
 
@@ -153,9 +153,10 @@ class Parser(SeparatedAlgebra):
 
     def allowed(self) -> str:
         der = ", and der(u) for the time derivative of an unknown u" if self.allow_der else ""
+        functions = ", ".join(signature(name) if name in SIGNATURES else name for name in FUNCTIONS)
         return (
             "allowed are numbers, + - * / **, parentheses, names of coordinates, constants"
-            f" and unknowns, pi, the functions {', '.join(FUNCTIONS)}{der}"
+            f" and unknowns, pi, the functions {functions} (a condition: one comparison with < <= > >=){der}"
         )
 
     def disallowed(self, node: ast.AST, what: str | None = None) -> ExpressionError:
@@ -294,12 +295,26 @@ class Parser(SeparatedAlgebra):
             return self.visit_der(node, context)
         if name not in FUNCTIONS:
             raise self.disallowed(node, "call")
-        if node.keywords or len(node.args) != 1:
-            raise self.error(f"{self.quote(node)}: {name}() takes exactly one argument")
-        if context is None and mentions(node.args[0], self.unknowns):
-            return self.general(node)  # sin(th): a function of unknowns
-        argument = self.visit(node.args[0], _Enclosing("argument", node))
-        return Polynomial.from_separable(self.apply_function(name, argument.coefficient(()), node))
+        problem = call_problem(node)
+        if problem:
+            raise self.error(f"{self.quote(node)}: {problem}")
+        if context is None and mentions(node, self.unknowns):
+            return self.general(node)  # sin(th), max(u, 0): a function of unknowns
+        enclosing = _Enclosing("argument", node)
+        if len(node.args) == 1:
+            argument = self.visit(node.args[0], enclosing)
+            return Polynomial.from_separable(self.apply_function(name, argument.coefficient(()), node))
+        arguments = [self.visit(arg, enclosing).coefficient(()) for arg in self.call_operands(node)]
+        comparison = COMPARE_OPS[type(node.args[0].ops[0])] if name == "where" else None
+        return Polynomial.from_separable(self.apply_multi(name, arguments, comparison, node))
+
+    @staticmethod
+    def call_operands(node: ast.Call) -> list:
+        """The operands of a call: those of a where() condition in place of the condition."""
+        if node.func.id == "where":
+            condition = node.args[0]
+            return [condition.left, condition.comparators[0], *node.args[1:]]
+        return list(node.args)
 
     def visit_der(self, node: ast.Call, context: _Enclosing | None) -> Polynomial:
         if not self.allow_der:
@@ -365,8 +380,8 @@ class GeneralNames:
             parser.visit_constant(node)  # raises its message (a string, a number too large)
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "der":
             return parser.error(f"der() may not appear inside the non-polynomial term {parser.quote(self.term)}")
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
-            return parser.error(f"{parser.quote(node)}: {node.func.id}() takes exactly one argument")
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS and what:
+            return parser.error(f"{parser.quote(node)}: {what}")
         if isinstance(node, (ast.BinOp, ast.UnaryOp)):
             return parser.disallowed_operator(node)
         return parser.disallowed(node, "call" if isinstance(node, ast.Call) else None)

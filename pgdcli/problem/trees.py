@@ -1,7 +1,8 @@
 """Expression trees: the one tree format of the problem layer, its evaluator, constructors and text.
 
-Trees are tuples: ``('num', value)``, ``('call', function, child)``, ``('neg', child)`` and
-``(op, left, right)`` with op in ``add sub mul div pow``. Their leaves differ by use:
+Trees are tuples: ``('num', value)``, ``('call', function, *children)``, ``('neg', child)`` and
+``(op, left, right)`` with op in ``add sub mul div pow`` (and the comparisons ``lt le gt ge``, only
+as the condition of ``where``). Their leaves differ by use:
 
 - ``('var',)``: the variable of a one-coordinate function (:class:`~pgdcli.problem.separable.Func1D`);
 - ``('coord', name)``: a coordinate of a non-separable part (:class:`~pgdcli.problem.separable.Joint`);
@@ -20,9 +21,37 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["FUNCTIONS", "BINARY", "evaluate_tree", "values_at", "values_by_name", "map_leaves", "leaf_names", "num",
+__all__ = ["FUNCTIONS", "SIGNATURES", "NON_SMOOTH", "COMPARISONS", "arity", "signature", "calls", "BINARY", "evaluate_tree", "values_at", "values_by_name", "map_leaves", "leaf_names", "num",
            "num_value", "is_nonneg_int", "t_neg", "t_add", "t_mul", "t_div", "t_pow", "format_number", "render_text",
            "PRECEDENCE", "SYMBOL"]
+
+def _clamp(x, lo, hi):
+    return np.minimum(np.maximum(x, lo), hi)
+
+
+def _step(x):
+    # 1 where x >= 0, so that step(x) == where(x >= 0, 1, 0); NaN stays NaN
+    return np.where(np.isnan(x), np.nan, np.where(x >= 0, 1.0, 0.0))
+
+
+def _smoothstep(edge0, edge1, x):
+    # the cubic Hermite step of shading languages: 0 below edge0, 1 above edge1, C1 in between
+    s = _clamp((x - edge0) / (edge1 - edge0), 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)
+
+
+def _where(condition, a, b):
+    # a NaN condition (a comparison of NaN) gives NaN, not the second branch
+    return np.where(np.isnan(condition), np.nan, np.where(condition != 0, a, b))
+
+
+def _comparison(operation):
+    """A comparison as 1.0 (true), 0.0 (false) or NaN (an operand is NaN), so that NaN is not hidden."""
+    def compare(a, b):
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isnan(a) | np.isnan(b), np.nan, operation(a, b) * 1.0)
+    return compare
+
 
 #: Functions allowed in expressions, with their numpy implementation (the parser's whitelist).
 FUNCTIONS = {
@@ -36,7 +65,44 @@ FUNCTIONS = {
     "cosh": np.cosh,
     "tanh": np.tanh,
     "abs": np.abs,
+    "sign": np.sign,
+    "step": _step,
+    "min": np.minimum,
+    "max": np.maximum,
+    "atan2": np.arctan2,
+    "clamp": _clamp,
+    "smoothstep": _smoothstep,
+    "where": _where,
 }
+
+#: The signature of every function of more than one argument (the others take one, ``f(x)``).
+SIGNATURES = {
+    "min": ("a", "b"),
+    "max": ("a", "b"),
+    "atan2": ("y", "x"),
+    "clamp": ("x", "lo", "hi"),
+    "smoothstep": ("edge0", "edge1", "x"),
+    "where": ("condition", "a", "b"),
+}
+
+#: Functions whose value or derivative jumps where an argument crosses a point (a kink): the
+#: march's error control needs ever smaller steps there, and interpolation converges slowly
+#: across it.
+NON_SMOOTH = ("abs", "sign", "step", "min", "max", "clamp", "smoothstep", "where", "atan2")
+
+#: The comparisons of a ``where`` condition, with their symbols.
+COMPARISONS = {"lt": " < ", "le": " <= ", "gt": " > ", "ge": " >= "}
+
+
+def arity(name: str) -> int:
+    """Number of arguments of a function of :data:`FUNCTIONS`."""
+    return len(SIGNATURES.get(name, ("x",)))
+
+
+def signature(name: str) -> str:
+    """The call a user writes, e.g. ``clamp(x, lo, hi)``."""
+    return f"{name}({', '.join(SIGNATURES.get(name, ('x',)))})"
+
 
 #: The binary node kinds and their numpy functions.
 BINARY: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
@@ -45,6 +111,10 @@ BINARY: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
     "mul": np.multiply,
     "div": np.divide,
     "pow": np.power,
+    "lt": _comparison(np.less),
+    "le": _comparison(np.less_equal),
+    "gt": _comparison(np.greater),
+    "ge": _comparison(np.greater_equal),
 }
 
 
@@ -73,7 +143,7 @@ def evaluate_tree(tree: tuple, leaf: Callable[[tuple], np.ndarray],
     """
     kind = tree[0]
     if kind == "call":
-        return functions[tree[1]](evaluate_tree(tree[2], leaf, functions))
+        return functions[tree[1]](*(evaluate_tree(child, leaf, functions) for child in tree[2:]))
     if kind == "neg":
         return np.negative(evaluate_tree(tree[1], leaf, functions))
     operation = BINARY.get(kind)
@@ -104,10 +174,18 @@ def map_leaves(tree: tuple, replace: Callable[[tuple], tuple]) -> tuple:
     if kind == "num":
         return tree
     if kind == "call":
-        return ("call", tree[1], map_leaves(tree[2], replace))
+        return ("call", tree[1], *(map_leaves(child, replace) for child in tree[2:]))
     if kind == "neg" or kind in BINARY:
         return (kind,) + tuple(map_leaves(child, replace) for child in tree[1:])
     return replace(tree)
+
+
+def calls(tree: tuple, names) -> bool:
+    """True if the tree calls one of the functions ``names``."""
+    if tree[0] == "call" and tree[1] in names:
+        return True
+    children = tree[2:] if tree[0] == "call" else tree[1:] if tree[0] == "neg" or tree[0] in BINARY else ()
+    return any(calls(child, names) for child in children)
 
 
 def leaf_names(tree: tuple, kind: str) -> frozenset[str]:
@@ -115,7 +193,7 @@ def leaf_names(tree: tuple, kind: str) -> frozenset[str]:
     if tree[0] == kind:
         return frozenset((tree[1],))
     if tree[0] == "call":
-        return leaf_names(tree[2], kind)
+        return frozenset().union(*(leaf_names(child, kind) for child in tree[2:]))
     if tree[0] == "neg" or tree[0] in BINARY:
         return frozenset().union(*(leaf_names(child, kind) for child in tree[1:]))
     return frozenset()
@@ -231,11 +309,11 @@ def t_pow(a: tuple, b: tuple) -> tuple:
 # text: for people (fewest parentheses that read right) or exact (parses back to the same tree)
 # ----------------------------------------------------------------------------------------------
 #: Python precedences, so that rendered text parses back to the same tree
-PRECEDENCE = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3, "pow": 4}
-SYMBOL = {"add": " + ", "sub": " - ", "mul": "*", "div": "/", "pow": "**"}
+PRECEDENCE = {**dict.fromkeys(COMPARISONS, 0), "add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3, "pow": 4}
+SYMBOL = {**COMPARISONS, "add": " + ", "sub": " - ", "mul": "*", "div": "/", "pow": "**"}
 # least precedence of the (left, right) operands written without parentheses; the exact text
 # also keeps a + (b + c) and a*(b*c), which are other trees than (a + b) + c and (a*b)*c
-_OPERANDS = {"add": (1, 1), "sub": (1, 2), "mul": (2, 2), "div": (2, 3), "pow": (5, 3)}
+_OPERANDS = {**dict.fromkeys(COMPARISONS, (1, 1)), "add": (1, 1), "sub": (1, 2), "mul": (2, 2), "div": (2, 3), "pow": (5, 3)}
 _OPERANDS_EXACT = {**_OPERANDS, "add": (1, 2), "mul": (2, 3)}
 
 
@@ -276,7 +354,7 @@ def _render_bare(tree: tuple, name: str, exact: bool) -> str:
     if kind in ("coord", "name"):
         return tree[1]
     if kind == "call":
-        return f"{tree[1]}({render_text(tree[2], name, exact=exact)})"
+        return f"{tree[1]}({', '.join(render_text(child, name, exact=exact) for child in tree[2:])})"
     if kind == "neg":
         return "-" + render_text(tree[1], name, 4, exact=exact)
     left, right = (_OPERANDS_EXACT if exact else _OPERANDS)[kind]
