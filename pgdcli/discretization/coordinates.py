@@ -49,6 +49,8 @@ def coordinate_infos(problem, *, march: bool):
             elements = len(c.breakpoints) - 1
             info = CoordinateInfo(c.name, tuple(c.domain), elements * (c.nodes - 1) + 1, c.discretization, c.role,
                                   tuple(c.breakpoints))
+        if c.name == problem.time and not march and slabs == "auto" and c.discretization == "chebyshev":
+            info = _switch_slabs(problem, c, info)
         if c.name == problem.time and isinstance(slabs, int) and slabs > 1:
             if c.discretization != "chebyshev":
                 raise SolverError(f"{problem.source}: solver.time_slabs: slabs need a chebyshev time coordinate, "
@@ -58,3 +60,17 @@ def coordinate_infos(problem, *, march: bool):
                                   breakpoints)
         out.append(info)
     return out
+
+
+def _switch_slabs(problem, c, info):
+    """The enrichment's time coordinate with a slab boundary at every switch point of a function of time
+    alone (``max(t - 1, 0)``): Chebyshev interpolation converges spectrally on each side. The march
+    steps across them (its slabs are its steps)."""
+    from ..problem.switches import switch_points  # not at import: the query path imports this module
+
+    points = switch_points(problem.equations, c.name, tuple(c.domain))
+    if not points:
+        return info
+    breakpoints = (float(c.domain[0]), *points, float(c.domain[1]))
+    return CoordinateInfo(c.name, tuple(c.domain), (len(breakpoints) - 1) * (c.nodes - 1) + 1, c.discretization,
+                          c.role, breakpoints)

@@ -34,6 +34,7 @@ from .model import Boundary, Coordinate, Equation, Problem, SolverOptions, Unkno
 from .second_order import INITIAL_KEYS, rate_name, reduce_to_first_order
 from .spec_checks import assign_space_roles, check_steady, check_time_derivatives
 from .spec_coordinates import parse_constants, parse_coordinate, parse_coordinate_names, parse_time
+from .switches import with_switch_elements
 from .spec_options import default_name, parse_description, parse_output, parse_problem_name, parse_solver
 from .yaml_input import MAX_SPEC_BYTES, MAX_SPEC_NODES, load_yaml
 
@@ -275,6 +276,7 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
     unknowns = tuple(u[0] for u in parsed) + tuple(u[1] for u in parsed if len(u) > 1)
     equations = _parse_equations(check, data["equations"], context, rates)
     coordinates = assign_space_roles(check, coordinates, unknowns, equations, time)
+    coordinates = with_switch_elements(coordinates, equations, time)
     if time is None and not any(c.role == "space" for c in coordinates):
         raise check.error("time", "no coordinate is named 't' and no equation has a space derivative: name the time "
                                   "coordinate ('t' or 'time: <name>') for an initial-value problem, or add "

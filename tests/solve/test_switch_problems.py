@@ -1,0 +1,116 @@
+"""Problems with switching functions (min, max, clamp): codebooks within their tolerance, or refused.
+
+problems/road_ramp.yaml (a switch in time) and problems/two_rates.yaml (a switch in an initial value).
+
+Each shipped problem is checked at 300 random points, on every face and at every corner of its box
+against solve_ivp (DOP853, rtol 1e-10, atol 1e-12) integrated here piecewise between the switch
+times this file knows, sharing nothing with the solver; the relaxation also against its closed form.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import pgdcli
+from pgdcli.adapt import INACCURATE
+
+PROBLEMS = Path(__file__).resolve().parents[2] / "problems"
+
+
+def _points(cb, rng, random=300, per_face=4):
+    """Random points of the box, points on each of its faces, and its corners: a list of dicts."""
+    coords = cb.coordinates
+    points = [{c.name: rng.uniform(*c.domain) for c in coords} for _ in range(random)]
+    for face, end in itertools.product(coords, (0, 1)):
+        for _ in range(per_face):
+            p = {c.name: rng.uniform(*c.domain) for c in coords}
+            p[face.name] = face.domain[end]
+            points.append(p)
+    points += [{c.name: c.domain[e] for c, e in zip(coords, ends)} for ends in itertools.product((0, 1), repeat=len(coords))]
+    return points
+
+
+def _piecewise_ivp(rhs, y0, t, breaks):
+    """y(t) of y' = rhs(s, y) from 0, integrated separately between the switch times ``breaks``."""
+    y = np.asarray(y0, dtype=float)
+    start = 0.0
+    for end in [b for b in breaks if b < t] + [t]:
+        if end > start:
+            y = solve_ivp(rhs, (start, end), y, method="DOP853", rtol=1e-10, atol=1e-12).y[:, -1]
+        start = end
+    return y
+
+
+def _road(s, y, k, c):
+    ramp = 0.2 * min(max(s - 1.0, 0.0), 0.5)
+    return [y[1], -k * (y[0] - ramp) - c * y[1]]
+
+
+def _road_error(cb, p):
+    ref = _piecewise_ivp(lambda s, y: _road(s, y, p["k"], p["c"]), [0.0, 0.0], p["t"], [1.0, 1.5])
+    got = cb(**p)
+    return max(abs(float(got["y"]) - ref[0]), abs(float(got["v"]) - ref[1]))
+
+
+@pytest.mark.slow
+def test_road_ramp_is_within_its_tolerance_with_slabs_at_the_kinks():
+    problem = pgdcli.load_spec(PROBLEMS / "road_ramp.yaml")
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    cb = result.codebook
+    breakpoints = cb.coordinate("t").breakpoints
+    assert any(abs(b - 1.0) < 1e-12 for b in breakpoints) and any(abs(b - 1.5) < 1e-12 for b in breakpoints)
+    worst = max(_road_error(cb, p) for p in _points(cb, np.random.default_rng(7)))
+    assert worst <= problem.solver.tolerance, worst
+
+
+@pytest.mark.slow
+def test_the_gate_refuses_a_codebook_that_interpolates_across_the_kinks():
+    text = (PROBLEMS / "road_ramp.yaml").read_text() + "  time_slabs: 1\n  max_nodes: 33\n"
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="road_ramp.yaml"))
+    assert result.status == INACCURATE and result.message.startswith("tolerance not met"), result.message
+    rep = result.codebook.report
+    where = {k: float(v) for k, v in (kv.split("=") for kv in rep["check_where"].split(", "))}
+    true = _road_error(result.codebook, where)
+    assert true == pytest.approx(rep["check_error"], rel=1e-3)  # the error the message names is the true one
+    assert true > 1e-6  # the tolerance of road_ramp.yaml
+
+
+def test_two_rates_matches_its_closed_form_and_solve_ivp():
+    problem = pgdcli.load_spec(PROBLEMS / "two_rates.yaml")
+    result = pgdcli.solve(problem)
+    assert result.accurate, result.message
+    cb = result.codebook
+    points = _points(cb, np.random.default_rng(8))
+    arrays = {name: np.array([p[name] for p in points]) for name in points[0]}
+    got = cb(**arrays)["u"]
+    u0, t = arrays["u0"], arrays["t"]
+    exact = np.where(u0 > 0, u0 * np.exp(-arrays["k"] * t), u0 * np.exp(-arrays["c"] * t))
+    assert np.max(np.abs(got - exact)) <= problem.solver.tolerance
+    for p, value in zip(points[:40], got[:40]):
+        rate = p["k"] if p["u0"] > 0 else p["c"]
+        ref = solve_ivp(lambda s, y: [-rate * y[0]], (0, p["t"]), [p["u0"]], method="DOP853", rtol=1e-10,
+                        atol=1e-12).y[0, -1]
+        assert abs(value - ref) <= problem.solver.tolerance
+
+
+def test_switch_points_of_parameters_become_element_boundaries():
+    text = """
+coordinates:
+  t: {domain: [0, 1]}
+  a: {domain: [0, 1]}
+  b: {domain: [-1, 1], elements: 2}
+unknowns:
+  u: {initial: 0}
+equations:
+  - "der(u) = -u + min(a, 0.3) + where(b**2 < 0.25, 1, 0) + max(t - a, 0)"
+"""
+    problem = pgdcli.parse_spec(text, source="switches.yaml")
+    assert problem.coordinate("a").breakpoints == pytest.approx((0.0, 0.3, 1.0), abs=1e-12)
+    assert problem.coordinate("b").breakpoints == pytest.approx((-1.0, -0.5, 0.0, 0.5, 1.0), abs=1e-12)
+    assert problem.coordinate("t").breakpoints == ()  # max(t - a, 0) switches along a line: left to resolution
