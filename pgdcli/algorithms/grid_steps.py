@@ -21,6 +21,7 @@ from .march_loop import Schedule, march_steps
 from .polynomial_rhs import NonlinearSystem
 from .stepping import Stepper, Trial
 from .step_control import LOCAL_FRACTION
+from .switch_location import SwitchLocator
 from .steppers import stepper as named_stepper
 
 __all__ = ["GridRhs", "NodeFunctions", "GridMarchFailure", "ArraySpace", "Schedule", "advance", "replay",
@@ -164,12 +165,27 @@ class ArraySpace:
     failure = GridMarchFailure
     kind = "the grid's array of nodal values"
 
-    def __init__(self, rhs: GridRhs, y: np.ndarray, slots: int):
+    def __init__(self, rhs: GridRhs, y: np.ndarray, slots: int, locate: bool = True):
         self.rhs, self.system, self.stats = rhs, rhs.system, rhs.stats
         nodes = self.system.time_basis.nodes
         self.span = float(nodes[-1] - nodes[0])
         self.buffer = np.empty((2 + slots,) + y.shape)
         self.buffer[0] = y
+        system = rhs.system
+        self.locator = None
+        if locate and system.switches:  # a replay takes the steps it is given
+            span = float(system.time_basis.nodes[-1] - system.time_basis.nodes[0])
+            self.locator = SwitchLocator(system.switches, system.params,
+                                         {p: system.bases[p].nodes for p in system.params}, rhs.indices,
+                                         system.time, span, len(system.unknowns))
+
+    def switch_cut(self, t: float, h: float) -> float | None:
+        """Where a step from t of length h must end, just before a switch at some node (None: at t + h)."""
+        return None if self.locator is None else self.locator.cut(t, h)
+
+    def past_switch(self, t: float, y: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """The right-hand side at the start of the step after a switch."""
+        return self.locator.past(self.rhs, t, y, f)
 
     def start(self, y: np.ndarray) -> np.ndarray:
         return self.buffer[0]
@@ -285,7 +301,7 @@ def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
     stepper = schedule.stepper
     out = np.empty((len(schedule.times),) + y.shape)
     out[0] = y
-    space = ArraySpace(rhs, y, stepper.slots)
+    space = ArraySpace(rhs, y, stepper.slots, locate=False)
     f = rhs(schedule.times[0], y)
     y = space.start(y)
     j = 1

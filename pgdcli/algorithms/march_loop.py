@@ -57,6 +57,7 @@ class Schedule:
     estimate: float = 0.0  # per step, the largest unknown's local error and the state's rounding, added up (max: per-step control)
     step_sizes: list = field(default_factory=list)
     weights: dict = field(default_factory=dict, repr=False)  # step -> its dense-output weights (replays)
+    switched: set = field(default_factory=set)  # steps that ended at a switch: f is taken past it (replays)
 
     def output_weights(self, k: int) -> np.ndarray:
         """The dense-output weights (nodes strictly inside, 2 + slots) of step ``k``, computed once."""
@@ -113,7 +114,7 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
     store([y])
     y = space.start(y)  # where the space keeps the state between steps (after the store: it may be overwritten)
     schedule = Schedule(stepper, times=[t], local_sum=np.zeros(len(y)))
-    h = 0.1 * span
+    h, resume = 0.1 * span, None
     watch = BlowupWatch(space.system, y, t_final, largest=space.largest)
     while t < t_final:
         # the last step takes what is left, also a remainder below the step-size floor
@@ -121,10 +122,12 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
         # a step below the floor with the state still of its initial size: a fast transient, not a blow-up
         _refuse(space, stepper, schedule, t, y, h, span, max_steps,
                 stiffness is not None and space.largest(y) <= FLOOR_GROWTH * scale0)
+        h, resume = _cut_at_switch(space, t, h, resume)
         trial = stepper.step(space, t, y, f, h)
         ratio = control.ratio(trial.error, h)
         if ratio > 1.0:
             schedule.rejected += 1
+            resume = None
             h_next = control.rejected(t, h, ratio)  # None: the estimate is the stages' noise
             h = space.after_stage_noise(h) if h_next is None else h_next
             continue
@@ -137,10 +140,22 @@ def march_steps(space, stepper: Stepper, y, nodes: np.ndarray, local_tol: float,
         _record(schedule, space, trial, t, h, t_new, outs)
         t, (y, f) = t_new, space.accept(trial)
         h = control.accepted(h, ratio)
+        if resume is not None:  # the step ended at a switch: the next starts past it, at the step it would have had
+            f, h, resume = space.past_switch(t, y, f), max(h, resume), None
+            schedule.switched.add(len(schedule.steps) - 1)
         emit(callback, MarchStep(t, t_final, len(schedule.steps), space.ranks(y), float(nodes[0])))
         if t < t_final:
             _watch(space, watch, stiffness, schedule, t, y, h)
     return schedule
+
+
+def _cut_at_switch(space, t: float, h: float, resume: float | None) -> tuple[float, float | None]:
+    """The step ended just before a switch of time at some node inside ``(t, t + h)``
+    (:mod:`pgdcli.algorithms.switch_location`), and the step to resume with after it."""
+    cut = space.switch_cut(t, h) if hasattr(space, "switch_cut") else None
+    if cut is None:
+        return h, resume
+    return cut - t, resume or h
 
 
 def _refuse(space, stepper: Stepper, schedule: Schedule, t: float, y, h: float, span: float, max_steps: int,

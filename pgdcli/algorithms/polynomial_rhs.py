@@ -22,6 +22,7 @@ from ..discretization.coordinates import coordinate_infos
 from ..discretization.separate import MAX_SEPARATION_RANK
 from ..errors import SolverError
 from ..problem.expressions import Separable, SepTerm, merge_to_function
+from ..problem.switches import time_switches
 from ..tensors.tt import TT, is_ones, tt_hadamard, tt_ones, tt_rank_one, tt_round, tt_round_many, tt_sum
 from ..tensors.cross_products import ProductCross, round_products_by_cross
 from ..tensors.tt_sketch import tt_round_sum_of_products
@@ -113,6 +114,9 @@ class NonlinearSystem:
     rhs: list[list[tuple[_Coefficient, tuple[int, ...]]]]
     initial: list[TT]
     general: list = field(default_factory=list)  # per unknown: GeneralPart of its general terms, or None
+    # the switch arguments of time and parameters, and the time's name (the march lands on their switches)
+    switches: list = field(default_factory=list)
+    time: str = "t"
     # per unknown: the warm-started cross of its products (PRODUCTS == "cross")
     product_crosses: dict = field(default_factory=dict)
 
@@ -195,7 +199,8 @@ def compile_system(problem, tolerance: float | None = None, separations: list | 
                               tuple(index[a.unknown] for a in mono)))
         rhs[s] = monomials
     initial = [_initial_train(u, problem, params, bases, delta, cap, separations) for u in problem.unknowns]
-    return NonlinearSystem(unknowns, params, bases, bases[tname], rhs, initial, general)
+    return NonlinearSystem(unknowns, params, bases, bases[tname], rhs, initial, general,
+                           switches=time_switches(problem.equations, tname, unknowns), time=tname)
 
 
 def _initial_train(u, problem, params: list, bases: dict, delta: float, cap: int, separations) -> TT:

@@ -16,9 +16,10 @@ import dataclasses
 
 import numpy as np
 
-from .trees import BINARY, NON_SMOOTH, evaluate_tree, values_at
+from .general import is_general, tree_names, tree_of
+from .trees import BINARY, NON_SMOOTH, evaluate_tree, map_leaves, values_at
 
-__all__ = ["switch_arguments", "switch_points", "with_switch_elements", "MAX_SWITCHES"]
+__all__ = ["switch_arguments", "switch_points", "with_switch_elements", "time_switches", "MAX_SWITCHES"]
 
 #: Most switch points placed on one coordinate; beyond (``step(sin(50*t))``) none are placed and
 #: automatic resolution decides.
@@ -119,3 +120,28 @@ def with_switch_elements(coordinates: tuple, equations, time: str | None) -> tup
                 c = dataclasses.replace(c, breakpoints=tuple(sorted({*map(float, ends), *points})))
         out.append(c)
     return tuple(out)
+
+
+def time_switches(equations, time: str | None, unknowns) -> list[tuple]:
+    """The switch arguments of time (and parameters, not unknowns), as trees with ``('name', n)`` leaves.
+
+    Those of the coefficients' functions of time (one-coordinate factors and non-separable parts) and
+    of the functions of the unknowns whose argument holds no unknown: each node of the parameter grid
+    meets their switches at times the formula gives, which the march lands on
+    (:mod:`pgdcli.algorithms.switch_location`).
+    """
+    if time is None:
+        return []
+    found: list[tuple] = []
+    for equation in equations:
+        for monomial, sep in equation.polynomial.items():
+            trees = [tree_of(atom) for atom in monomial if is_general(atom)]
+            trees += [map_leaves(func.tree, lambda leaf, n=name: ("name", n))
+                      for term in sep.terms for name, func in term.factors if name == time]
+            trees += [map_leaves(joint.tree, lambda leaf: ("name", leaf[1])) for joint in sep.joints]
+            for tree in trees:
+                for argument in switch_arguments(tree):
+                    names = tree_names(argument)
+                    if time in names and not names & set(unknowns) and argument not in found:
+                        found.append(argument)
+    return found

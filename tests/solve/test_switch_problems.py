@@ -114,3 +114,70 @@ equations:
     assert problem.coordinate("a").breakpoints == pytest.approx((0.0, 0.3, 1.0), abs=1e-12)
     assert problem.coordinate("b").breakpoints == pytest.approx((-1.0, -0.5, 0.0, 0.5, 1.0), abs=1e-12)
     assert problem.coordinate("t").breakpoints == ()  # max(t - a, 0) switches along a line: left to resolution
+
+
+#: A nonlinear problem (the march) with a jump (where) and a kink (max) in time.
+MARCHED = """
+coordinates:
+  t: {domain: [0, 2]}
+  k: {domain: [0.5, 2]}
+unknowns:
+  u: {initial: 1}
+equations:
+  - "der(u) = -k*u**2 + where(t < 0.7, 0, 1) + max(t - 1.3, 0)"
+solver:
+  tolerance: 1e-7
+"""
+
+
+def _marched_reference(t, k, a=1.3):
+    f = lambda s, u: [-k * u[0] ** 2 + (0.0 if s < 0.7 else 1.0) + max(s - a, 0.0)]
+    return _piecewise_ivp(f, [1.0], t, sorted([0.7, a]))[0]
+
+
+def test_the_march_ends_steps_at_switches_of_time():
+    result = pgdcli.solve(pgdcli.parse_spec(MARCHED, source="marched.yaml"))
+    assert result.accurate, result.message
+    cb = result.codebook
+    breakpoints = np.array(cb.coordinate("t").breakpoints)
+    for switch in (0.7, 1.3):  # each ends a time slab, just before the switch
+        assert np.min(np.abs(breakpoints - switch)) < 1e-12, switch
+    worst = max(abs(float(cb(**p)["u"]) - _marched_reference(p["t"], p["k"]))
+                for p in _points(cb, np.random.default_rng(9)))
+    assert worst <= 1e-7, worst
+
+
+@pytest.mark.slow
+def test_a_switch_along_a_line_of_time_and_a_parameter_is_located_and_measured():
+    """max(t - a, 0) switches at t = a: every node of a gets a time slab there, and the codebook,
+    which interpolates across the line in a, is within its tolerance or refused with its true error."""
+    text = MARCHED.replace("max(t - 1.3, 0)", "max(t - a, 0)").replace(
+        "k: {domain: [0.5, 2]}", "k: {domain: [0.5, 2]}\n  a: {domain: [0.9, 1.6]}")
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="line.yaml"))
+    cb = result.codebook
+    breakpoints = np.array(cb.coordinate("t").breakpoints)
+    assert all(np.min(np.abs(breakpoints - a)) < 1e-12 for a in cb.coordinate("a").basis().nodes)
+    if result.accurate:
+        worst = max(abs(float(cb(**p)["u"]) - _marched_reference(p["t"], p["k"], p["a"]))
+                    for p in _points(cb, np.random.default_rng(9)))
+        assert worst <= 1e-7, worst
+        return
+    assert result.status == INACCURATE, result.message
+    where = {k: float(v) for k, v in (kv.split("=") for kv in cb.report["check_where"].split(", "))}
+    true = abs(float(cb(**where)["u"]) - _marched_reference(where["t"], where["k"], where["a"]))
+    assert true == pytest.approx(cb.report["check_error"], rel=1e-3) and true > 1e-7
+
+
+def test_a_switch_of_the_unknowns_is_not_located_and_the_march_says_why(tmp_path):
+    text = """
+coordinates:
+  t: {domain: [0, 1.5]}
+  a: {domain: [0.5, 1]}
+unknowns:
+  u: {initial: a}
+equations:
+  - "der(u) = -1 + 0.5*step(0.25 - u)"
+"""
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="jump.yaml"))
+    assert not result.accurate or result.codebook is None or result.status != 0
+    assert "step(0.25 - u) has a kink or a jump" in result.message, result.message
