@@ -17,7 +17,7 @@ import dataclasses
 import numpy as np
 
 from .general import is_general, tree_names, tree_of
-from .trees import BINARY, NON_SMOOTH, evaluate_tree, map_leaves, values_at
+from .trees import BINARY, NON_SMOOTH, evaluate_tree, map_leaves, t_add, t_neg, values_at
 
 __all__ = ["switch_arguments", "switch_points", "with_switch_elements", "time_switches", "MAX_SWITCHES"]
 
@@ -36,12 +36,12 @@ def switch_arguments(tree: tuple) -> list[tuple]:
         name, args = tree[1], tree[2:]
         if name in NON_SMOOTH:
             if name in ("min", "max"):
-                found.append(("sub", args[0], args[1]))
+                found.append(_difference(args[0], args[1]))
             elif name in ("clamp", "smoothstep"):
                 x, ends = (args[0], args[1:]) if name == "clamp" else (args[2], args[:2])
-                found.extend(("sub", x, end) for end in ends)
+                found.extend(_difference(x, end) for end in ends)
             elif name == "where":
-                found.append(("sub", args[0][1], args[0][2]))
+                found.append(_difference(args[0][1], args[0][2]))
             else:  # abs, sign, step: the argument; atan2(y, x): y (its jump is at y = 0, x < 0)
                 found.append(args[0])
         for child in args:  # a where() condition is a comparison node: its operands are searched too
@@ -50,6 +50,10 @@ def switch_arguments(tree: tuple) -> list[tuple]:
         for child in tree[1:]:
             found.extend(switch_arguments(child))
     return found
+
+
+def _difference(a: tuple, b: tuple) -> tuple:
+    return t_add(a, t_neg(b))
 
 
 def _zeros(tree: tuple, domain: tuple[float, float]) -> list[float]:

@@ -155,3 +155,29 @@ def test_cli_refuses_a_bad_arity_in_one_line(tmp_path):
     spec = tmp_path / "bad.yaml"
     spec.write_text(spec_text(equations=["der(u) = -max(u)"]))
     assert_refused_in_one_line(spec, tmp_path / "bad.h5", "bad.yaml: equations[0]: 'max(u)'")
+
+
+def _equations(*texts):
+    import pgdcli
+
+    body = "".join(f"\n  - \"{text}\"" for text in texts)
+    spec = ("coordinates:\n  t: {domain: [0, 3]}\n  a: {domain: [0, 1]}\nunknowns:\n  u: {initial: 0}\n  v: {initial: 0}\n"
+            f"equations:{body}")
+    return pgdcli.parse_spec(spec, source="s.yaml").equations
+
+
+def test_switch_points_are_the_zeros_of_the_switch_arguments():
+    from pgdcli.problem.switches import switch_points
+
+    equations = _equations("der(u) = -u + clamp(t - 1, 0, 0.5) + where(t**2 < 5, 1, 0)", "der(v) = sign(a - 1/3)")
+    np.testing.assert_allclose(switch_points(equations, "t", (0.0, 3.0)), [1.0, 1.5, math.sqrt(5)], atol=1e-12)
+    np.testing.assert_allclose(switch_points(equations, "a", (0.0, 1.0)), [1 / 3], atol=1e-12)
+    assert switch_points(_equations("der(u) = step(sin(50*t))", "der(v) = 0"), "t", (0.0, 3.0)) == []  # too many
+
+
+def test_time_switches_are_those_of_time_and_parameters_only():
+    from pgdcli.problem.general import render
+    from pgdcli.problem.switches import time_switches
+
+    equations = _equations("der(u) = -u + max(t - a, 0) + max(u, 0)", "der(v) = step(t - 1)*v + min(a, 0.5)")
+    assert sorted(render(tree) for tree in time_switches(equations, "t", ["u", "v"])) == ["t - 1", "t - a"]
