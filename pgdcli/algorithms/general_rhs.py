@@ -34,7 +34,7 @@ from ..problem.general import evaluate, is_general, render, tree_names, tree_of
 from ..problem.trees import NON_SMOOTH, calls, evaluate_tree, values_by_name
 from ..tensors.tt import TT
 
-__all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries", "underflow_hint"]
+__all__ = ["CROSS_SHARE", "GeneralPart", "general_monomials", "report_entries", "switching_terms", "underflow_hint"]
 
 #: Share of the stage rounding's RMS budget given to the cross.
 CROSS_SHARE = 0.5
@@ -209,12 +209,17 @@ def underflow_hint(parts: Sequence, stats: dict) -> str:
     if stats.get("cross_nonfinite"):
         return ("; or a function of the unknowns is undefined there: its values were not finite "
                 f"{stats['cross_nonfinite']} times, e.g. sqrt or log of a negative number, or a division by zero")
-    kinks = sorted({render(tree) for part in parts for _, trees in part.monomials for tree in trees
-                    if calls(tree, NON_SMOOTH)})
+    kinks = switching_terms(parts)
     if kinks:
         return (f"; or not smooth: {', '.join(kinks)} has a kink or a jump where an argument crosses a switch point, "
                 "and every node of the parameter grid marches with the same steps")
     return ""
+
+
+def switching_terms(parts: Sequence) -> list[str]:
+    """The general terms (as text) that call a switching function of the unknowns (``max(-y, 0)``)."""
+    return sorted({render(tree) for part in parts or () if part is not None for _, trees in part.monomials
+                   for tree in trees if calls(tree, NON_SMOOTH)})
 
 
 def report_entries(stats: dict) -> dict:

@@ -16,12 +16,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..tensors.cross import tt_point_function, tt_values_at
-from .jacobian import ArrayJacobian, jacobian_at, stiffest_rate, time_derivative
+from .jacobian import ArrayJacobian, autonomous, jacobian_at, stiffest_rate, time_derivative
 from .march_loop import Schedule, march_steps
 from .polynomial_rhs import NonlinearSystem
 from .stepping import Stepper, Trial
 from .step_control import LOCAL_FRACTION
-from .switch_location import SwitchLocator
+from .switch_location import SwitchLocator, past_switch
 from .steppers import stepper as named_stepper
 
 __all__ = ["GridRhs", "NodeFunctions", "GridMarchFailure", "ArraySpace", "Schedule", "advance", "replay",
@@ -171,21 +171,20 @@ class ArraySpace:
         self.span = float(nodes[-1] - nodes[0])
         self.buffer = np.empty((2 + slots,) + y.shape)
         self.buffer[0] = y
-        system = rhs.system
+        system, self.locate = rhs.system, locate  # a replay takes the steps it is given: it locates none
         self.locator = None
-        if locate and system.switches:  # a replay takes the steps it is given
-            span = float(system.time_basis.nodes[-1] - system.time_basis.nodes[0])
+        if system.switches:
             self.locator = SwitchLocator(system.switches, system.params,
                                          {p: system.bases[p].nodes for p in system.params}, rhs.indices,
-                                         system.time, span, len(system.unknowns))
+                                         system.time, self.span, len(system.unknowns))
 
     def switch_cut(self, t: float, h: float) -> float | None:
         """Where a step from t of length h must end, just before a switch at some node (None: at t + h)."""
-        return None if self.locator is None else self.locator.cut(t, h)
+        return self.locator.cut(t, h) if self.locate and self.locator is not None else None
 
     def past_switch(self, t: float, y: np.ndarray, f: np.ndarray) -> np.ndarray:
         """The right-hand side at the start of the step after a switch."""
-        return self.locator.past(self.rhs, t, y, f)
+        return past_switch(self.rhs, t, y, f, self.span)
 
     def start(self, y: np.ndarray) -> np.ndarray:
         return self.buffer[0]
@@ -228,7 +227,9 @@ class ArraySpace:
 
     def jacobian(self, t: float, y: np.ndarray) -> ArrayJacobian:
         """``df/du`` (exact) and ``df/dt`` at the nodes, for linearly implicit steppers."""
-        return ArrayJacobian(jacobian_at(self.rhs, t, y), time_derivative(self.rhs, t, y, self.span))
+        if self.locator is None or autonomous(self.rhs):
+            return ArrayJacobian(jacobian_at(self.rhs, t, y), time_derivative(self.rhs, t, y, self.span))
+        return ArrayJacobian(jacobian_at(self.rhs, t, y), self.locator.time_derivative(self.rhs, t, y))
 
     def decay_rate(self, t: float, y: np.ndarray) -> float:
         """The fastest decay rate of the exact Jacobian at (up to 256 of) the nodes (stiffness detection)."""
@@ -311,6 +312,8 @@ def replay(rhs: GridRhs, y: np.ndarray, schedule: Schedule) -> np.ndarray:
                              weights=schedule.output_weights(k))
         j += len(outs)
         y, f = space.accept(trial, copy=False)  # the next trial copies f into its first stage first
+        if k in schedule.switched:  # as the march: the next step starts past the switch it ended at
+            f = space.past_switch(t_new, y, f)
     return out
 
 

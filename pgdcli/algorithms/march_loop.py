@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import SolverError
 from ..progress import MarchStep, emit
 from .blowup import BlowupWatch
-from .general_rhs import underflow_hint
+from .general_rhs import switching_terms, underflow_hint
 from .stepping import Stepper
 from .stiffness import StiffnessDetected, StiffnessWatch
 from .step_control import MAX_GROWTH_OF_NORM, MIN_STEP, StepControl, output_times, step_refusal
@@ -165,12 +165,19 @@ def _refuse(space, stepper: Stepper, schedule: Schedule, t: float, y, h: float, 
     refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
                            lambda: underflow_hint(space.system.general, space.stats), stepper.title,
                            stepper.order, stepper.explicit)
-    if refusal and switch and h < MIN_STEP * span:
+    if refusal and switch and h < MIN_STEP * span and not _at_a_kink(space, t, y, span):
         raise StiffnessDetected.floor(stepper.title, t, MIN_STEP * span)
     if refusal and switch and stepper.explicit and h * max_steps < span:  # at the cap, far from the end
         raise StiffnessDetected.capped(stepper.title, t, h, max_steps, span)
     if refusal:
         raise space.failure(refusal, t, y)
+
+
+def _at_a_kink(space, t: float, y, span: float) -> bool:
+    """Steps below the floor at a switch of the unknowns (a general term's kink or jump), not in a transient
+    faster than the floor: the Jacobian, which a transient that fast shows as a decay rate above
+    ``1 / floor``, decays slower. The march then stops and names the switching term."""
+    return bool(switching_terms(space.system.general)) and space.decay_rate(t, y) * MIN_STEP * span < 1.0
 
 
 def _watch(space, blowup_watch: BlowupWatch, stiffness: StiffnessWatch | None, schedule: Schedule, t: float, y,

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..problem.general import evaluate
 
-__all__ = ["SwitchLocator"]
+__all__ = ["SwitchLocator", "past_switch"]
 
 #: Bisection stops when the bracket is this fraction of the time domain.
 BRACKET = 1e-13
@@ -83,23 +83,49 @@ class SwitchLocator:
         low = t + MARGIN * self.span  # a switch closer to the start: the one just landed on, left inside
         if low >= t + h:
             return None
+        before = self.before(low, t + h)
+        if before is None or t + h - before < 10 * BRACKET * self.span:
+            return None  # none, or a switch at the very end of the step
+        self.located += 1
+        return before
+
+    def before(self, low: float, high: float) -> float | None:
+        """Just before (within :data:`BRACKET`) the earliest sign change at any node in ``(low, high)``, or None."""
         start = np.sign(self.values(low))
-        changes = start * np.sign(self.values(t + h)) < 0
+        changes = start * np.sign(self.values(high)) < 0
         if not changes.any():
             return None
-        high = t + h
         while high - low > BRACKET * self.span:  # bisection on the earliest sign change at any node
             mid = 0.5 * (low + high)
             if (changes & (start * np.sign(self.values(mid)) < 0)).any():
                 high = mid
             else:
                 low = mid
-        if t + h - high < 10 * BRACKET * self.span:
-            return None  # a switch at the very end of the step
-        self.located += 1
         return low
 
     def past(self, rhs, t: float, y: np.ndarray, f: np.ndarray) -> np.ndarray:
-        """The right-hand side just past the switch a step ended before: an Euler nudge of ``MARGIN / 10``."""
-        delta = 0.1 * MARGIN * self.span
-        return rhs(t + delta, y + delta * f)
+        """The right-hand side just past the switch a step ended before (:func:`past_switch`)."""
+        return past_switch(rhs, t, y, f, self.span)
+
+    def time_derivative(self, rhs, t: float, y: np.ndarray) -> np.ndarray:
+        """``df/dt`` at ``(t, y)`` on the smooth piece a step from t marches on (linearly implicit steppers).
+
+        A central difference would straddle the switch the previous step ended at: a one-sided
+        difference of second order, from just past t (as :func:`past_switch`), over a stencil of
+        ``2 delta`` (``delta`` the relative ``eps^(1/3)`` of the time scale) shortened to end before
+        the next switch at any node.
+        """
+        start = t + 0.1 * MARGIN * self.span
+        delta = np.finfo(float).eps ** (1.0 / 3.0) * max(abs(t), self.span)
+        before = self.before(start, start + 2.0 * delta)
+        if before is not None:
+            delta = max(0.5 * (before - start), 0.1 * BRACKET * self.span)
+        f0, f1, f2 = (rhs(start + k * delta, y) for k in range(3))
+        return (4.0 * f1 - 3.0 * f0 - f2) / (2.0 * delta)
+
+
+def past_switch(rhs, t: float, y: np.ndarray, f: np.ndarray, span: float) -> np.ndarray:
+    """The right-hand side just past the switch a step ended before: an Euler nudge of ``MARGIN / 10``
+    of the time domain's length ``span``, so that the next step's first stage is on the switch's far side."""
+    delta = 0.1 * MARGIN * span
+    return rhs(t + delta, y + delta * f)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SolverError
+from ..problem.switches import switch_points
 from .basis import make_basis
 
 __all__ = ["CoordinateInfo", "coordinate_infos"]
@@ -66,8 +67,6 @@ def _switch_slabs(problem, c, info):
     """The enrichment's time coordinate with a slab boundary at every switch point of a function of time
     alone (``max(t - 1, 0)``): Chebyshev interpolation converges spectrally on each side. The march
     steps across them (its slabs are its steps)."""
-    from ..problem.switches import switch_points  # not at import: the query path imports this module
-
     points = switch_points(problem.equations, c.name, tuple(c.domain))
     if not points:
         return info
