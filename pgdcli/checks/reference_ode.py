@@ -15,6 +15,7 @@ from ..errors import SolverError
 from ..problem.expressions import format_monomial
 from ..problem.general import evaluate as general_tree_values
 from ..problem.general import is_general, tree_of
+from ..problem.switches import switch_points
 from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, count_evaluation,
                              checked_params, checked_times, chunk_executor, chunk_size_for, run_in_chunks,
                              sample_subset)
@@ -216,30 +217,30 @@ def _integrate(problem, params, S, t0, times, method, rtol, atol, max_evaluation
         options["lband"] = options["uband"] = q - 1
     # Integrate from output time to output time, so that every reported value is the end of a real
     # step: dense output (t_eval) of DOP853 is an order lower and was measured 30x less accurate.
+    # A switch of time alone (step(t - 2)) also ends a segment: no step straddles its kink or jump.
+    stops = _switch_gaps(problem, t0, float(times.max()))
     y = y0.reshape(-1)
     t_prev, step = t0, None
     try:
         with np.errstate(all="ignore"):
             for j in np.flatnonzero(late):
                 t_next = float(times[j])
-                first = None if step is None else min(step, t_next - t_prev)
-                sol = solve_ivp(system, (t_prev, t_next), y, method=method, rtol=rtol, atol=atol,
-                                first_step=first, **options)
-                if sol.status != 0:
-                    where = f" at {problem.time} = {sol.t[-1]:.6g}" if sol.t.size else ""
-                    return None, scores(system, S), f"integration failed{where}: {sol.message}"
-                y = sol.y[:, -1]
+                for left, right in [(a, b) for a, b in stops if t_prev < b and a < t_next] + [(t_next, None)]:
+                    if left > t_prev and not (right is None and any(a < left <= b for a, b in stops)):
+                        first = None if step is None else min(step, left - t_prev)
+                        sol = solve_ivp(system, (t_prev, left), y, method=method, rtol=rtol, atol=atol,
+                                        first_step=first, **options)
+                        if sol.status != 0:
+                            where = f" at {problem.time} = {sol.t[-1]:.6g}" if sol.t.size else ""
+                            return None, scores(system, S), f"integration failed{where}: {sol.message}"
+                        y, t_prev, step = sol.y[:, -1], left, _next_step(sol.t, step)
+                    if right is not None and right < t_next:  # across the switch: one Euler step past it
+                        y, t_prev, step = y + (right - t_prev) * system(right, y), right, None
                 values = y.reshape(S, q)
                 finite = np.isfinite(values).all(axis=1)
                 if not finite.all():
                     return None, ~finite, f"the solution is not finite at {problem.time} = {t_next:.6g} (blow-up)"
                 out[:, :, j] = values
-                steps = np.diff(sol.t)  # the last step is cut short by t_next: seed the next segment
-                if steps.size >= 2:  # with the one before it
-                    step = float(steps[-2])
-                elif step is None and steps.size:
-                    step = float(steps[-1])
-                t_prev = t_next
     except ReferenceBudgetExceeded:
         return None, scores(system, S), (
             f"gave up after {max_evaluations} right-hand side evaluations (stiff? try --method Radau or BDF)"
@@ -247,6 +248,24 @@ def _integrate(problem, params, S, t0, times, method, rtol, atol, max_evaluation
     except (np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError) as exc:
         return None, scores(system, S), f"integration failed: {' '.join(str(exc).split()) or type(exc).__name__}"
     return out, np.zeros(S, dtype=bool), ""
+
+
+def _switch_gaps(problem, t0: float, t1: float) -> list[tuple[float, float]]:
+    """``(left, right)`` around every switch of time alone in ``(t0, t1)``: a few units in the last place
+    either side, so that the right-hand side is evaluated on one side of the switch in a segment."""
+    if not problem.time:
+        return []
+    return [(s - 8 * np.spacing(s), s + 8 * np.spacing(s))
+            for s in switch_points(problem.equations, problem.time, (t0, t1))]
+
+
+def _next_step(t: np.ndarray, step: float | None) -> float | None:
+    """The first step of the next segment: the last step is cut short by the segment's end, so the one
+    before it."""
+    steps = np.diff(t)
+    if steps.size >= 2:
+        return float(steps[-2])
+    return float(steps[-1]) if step is None and steps.size else step
 
 
 def scores(system: CompiledSystem, S: int) -> np.ndarray:

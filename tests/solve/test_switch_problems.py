@@ -181,3 +181,39 @@ equations:
     result = pgdcli.solve(pgdcli.parse_spec(text, source="jump.yaml"))
     assert not result.accurate or result.codebook is None or result.status != 0
     assert "step(0.25 - u) has a kink or a jump" in result.message, result.message
+
+
+#: A stiff relaxation (rates up to 5000) whose forcing jumps at t = 1.7, with a switching function of
+#: the unknown in its exact Jacobian (min(u, 3) stays u: no switch along the trajectories).
+STIFF_JUMP = """
+coordinates:
+  t: {domain: [0, 3]}
+  k: {domain: [1000, 5000]}
+unknowns:
+  u: {initial: 2}
+equations:
+  - "der(u) = -k*(u - cos(t)) - u**3 + cos(t)**3 + 0.5*k*step(t - 1.7) - 0.1*min(u, 3)"
+solver:
+  tolerance: 1e-5
+"""
+
+
+@pytest.mark.slow
+def test_a_stiff_march_with_rodas4_ends_its_steps_at_a_switch_of_time():
+    result = pgdcli.solve(pgdcli.parse_spec(STIFF_JUMP, source="stiff_jump.yaml"))
+    assert result.accurate, result.message
+    cb = result.codebook
+    assert cb.report["integrator"] == "rodas4", cb.report["integrator_reason"]
+    assert np.min(np.abs(np.array(cb.coordinate("t").breakpoints) - 1.7)) < 1e-12
+    rng = np.random.default_rng(11)
+    points = [{"t": t, "k": k} for t, k in zip(rng.uniform(0, 3, 40), rng.uniform(1000, 5000, 40))]
+    points += [{"t": t, "k": k} for t in (1.7 - 1e-3, 1.7 + 1e-3, 3.0) for k in (1000.0, 5000.0)]
+    for p in points:
+        k = p["k"]
+        f = lambda s, u: [-k * (u[0] - np.cos(s)) - u[0] ** 3 + np.cos(s) ** 3 + (0.5 * k if s >= 1.7 else 0.0)
+                          - 0.1 * min(u[0], 3.0)]
+        y, start = np.array([2.0]), 0.0
+        for end in [e for e in (1.7,) if e < p["t"]] + [p["t"]]:
+            y = solve_ivp(f, (start, end), y, method="Radau", rtol=1e-11, atol=1e-13).y[:, -1]
+            start = end
+        assert abs(float(cb(**p)["u"]) - y[0]) <= 1e-5, p
