@@ -161,16 +161,19 @@ def _cut_at_switch(space, t: float, h: float, resume: float | None) -> tuple[flo
 def _refuse(space, stepper: Stepper, schedule: Schedule, t: float, y, h: float, span: float, max_steps: int,
             switch: bool) -> None:
     """Raise when the march cannot try a step of length ``h`` (the caps): ``space.failure``, or with ``switch``
-    (``solver.integrator: auto``) :class:`StiffnessDetected` for an explicit step below the floor."""
+    (``solver.integrator: auto``) :class:`StiffnessDetected` for an explicit step below the floor, or at
+    ``max_steps`` far from the end (not at a kink of a switching term: that one is named)."""
     refusal = step_refusal(len(schedule.steps), schedule.rejected, max_steps, h, span,
                            lambda: underflow_hint(space.system.general, space.stats), stepper.title,
                            stepper.order, stepper.explicit)
-    if refusal and switch and h < MIN_STEP * span and not _at_a_kink(space, t, y, span):
-        raise StiffnessDetected.floor(stepper.title, t, MIN_STEP * span)
-    if refusal and switch and stepper.explicit and h * max_steps < span:  # at the cap, far from the end
-        raise StiffnessDetected.capped(stepper.title, t, h, max_steps, span)
-    if refusal:
-        raise space.failure(refusal, t, y)
+    if not refusal:
+        return
+    if switch and not _at_a_kink(space, t, y, span):
+        if h < MIN_STEP * span:
+            raise StiffnessDetected.floor(stepper.title, t, MIN_STEP * span)
+        if stepper.explicit and h * max_steps < span:  # at the cap, far from the end
+            raise StiffnessDetected.capped(stepper.title, t, h, max_steps, span)
+    raise space.failure(refusal, t, y)
 
 
 def _at_a_kink(space, t: float, y, span: float) -> bool:
