@@ -29,7 +29,8 @@ killed :data:`ALLOWED_FAILURES` workers, or a scheduler gone away, is a
 The executor in effect, :func:`current`, is set for a block by :func:`using`; :func:`pgdcli.solve`
 sets it from its ``executor`` argument, so the layers below reach it without every signature
 between them carrying it. Imports nothing of the package but its errors and its BLAS limiter (a leaf
-every layer may use), and Dask only inside the methods of a DaskExecutor.
+every layer may use); its memory pages (numpy) only in a worker's first task, and Dask only inside the
+methods of a DaskExecutor.
 """
 
 from __future__ import annotations
@@ -195,10 +196,20 @@ class ProcessExecutor(Executor):
             self._pool = None
 
 
+_WORKER_READY = False
+
+
 def _one_blas_thread(fn: Callable, *args):
     """A task in a worker: ``fn(*args)`` on one BLAS thread (:func:`pgdcli.blas.one_blas_thread`): the
     workers are the parallelism, and a task computes the same floats wherever it runs
-    (:func:`pgdcli.solve` runs on one BLAS thread too)."""
+    (:func:`pgdcli.solve` runs on one BLAS thread too). The worker's allocator reuses freed memory as
+    this process's does (:func:`pgdcli.pages.reuse_freed_memory`: Dask's workers turn that off)."""
+    global _WORKER_READY
+    if not _WORKER_READY:
+        from .pages import reuse_freed_memory  # numpy: not loaded by a command that runs no task
+
+        reuse_freed_memory()
+        _WORKER_READY = True
     with one_blas_thread():
         return fn(*args)
 

@@ -11,17 +11,26 @@ more. Two callers want otherwise, both measured side by side in one process:
   across all its rows: in huge pages each first write waited on the kernel's compaction.
 
 Where the platform has no ``madvise`` flags (not Linux) both are plain numpy arrays.
+
+Freed memory is the third case: :func:`reuse_freed_memory` lets a worker process reuse the blocks
+that numpy frees (a march's stages, a batch's results) instead of returning them to the kernel and
+faulting fresh zeroed pages in at every allocation.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import mmap
 
 import numpy as np
 
-__all__ = ["HUGE_PAGE", "huge_page_array", "small_page_array"]
+__all__ = ["HUGE_PAGE", "huge_page_array", "small_page_array", "reuse_freed_memory"]
 
 HUGE_PAGE = 1 << 21  # bytes (x86-64 and arm64 with 4 KiB base pages)
+#: Blocks up to this size come from the heap, not from a mapping of their own (glibc's largest
+#: automatic threshold on 64-bit systems); the heap keeps twice as much free before giving it back.
+MMAP_THRESHOLD = 1 << 25
 
 
 def huge_page_array(values: int) -> np.ndarray:
@@ -57,3 +66,28 @@ def small_page_array(rows: int, columns: int) -> np.ndarray:
     buffer = mmap.mmap(-1, rows * columns * 8)
     buffer.madvise(mmap.MADV_NOHUGEPAGE)
     return np.frombuffer(buffer, dtype=np.float64).reshape(rows, columns)
+
+
+def reuse_freed_memory() -> bool:
+    """Let glibc's allocator keep freed blocks of up to :data:`MMAP_THRESHOLD` bytes for reuse.
+
+    glibc raises its mmap threshold as a process frees large blocks, so that arrays freed and
+    allocated again (a batch of nodes marched step after step) reuse the same memory. Setting any
+    of its thresholds in the environment turns that off, and Dask's nanny does so for its workers
+    (``MALLOC_TRIM_THRESHOLD_``, to return memory to the system at once): every array above
+    128 KiB is then a fresh mapping whose pages are faulted in and zeroed, which makes a march in
+    a worker several times slower than here. The thresholds set here are the ones glibc reaches by
+    itself in a process that runs the same work.
+
+    Returns
+    -------
+    bool
+        Whether the allocator took them (False where it is not glibc's).
+    """
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
+    return bool(mallopt(m_mmap_threshold, MMAP_THRESHOLD)) and bool(mallopt(m_trim_threshold, 2 * MMAP_THRESHOLD))

@@ -43,7 +43,7 @@ LEAVES = {
     "progress": (),  # the typed progress events of a solve
     "blas": (),  # BLAS on one thread while a block of work runs: the one limiter
     "tuning": ("pgdcli.errors",),  # the machine-specific tuning constants and their environment overrides
-    "executors": ("pgdcli.errors", "pgdcli.blas"),  # where independent tasks run: here, a pool, a Dask cluster
+    "executors": ("pgdcli.errors", "pgdcli.blas", "pgdcli.pages"),  # where independent tasks run: here, a pool, a Dask cluster
     "cluster": ("pgdcli.errors", "pgdcli.executors"),  # opening a Dask cluster
 }
 

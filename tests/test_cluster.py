@@ -7,6 +7,7 @@ One cluster of two single-threaded worker processes serves the module.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import threading
@@ -19,6 +20,7 @@ from click.testing import CliRunner
 from conftest import PROBLEMS
 
 import pgdcli
+import pgdcli.pages
 from pgdcli import Codebook, executors, parse_spec
 from pgdcli.checks.verify import verify
 from pgdcli.cli.main import cli
@@ -99,41 +101,104 @@ def cross_here():
     return result
 
 
-def test_a_cross_march_build_on_the_cluster_is_the_local_codebook_bit_for_bit(cluster, cross_here):
+def test_a_cross_march_build_on_the_cluster_is_the_local_codebook_bit_for_bit(cluster, cross_here, monkeypatch):
     executor = executors.as_executor(cluster)
+    sent = []
+    scatter = cluster.scatter
+    monkeypatch.setattr(cluster, "scatter", lambda data, **kw: sent.append(type(data[0]).__name__) or scatter(data, **kw))
     result = pgdcli.solve(parse_spec(CROSS, source="predator_prey4.yaml"), executor=executor)
     assert result.converged, result.message
     assert executor.finished >= 10  # the batches ran as tasks
+    assert "2 marches" in result.message and sent == ["_Trajectories"] * 2  # each march's steps sent once
     assert result.codebook.report["march"] == "cross"
     assert same_codebook(result.codebook, cross_here.codebook)
+
+
+def _page_faults_of_freed_arrays(_) -> int:
+    """Pages faulted in while a 1 MiB array is allocated, written and freed 100 times."""
+    import resource
+
+    np.ones(1 << 17)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(100):
+        np.ones(1 << 17).sum()
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+
+
+@pytest.mark.skipif(not pgdcli.pages.reuse_freed_memory(), reason="not glibc's allocator")
+def test_a_task_on_a_worker_reuses_freed_memory(cluster):
+    # Dask starts its workers with MALLOC_TRIM_THRESHOLD_ set: without pgdcli's setting every array
+    # above 128 KiB would be a fresh mapping, its 256 pages faulted in again at each of the 100 rounds
+    [faults] = executors.as_executor(cluster).map(_page_faults_of_freed_arrays, [None])
+    assert faults < 100 * 256 // 10
 
 
 def _worker_pids(client) -> list[int]:
     return list(client.run(os.getpid).values())
 
 
+class KillAfter:
+    """A scheduler plugin that kills (SIGKILL) the process of a worker running a task at the moment the
+    scheduler records the ``count``-th task finished: the kill lands after exactly that many tasks, with
+    work in flight on the worker killed, however fast the tasks run. The nanny starts another worker."""
+
+    name = "kill-after"
+
+    def __init__(self, scheduler, count: int):
+        self.scheduler, self.count, self.finished = scheduler, count, 0
+        self.killed: tuple | None = None  # (pid, tasks finished then, tasks lost in flight)
+
+    def transition(self, key, start, finish, *args, **kwargs):
+        if self.killed is not None or (start, finish) != ("processing", "memory"):
+            return
+        self.finished += 1
+        running = {ws: [ts for ts in ws.processing if ts.key != key] for ws in self.scheduler.workers.values()}
+        victim = max(running, key=lambda ws: len(running[ws]), default=None)
+        if self.finished >= self.count and victim is not None and running[victim]:
+            os.kill(victim.pid, signal.SIGKILL)
+            self.killed = (victim.pid, self.finished, len(running[victim]))
+
+
+class Killed(SimpleNamespace):
+    """What :class:`KillAfter` did: ``pid``, ``finished`` (tasks finished then), ``lost`` (tasks in flight)."""
+
+
+@contextlib.contextmanager
+def killing_a_worker_after(client, count: int):
+    """A worker process killed once ``count`` tasks have finished, while the block runs (the scheduler of a
+    LocalCluster runs on this machine: it can kill its workers' processes)."""
+    found = Killed()
+    client.run_on_scheduler(_install_kill_after, count=count)
+    try:
+        yield found
+    finally:
+        killed = client.run_on_scheduler(_remove_kill_after)
+        if killed is not None:
+            found.pid, found.finished, found.lost = killed
+        client.wait_for_workers(2, timeout=60)
+
+
+def _install_kill_after(dask_scheduler, count):  # runs on the scheduler's event loop
+    dask_scheduler.add_plugin(KillAfter(dask_scheduler, count))
+
+
+def _remove_kill_after(dask_scheduler):
+    killed = dask_scheduler.plugins[KillAfter.name].killed
+    dask_scheduler.remove_plugin(name=KillAfter.name)
+    return killed
+
+
 @pytest.mark.slow
 def test_a_worker_killed_mid_build_gives_the_same_codebook(cluster, small_batches):
     here = pgdcli.solve(parse_spec(CROSS, source="predator_prey4.yaml"))
     executor = executors.as_executor(cluster)
-    killed = []
-
-    def kill_one():  # once a few batches are in, a worker process dies (the nanny starts another)
-        while executor.finished < 10:
-            time.sleep(0.01)
-        pid = _worker_pids(cluster)[0]
-        os.kill(pid, signal.SIGKILL)
-        killed.append((pid, executor.finished))
-
-    thread = threading.Thread(target=kill_one, daemon=True)
-    thread.start()
-    result = pgdcli.solve(parse_spec(CROSS, source="predator_prey4.yaml"), executor=executor)
-    thread.join(timeout=60)
-    assert killed and executor.finished > killed[0][1] + 10  # killed mid-build
+    with killing_a_worker_after(cluster, 10) as plugin:
+        result = pgdcli.solve(parse_spec(CROSS, source="predator_prey4.yaml"), executor=executor)
+    assert plugin.finished == 10 and plugin.lost >= 1  # killed mid-build, work lost
+    assert executor.finished > 10 + 10
     assert result.converged, result.message
     assert same_codebook(result.codebook, here.codebook)
-    cluster.wait_for_workers(2, timeout=60)
-    assert killed[0][0] not in _worker_pids(cluster)
+    assert plugin.pid not in _worker_pids(cluster)
 
 
 @pytest.mark.slow
@@ -172,22 +237,12 @@ def test_verify_on_the_cluster_is_verify_here_bit_for_bit(cluster, cross_here):
 def test_a_worker_killed_mid_verify_gives_the_same_report(cluster, cross_here):
     here = verify(cross_here.codebook, samples=2000, max_corners=0, times=2, jobs=1)
     executor = executors.as_executor(cluster)
-    killed = []
-
-    def kill_one():
-        while executor.finished < 3:
-            time.sleep(0.01)
-        os.kill(_worker_pids(cluster)[-1], signal.SIGKILL)
-        killed.append(executor.finished)
-
-    thread = threading.Thread(target=kill_one, daemon=True)
-    thread.start()
-    there = verify(cross_here.codebook, samples=2000, max_corners=0, times=2, executor=executor)
-    thread.join(timeout=60)
-    assert killed and killed[0] < 16 == executor.finished  # 16 chunks of 125 points, killed mid-way
+    with killing_a_worker_after(cluster, 3) as plugin:
+        there = verify(cross_here.codebook, samples=2000, max_corners=0, times=2, executor=executor)
+    assert plugin.finished == 3 and plugin.lost >= 1 and executor.finished == 16  # 16 chunks of 125 points
     for u in here.reference:
         assert np.array_equal(here.reference[u], there.reference[u])
-    cluster.wait_for_workers(2, timeout=60)
+    assert plugin.pid not in _worker_pids(cluster)
 
 
 def test_verify_on_the_cluster_stops_at_its_time_budget(cluster, cross_here, tmp_path):
