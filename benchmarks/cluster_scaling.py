@@ -21,10 +21,13 @@ to the build here, bit for bit.
 
 The cost model for N workers: ``T(N) = S + D(1) rounds(N) / (rounds(1) e)``, with S the serial
 seconds, D(1) the distributed seconds on one worker, rounds(N) the rounds of tasks on N workers
-(the tasks of one call of the executor run N at a time; the calls, a half sweep of the cross each,
-one after another: a build cannot use more workers than a half sweep has batches) and e the
+(the tasks of one call of the executor run N at a time; the calls, one core's fibres of a half sweep
+each, one after another: a build cannot use more workers than a call has batches) and e the
 efficiency measured from 1 to 2 workers; on this machine the client shares the 2 cores with the
-workers, so e is a lower bound. The table is printed and written to
+workers, so e is a lower bound. The bytes of the tasks' results (every trajectory travels back to
+the calling process) are counted too. ``--chain`` also builds problems/chain15.yaml on 2 workers
+and checks it with pgd verify and with solve_ivp at random points (the chain written from its
+physics). The table is printed and written to
 ``benchmarks/results/cluster_scaling.md``.
 """
 
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import os
 import statistics
 import sys
 import time
@@ -54,7 +58,7 @@ class Timed(executors.Executor):
 
     def __init__(self, inner: executors.Executor):
         super().__init__()
-        self.inner, self.workers, self.seconds, self.tasks = inner, inner.workers, 0.0, 0
+        self.inner, self.workers, self.seconds, self.tasks, self.bytes = inner, inner.workers, 0.0, 0, 0
         self.calls: list[int] = []
 
     def submit(self, fn, *args):
@@ -67,6 +71,7 @@ class Timed(executors.Executor):
             for value in results:
                 self.tasks += 1
                 self.calls[-1] += 1
+                self.bytes += getattr(value, "nbytes", 0)  # a task's result, sent back to this process
                 yield value
         finally:
             self.seconds += time.perf_counter() - start
@@ -94,7 +99,7 @@ def timed_run(work, inner) -> dict:
     value = work(timed)
     wall = time.perf_counter() - start
     return {"wall": wall, "distributed": timed.seconds, "serial": wall - timed.seconds, "tasks": timed.tasks,
-            "calls": [k for k in timed.calls if k], "value": value}
+            "calls": [k for k in timed.calls if k], "bytes": timed.bytes, "value": value}
 
 
 def build(problem, inner) -> dict:
@@ -114,18 +119,24 @@ def median(runs: list[dict], key: str) -> float:
     return statistics.median(r[key] for r in runs)
 
 
+def gigabytes(count: int) -> str:
+    """Bytes of the tasks' results as GB ('-' where the executor hands out futures, as for verify)."""
+    return f"{count / 1e9:.2f}" if count else "-"
+
+
 def rounds(calls: list[int], workers: int) -> int:
     """Rounds of tasks on ``workers``: a call's tasks run ``workers`` at a time, the calls one after another."""
     return sum(-(-k // workers) for k in calls)
 
 
 def table(name: str, runs: dict, here_key: str, lines: list[str]) -> None:
-    lines += [f"### {name}", "", "| configuration | wall s | distributed s | serial s | tasks | vs here |",
-              "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines += [f"### {name}", "", "| configuration | wall s | distributed s | serial s | tasks | results GB | vs here |",
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     here = median(runs[here_key], "wall")
     for label, found in runs.items():
         lines.append(f"| {label} | {median(found, 'wall'):.1f} | {median(found, 'distributed'):.1f} | "
-                     f"{median(found, 'serial'):.1f} | {found[0]['tasks']} | {here / median(found, 'wall'):.2f}x |")
+                     f"{median(found, 'serial'):.1f} | {found[0]['tasks']} | {gigabytes(found[0]['bytes'])} | "
+                     f"{here / median(found, 'wall'):.2f}x |")
     d1, d2 = median(runs["dask 1"], "distributed"), median(runs["dask 2"], "distributed")
     serial = median(runs["dask 2"], "serial")
     calls = runs["dask 1"][0]["calls"]
@@ -141,6 +152,68 @@ def table(name: str, runs: dict, here_key: str, lines: list[str]) -> None:
         wall = serial + d1 * rounds(calls, n) / rounds(calls, 1) / (efficiency if n > 1 else 1.0)
         lines.append(f"| {n} | {wall:.1f} | {here / wall:.2f}x |")
     lines += [f"| limit | {serial:.1f} (the serial part) | {here / serial:.2f}x |", ""]
+
+
+def chain_rhs(p: dict):
+    """The chain of problems/chain15.yaml written from its physics (three bodies between two walls on
+    springs of force k e + beta e^3 at extension e, damped, the first driven by A cos(2 t)), not from the
+    spec: ``rhs(t, y)`` of y = (x1, x2, x3, v1, v2, v3)."""
+    k, masses = np.array([p["k1"], p["k2"], p["k3"], p["k4"]]), np.array([1.0, p["m2"], 1.0])
+
+    def rhs(t, y):
+        x, v = y[:3], y[3:]
+        extension = np.array([x[0], x[1] - x[0], x[2] - x[1], -x[2]])
+        force = k * extension + p["beta"] * extension ** 3
+        drive = np.array([p["A"] * np.cos(2.0 * t), 0.0, 0.0])
+        return np.concatenate([v, (force[1:] - force[:-1] - p["c"] * v + drive) / masses])
+
+    return rhs
+
+
+def chain_against_solve_ivp(codebook, count: int, seed: int = 15) -> float:
+    """Largest difference of the chain's codebook from solve_ivp (DOP853, rtol = atol = 1e-12) at
+    ``count`` random points of its box, 21 times each."""
+    from scipy.integrate import solve_ivp
+
+    rng, times, worst = np.random.default_rng(seed), np.linspace(0.0, 1.0, 21), 0.0
+    names = [c.name for c in codebook.coordinates if c.name != "t"]
+    for _ in range(count):
+        p = {n: rng.uniform(*codebook.coordinate(n).domain) for n in names}
+        y0 = [p[n] for n in ("x10", "x20", "x30", "v10", "v20", "v30")]
+        ref = solve_ivp(chain_rhs(p), (0.0, 1.0), y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=times)
+        got = codebook.evaluate({"t": times, **p})
+        worst = max(worst, max(float(np.max(np.abs(got[u] - ref.y[i])))
+                               for i, u in enumerate(("x1", "x2", "x3", "v1", "v2", "v3"))))
+    return worst
+
+
+def chain_lines(two) -> list[str]:
+    """problems/chain15.yaml built on ``two`` workers, checked by pgd verify and by solve_ivp."""
+    chain = pgdcli.load_spec(ROOT / "problems" / "chain15.yaml")
+    found = build(chain, two)
+    codebook = found["value"].codebook
+    report = codebook.report
+    verified = check(codebook, two, 1000)
+    ranks = max(max(field.ranks) for field in codebook.fields.values())
+    return [f"### {chain.name}: {len(chain.coordinates)} coordinates on 2 workers", "",
+            f"built in {found['wall']:.0f} s ({found['distributed']:.0f} s distributed, "
+            f"{report.get('cross_trajectories', 0):,} trajectories, largest rank {ranks}), max error "
+            f"{report['check_error']:.2e} at the gate's {int(report['check_points'])} points (tolerance "
+            f"{report['tolerance']:.0e}); pgd verify at 1,000 points: {verified['error']:.2e} in "
+            f"{verified['wall']:.0f} s; solve_ivp at 200 random points: {chain_against_solve_ivp(codebook, 200):.2e}",
+            ""]
+
+
+def header(args, facts: dict, started: dict) -> list[str]:
+    """The table's first lines: date, command, machine and its load, what was run."""
+    return ["# Builds and checks on a Dask LocalCluster", "",
+            f"- date: {_dt.datetime.now().isoformat(timespec='minutes')}",
+            f"- command: python benchmarks/cluster_scaling.py {' '.join(sys.argv[1:])}",
+            f"- machine: {facts}",
+            f"- load average (1, 5, 15 min) after the runs: {' '.join(f'{x:.2f}' for x in os.getloadavg())}",
+            f"- medians of {args.repeats} run(s); cluster start: {started[1]:.1f} s (1 worker), {started[2]:.1f} s "
+            f"(2 workers), not counted",
+            "- every cluster build equal to the build here, bit for bit; every verify's reference too", ""]
 
 
 def main() -> None:
@@ -184,29 +257,14 @@ def main() -> None:
     for label in checks:
         for u in here_check.reference:
             assert np.array_equal(checks[label][0]["value"].reference[u], here_check.reference[u]), label
-    lines = ["# Builds and checks on a Dask LocalCluster", "",
-             f"- date: {_dt.datetime.now().isoformat(timespec='minutes')}",
-             f"- command: python benchmarks/cluster_scaling.py {' '.join(sys.argv[1:])}",
-             f"- machine: {facts}",
-             f"- medians of {args.repeats} run(s); cluster start: {started[1]:.1f} s (1 worker), {started[2]:.1f} s "
-             f"(2 workers), not counted",
-             f"- every cluster build equal to the build here, bit for bit; every verify's reference too", ""]
+    lines = header(args, facts, started)
     result = builds["here"][0]["value"]
     table(f"Build of {problem.name} ({len(problem.coordinates)} coordinates, "
           f"{result.codebook.report.get('cross_trajectories', 0):,} trajectories)", builds, "here", lines)
     table(f"pgd verify at {args.points:,} parameter points x {len(here_check.times)} times "
           f"(max error {checks['dask 2'][0]['error']:.2e})", checks, "here, 1 process", lines)
     if args.chain:
-        chain = pgdcli.load_spec(ROOT / "problems" / "chain15.yaml")
-        two = executors.as_executor(clusters["dask 2"][1])
-        found = build(chain, two)
-        report = found["value"].codebook.report
-        verified = check(found["value"].codebook, two, 1000)
-        lines += [f"### {chain.name}: {len(chain.coordinates)} coordinates on 2 workers", "",
-                  f"built in {found['wall']:.0f} s ({found['distributed']:.0f} s distributed, "
-                  f"{report.get('cross_trajectories', 0):,} trajectories), max error {report['check_error']:.2e} at "
-                  f"the gate's {int(report['check_points'])} points (tolerance {report['tolerance']:.0e}); pgd verify "
-                  f"at 1,000 points: {verified['error']:.2e} in {verified['wall']:.0f} s", ""]
+        lines += chain_lines(executors.as_executor(clusters["dask 2"][1]))
     for local, client in clusters.values():
         client.close()
         local.close()

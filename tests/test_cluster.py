@@ -103,9 +103,13 @@ def cross_here():
 
 def test_a_cross_march_build_on_the_cluster_is_the_local_codebook_bit_for_bit(cluster, cross_here, monkeypatch):
     executor = executors.as_executor(cluster)
-    sent = []
-    scatter = cluster.scatter
-    monkeypatch.setattr(cluster, "scatter", lambda data, **kw: sent.append(type(data[0]).__name__) or scatter(data, **kw))
+    sent, scatter = [], cluster.scatter
+
+    def counted(data, **kw):
+        sent.append(type(data[0]).__name__)
+        return scatter(data, **kw)
+
+    monkeypatch.setattr(cluster, "scatter", counted)
     result = pgdcli.solve(parse_spec(CROSS, source="predator_prey4.yaml"), executor=executor)
     assert result.converged, result.message
     assert executor.finished >= 10  # the batches ran as tasks
