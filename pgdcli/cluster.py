@@ -75,18 +75,22 @@ def connect(address: str | None = None, workers: int | None = None, *, option: s
 
 def local_cluster(workers: int):
     """A ``distributed.LocalCluster`` of ``workers`` processes (one thread each, logs silenced) that
-    closes cleanly after its nanny replaced a dead worker.
+    keeps its workers after one dies, and closes cleanly then.
 
-    distributed's cluster object can miss the arrival of a worker its nanny started in place of a
+    Each worker runs under a nanny that starts it again when it dies (killed, out of memory). The
+    cluster object of distributed closes the nanny of a worker that is not back within
+    ``distributed.deploy.lost-worker-timeout`` (15 s), which a loaded machine exceeds: the cluster
+    would shrink for good. It can also miss the arrival of a worker its nanny started in place of a
     killed one (the scheduler's "add" message lost in the restart), and then fail on the departure of
-    that worker when it closes (a ``KeyError`` out of ``close()``, the cluster left half closed). The
-    departure of a worker it never saw arrive is ignored instead.
+    that worker when it closes (a ``KeyError`` out of ``close()``, the cluster left half closed). A
+    departure here only forgets the worker: its nanny stays, and one never seen to arrive is ignored.
     """
     from distributed import LocalCluster
 
     class _LocalCluster(LocalCluster):
         def _update_worker_status(self, op, msg):
-            if op == "remove" and msg not in self.scheduler_info.get("workers", {}):
+            if op == "remove":
+                self.scheduler_info.get("workers", {}).pop(msg, None)
                 return
             super()._update_worker_status(op, msg)
 

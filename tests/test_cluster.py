@@ -140,7 +140,7 @@ def _worker_pids(client) -> list[int]:
     return list(client.run(os.getpid).values())
 
 
-class KillAfter:
+class KillAfter(distributed.SchedulerPlugin):
     """A scheduler plugin that kills (SIGKILL) the process of a worker with work in flight once the
     scheduler has recorded ``count`` tasks finished, and before it records another: the kill lands after
     exactly that many tasks, with tasks lost on the worker killed, however fast or slow the tasks and the
@@ -448,4 +448,25 @@ def test_a_local_cluster_closes_after_a_departure_it_never_saw_arrive():
         known = set(local.scheduler_info["workers"])
         local._update_worker_status("remove", "tcp://127.0.0.1:1")  # what a missed "add" leads to
         assert set(local.scheduler_info["workers"]) == known
+    assert local.status.name == "closed"
+
+
+def test_a_local_cluster_keeps_the_nanny_of_a_worker_slow_to_come_back():
+    import dask
+
+    # a lost-worker timeout of 0 s: any worker started again arrives too late for distributed's own
+    # LocalCluster, which then closes its nanny (as a loaded machine does past 15 s)
+    with dask.config.set({"distributed.deploy.lost-worker-timeout": "0s"}):
+        with local_cluster(1) as local, distributed.Client(local) as client:
+            [(address, pid)] = client.run(os.getpid).items()
+            os.kill(pid, signal.SIGKILL)
+            deadline = time.monotonic() + 300
+            while time.monotonic() < deadline:
+                workers = client.scheduler_info()["workers"]
+                if (workers and address not in workers) or not local.workers:  # back, or its nanny closed
+                    break
+                time.sleep(0.1)
+            assert workers and address not in workers  # the nanny started another worker
+            assert [n.status.name for n in local.workers.values()] == ["running"]
+            assert client.submit(os.getpid).result() not in (pid, os.getpid())
     assert local.status.name == "closed"
