@@ -199,8 +199,9 @@ class _Loop:
         """A method of the choice that marches in time takes over from one that failed or missed the tolerance
         (its time a polynomial over the whole interval), at the problem's first nodes; ``why`` completes
         "the <method> ..." in the report."""
-        if self.method.marches:
-            return False
+        time = self.original.time
+        if self.method.marches or time is None or not self.original.coordinate(time).auto:
+            return False  # time nodes the spec sets are the representation asked for (per slab in a march)
         later = self.choice.methods[self.choice.methods.index(self.method) + 1:]
         other = next((m for m in later if m.marches), None)
         if other is None or not self.switch(other, f"the {self.method.title} {why}"):
