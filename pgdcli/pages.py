@@ -20,7 +20,6 @@ faulting fresh zeroed pages in at every allocation.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import mmap
 
 import numpy as np
@@ -85,8 +84,7 @@ def reuse_freed_memory() -> bool:
         Whether the allocator took them (False where it is not glibc's).
     """
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        mallopt = ctypes.CDLL(None).mallopt  # the process's own symbols: glibc's where it is the C library
     except (OSError, AttributeError):
         return False
     m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
