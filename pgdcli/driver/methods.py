@@ -48,6 +48,7 @@ class Enrichment(Method):
     """The PGD enrichment, to a relative residual; a smaller residual when the nodes ask for it."""
 
     name = "pgd"
+    hands_time_over = True  # time is one polynomial over the interval, refined one doubling at a time
     plural = "enrichments"
     target_name = "residual"
     label = "enrichment"

@@ -31,9 +31,10 @@ __all__ = ["solve_rounds", "CHECK_ATTEMPTS", "POLYNOMIAL_TIME_NODES"]
 
 #: Most solves at one set of nodes: the first and the tighter ones.
 CHECK_ATTEMPTS = 3
-#: Time nodes past which a method that holds time in one polynomial over the interval (the enrichment, the
-#: tensor-train solver) hands a problem over to the time march, when the choice has one: a solution
-#: that needs more holds a transient or many oscillations, which the march steps through at less cost.
+#: Time nodes past which the enrichment (one polynomial in time over the interval, one mode at a time) hands
+#: a problem over to the time march, when the choice has one: a solution that needs more holds a transient
+#: or many oscillations, which the march steps through at less cost. (The tensor-train solver takes fine
+#: time grids well: a driven system's 129 nodes.)
 POLYNOMIAL_TIME_NODES = 65
 
 
@@ -188,9 +189,10 @@ class _Loop:
         return True
 
     def past_polynomial_time(self) -> bool:
-        """The automatic time nodes of a method that does not march are past :data:`POLYNOMIAL_TIME_NODES`."""
+        """The automatic time nodes of a method that hands time over (the enrichment) are past
+        :data:`POLYNOMIAL_TIME_NODES`."""
         time = self.problem.time
-        if self.method.marches or time is None:
+        if not self.method.hands_time_over or time is None:
             return False
         c = self.problem.coordinate(time)
         return c.auto and total_nodes(c) > POLYNOMIAL_TIME_NODES
