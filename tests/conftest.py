@@ -20,15 +20,6 @@ from typing import Mapping
 import numpy as np
 import pytest
 
-@pytest.hookimpl(trylast=True)
-def pytest_collection_modifyitems(config, items):
-    """The modules that hold slow tests first, each kept whole and in its order: with xdist the long
-    builds start at once on every worker and the short tests fill the end, instead of the long ones
-    (in ``tests/solve``, late in the alphabet) running last, one worker idle."""
-    slow = {item.path for item in items if item.get_closest_marker("slow")}
-    items[:] = sorted(items, key=lambda item: item.path not in slow)  # stable: the order within kept
-
-
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"
 SHIPPED = ("parametric", "spring", "relaxation")
