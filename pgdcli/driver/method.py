@@ -92,8 +92,9 @@ class Method:
     label = ""
     #: The report names it (``method``, ``method_reason``): a linear problem has two to choose from.
     names_itself = False
-    #: Automatic time nodes past which a linear ODE problem goes on to the time march, when the choice has
-    #: it (:data:`pgdcli.driver.refinement.POLYNOMIAL_TIME_NODES`); False: no such limit.
+    #: Whether a linear ODE problem goes on to the time march, when the choice has it, once the automatic
+    #: resolution would give this method more than :data:`pgdcli.driver.refinement.POLYNOMIAL_TIME_NODES`
+    #: time nodes.
     hands_time_over = False
 
     @property
