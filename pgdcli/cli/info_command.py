@@ -49,6 +49,9 @@ def _print_contents(console, summary: dict) -> None:
         console.print("rates: " + ", ".join(f"{rate} = der({x})" for rate, x in summary["rates"].items()))
     for line in summary.get("separated_coefficients", []):
         console.print(f"separated coefficient: {line}")
+    for name, event in summary.get("events", {}).items():  # pgd query --event NAME
+        error = "" if event["error"] is None else f", time within {event['error']:.2e} of scipy's event location"
+        console.print(f"event {name}: {event['when']} ({event['direction']}){error}")
     if summary.get("method_reason"):  # escaped for rich by _shown, as every string of the summary
         name = "tensor-train solver (amen)" if summary["method"] == "amen" else "enrichment (pgd)"
         console.print(f"method: {name}: {summary['method_reason']}")

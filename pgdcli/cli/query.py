@@ -28,10 +28,10 @@ from .formats import QUERY
 from .guard import one_line
 from .stream import check_grid_size
 
-__all__ = ["run", "UsageProblem", "one_line_error"]
+__all__ = ["run", "UsageProblem", "one_line_error", "EventView"]
 
 _VALUE_OPTIONS = ("--format", "--field", "--points")
-_CLICK_ONLY = ("--output", "--scheduler", "--workers")  # a query into a file, on a cluster: the click command
+_CLICK_ONLY = ("--output", "--scheduler", "--workers", "--event")  # into a file, on a cluster, events: click
 
 
 class UsageProblem(Exception):
@@ -42,6 +42,28 @@ class UsageProblem(Exception):
         super().__init__(message)
         self.message = message
         self.param_hint = param_hint
+
+
+class EventView:
+    """A codebook's events seen as a codebook: its coordinates but time, the event times as its unknowns.
+
+    ``pgd query --event NAME`` prints through the query's own parsing and writers with it.
+    """
+
+    def __init__(self, cb, events: list[str]):
+        if not cb.events:
+            raise QueryError("this codebook records no events (add an 'events:' section to the spec)")
+        for e in events:
+            if e not in cb.events:
+                raise UsageProblem(f"unknown event {e!r}; this codebook has {', '.join(cb.events)}",
+                                   param_hint="'--event'")
+        self.cb = cb
+        self.coordinates = [c for c in cb.coordinates if c.role != "time"]
+        self.coordinate_names = [c.name for c in self.coordinates]
+        self.unknown_names = list(cb.events)
+
+    def evaluate(self, coordinates, fields=None):
+        return self.cb.event_times(coordinates, fields)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -26,9 +26,12 @@ from .outputs import prepare_output
 @click.option("--output", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE.h5",
               help="Write the points and values to this HDF5 file (atomically) instead of stdout, evaluated in "
                    "partitions; --points may then be an HDF5 file too (docs/cluster.md).")
+@click.option("--event", "events", multiple=True, metavar="NAME",
+              help="Print the time of this event (repeatable) instead of the unknowns: the first time its "
+                   "condition is met, given the coordinates other than time.")
 @cluster_options("the partitions of an --output query")
 @click.pass_context
-def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
+def query(ctx, codebook, fmt, fields, points, output, events, scheduler, workers):
     """Evaluate CODEBOOK at points given as --NAME VALUE for every coordinate.
 
     \b
@@ -41,12 +44,15 @@ def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
       pgd query codebooks/parametric.h5 --t 5 --k 2
       pgd query codebooks/spring.h5 --t 0:4:41 --k 2 --c 0.3 --field x --format csv
       pgd query codebooks/spring.h5 --points big.h5 --output values.h5 --workers 2
+      pgd query codebooks/ball.h5 --event landing --v0 8 --c 0.1
     """
     # the parsing, checking and printing helpers live in pgdcli.cli.query and pgdcli.cli.stream, where a
     # plain `pgd query` runs without click (see main): both paths print the same bytes
     from ..codebook.codebook import Codebook
 
     cb = Codebook.load(codebook, evaluation_only=True)
+    if events:
+        return _events(ctx, cb, fmt, fields, points, output, list(events))
     selected = list(fields) if fields else cb.unknown_names
     for f in selected:
         if f not in cb.fields:
@@ -64,6 +70,23 @@ def query(ctx, codebook, fmt, fields, points, output, scheduler, workers):
     chunks, handle = _usage(_query.point_chunks, cb, points, ctx.args)
     try:
         stream.Writer(sys.stdout, fmt, cb, selected).run(chunks)
+    finally:
+        if handle is not None:
+            handle.close()
+
+
+def _events(ctx, cb, fmt, fields, points, output, events: list[str]) -> None:
+    """``--event NAME``: the events' times at the points, printed as the unknowns would be."""
+    if fields:
+        raise click.UsageError("--field selects unknowns and --event prints event times: give one of them")
+    if output is not None:
+        raise click.UsageError("--event prints to stdout; --output writes the unknowns: give one of them")
+    if points is not None and ctx.args:
+        raise click.UsageError("give either --points FILE or --NAME VALUE options, not both")
+    view = _usage(_query.EventView, cb, events)
+    chunks, handle = _usage(_query.point_chunks, view, points, ctx.args)
+    try:
+        stream.Writer(sys.stdout, fmt, view, events).run(chunks)
     finally:
         if handle is not None:
             handle.close()

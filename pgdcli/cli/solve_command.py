@@ -126,7 +126,7 @@ def _solve_with_progress(console, problem, solve_problem, overrides):
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
     from ..algorithms.outcome import Status
-    from ..codebook.summary import coordinate_ratios
+    from ..codebook.summary import coordinate_ratios, event_summary
     from ..tensors.tt import TT
     cb = result.codebook
     rep = cb.report
@@ -167,6 +167,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "gate_time": float(rep["gate_time"]) if "gate_time" in rep else None,
         "output": None if target is None else str(target),
         **({"separated_coefficients": cb.info()["separated_coefficients"]} if "separated_coefficients" in rep else {}),
+        **({"events": event_summary(cb)} if cb.events else {}),
     }
 
 
@@ -239,6 +240,9 @@ def _summary_table(summary: dict):
     slabs = summary.get("slabs", {})
     table.add_row("nodes", ", ".join(f"{c}: {n}" + (f" ({slabs[c]} slabs)" if c in slabs else "")
                                      for c, n in summary["coordinates"].items()))
+    for name, event in summary.get("events", {}).items():
+        error = "" if event["error"] is None else f": time within {event['error']:.2e} of scipy's event location"
+        table.add_row(f"event {escape(name)}", escape(f"{event['when']} ({event['direction']})") + error)
     table.add_row("time", _time_text(summary))
     if summary.get("output"):
         size = summary.get("size_bytes")

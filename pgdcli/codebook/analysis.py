@@ -1,5 +1,5 @@
-"""What a codebook answers besides its values: series, derivatives, nodal grids, Sobol indices,
-labelled grids.
+"""What a codebook answers besides its values: event times, series, derivatives, nodal grids, Sobol
+indices, labelled grids.
 
 :class:`CodebookAnalysis` is the half of :class:`~pgdcli.codebook.Codebook`'s interface built
 on its evaluation (the bases, the domain checks, the fields): each method checks the request
@@ -14,6 +14,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import QueryError
+from .events import event_times
 from .gradient import gradient_grid, gradient_points
 from .notebook import to_xarray
 from .sensitivity import sensitivity
@@ -23,11 +24,26 @@ __all__ = ["CodebookAnalysis"]
 
 
 class CodebookAnalysis:
-    """Series, gradients, nodal grids, sensitivity and xarray views of a codebook.
+    """Event times, series, gradients, nodal grids, sensitivity and xarray views of a codebook.
 
     A base of :class:`~pgdcli.codebook.Codebook`, which provides ``coordinates``, ``fields``,
     the bases and the domain checks these methods use.
     """
+
+    def with_events(self, events: Mapping[str, "EventTime"]) -> "Codebook":
+        """The same codebook with these events (its fields, spec and report shared, not copied)."""
+        return type(self)(self.coordinates, self.fields, name=self.name, spec_text=self.spec_text, report=self.report,
+                        description=self.description, created=self.created, partial=self.partial,
+                        format_version=self.format_version, events=events)
+
+    def event_times(self, coordinates: Mapping[str, object], events: Sequence[str] | None = None
+                    ) -> dict[str, np.ndarray]:
+        """Event name -> its time at points given for every coordinate but time (broadcast together); all
+        events by default. See :func:`pgdcli.codebook.events.event_times` (QueryError on bad input)."""
+        if self._event_book is None:  # each event on its own nodes: a codebook of its own
+            self._event_book = {e: type(self)(ev.coordinates, {e: ev.field}, name=self.name)
+                                for e, ev in self.events.items()}
+        return event_times(self, self._event_book, coordinates, events)
 
     def evaluate_series(self, points: Mapping[str, object], series: Mapping[str, object],
                         fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:

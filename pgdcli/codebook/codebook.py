@@ -35,6 +35,7 @@ from .analysis import CodebookAnalysis
 from .blockwise import evaluate_blockwise
 from .domain import check_names, clip_to_domain, select_fields
 from .evaluate import Evaluator, shared_basis
+from .events import EventTime, validate_event
 from .fields import TT, CPTensor, validate_field
 from .io import FORMAT_NAME, FORMAT_VERSION
 from .notebook import summary_html
@@ -80,6 +81,8 @@ class Codebook(CodebookAnalysis):
         the report's arrays were not read, and :meth:`save` refuses it.
     format_version : str, optional
         The format of the file it was loaded from (``"1.0"`` files carry no checksums).
+    events : mapping, optional
+        Event name -> :class:`~pgdcli.codebook.events.EventTime` (``events:``; :meth:`event_times`).
 
     Raises
     ------
@@ -90,6 +93,7 @@ class Codebook(CodebookAnalysis):
     ----------
     coordinates : tuple of CoordinateInfo
     fields : dict of str to CPTensor or TT
+    events : dict of str to EventTime
     name, spec_text, description, created : str
     report : dict
 
@@ -103,7 +107,7 @@ class Codebook(CodebookAnalysis):
     def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping[str, CPTensor | TT], *,
                  name: str = "codebook", spec_text: str = "", report: Mapping | None = None,
                  description: str = "", created: str | None = None, partial: bool = False,
-                 format_version: str | None = None):
+                 format_version: str | None = None, events: Mapping[str, EventTime] | None = None):
         self.coordinates = tuple(coordinates)
         if not self.coordinates:
             raise CodebookError("a codebook needs at least one coordinate")
@@ -112,6 +116,8 @@ class Codebook(CodebookAnalysis):
             raise CodebookError("a codebook needs at least one unknown")
         for uname, fm in self.fields.items():
             validate_field(uname, self.coordinates, fm)
+        self.events = {e: validate_event(e, self.coordinates, ev) for e, ev in (events or {}).items()}
+        self._event_book = None  # each event's field as a codebook of its own, built when first asked
         self.name = name
         self.spec_text = spec_text
         self.description = description
@@ -129,7 +135,7 @@ class Codebook(CodebookAnalysis):
     def __reduce__(self):
         """Pickled as its parts: the evaluator's tables, most of the bytes, are built again where it is
         unpickled (a Dask worker)."""
-        attributes = ("name", "spec_text", "report", "description", "created", "partial", "format_version")
+        attributes = ("name", "spec_text", "report", "description", "created", "partial", "format_version", "events")
         return _from_parts, (self.coordinates, self.fields, {a: getattr(self, a) for a in attributes})
 
     # ------------------------------------------------------------------ introspection

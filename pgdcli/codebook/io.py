@@ -18,6 +18,7 @@ from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError
 from ..limits import MAX_COORDINATES, MAX_UNKNOWNS, limit
 from ..names import identifier_problem, printable, problem_name_problem
+from .event_io import read_events, write_events
 from .fields import TT, cp_field, tt_field
 from .file_checks import (ARRAY_DIGESTS, CONTENT_DIGEST, Survey, array_digest, metadata_digest, open_codebook,
                           read_array, read_text, survey)
@@ -26,8 +27,9 @@ __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "SUPPORTED_MAJOR", "save", "to_bytes
            "load_parts", "read_contents"]
 
 FORMAT_NAME = "pgdcli-codebook"
-#: 1.1: Fletcher-32 and a SHA-256 on every array, a SHA-256 of the metadata (1.0: neither)
-FORMAT_VERSION = "1.1"
+#: 1.1: Fletcher-32 and a SHA-256 on every array, a SHA-256 of the metadata (1.0: neither);
+#: 1.2: events (a 1.1 reader reads a 1.2 file without them)
+FORMAT_VERSION = "1.2"
 SUPPORTED_MAJOR = 1
 #: HDF5 file format features of 1.10: checksummed superblock, object headers and chunk indexes
 LIBVER = ("v110", "v110")
@@ -136,17 +138,14 @@ def write_contents(cb, f) -> None:
     for u, fm in cb.fields.items():
         g = gu.create_group(u)
         if isinstance(fm, TT):
-            g.attrs["representation"] = "tensor-train"
-            g.attrs["mode-order"] = np.array([cb.coordinates[j].name for j in fm.mode_order], dtype=object)
-            gc = g.create_group("cores")
-            for j, core in zip(fm.mode_order, fm.cores):
-                _array(gc, cb.coordinates[j].name, core, digests)
+            _write_train(g, cb.coordinates, fm, digests)
             continue
         g.attrs["representation"] = "cp"
         _array(g, "alphas", fm.weights, digests)
         gm = g.create_group("modes")
         for c, m in zip(cb.coordinates, fm.factors):
             _array(gm, c.name, m, digests)
+    write_events(f, cb.events, lambda g, coordinates, train: _write_train(g, coordinates, train, digests))
     gr = f.create_group("report")
     for key, value in cb.report.items():
         if isinstance(value, np.ndarray):
@@ -155,6 +154,14 @@ def write_contents(cb, f) -> None:
             gr.attrs[key] = value
     f.attrs[ARRAY_DIGESTS] = json.dumps(digests, sort_keys=True, separators=(",", ":"))
     f.attrs[CONTENT_DIGEST] = metadata_digest(survey(f, "<memory>"))
+
+
+def _write_train(g, coordinates, fm: TT, digests: dict) -> None:
+    g.attrs["representation"] = "tensor-train"
+    g.attrs["mode-order"] = np.array([coordinates[j].name for j in fm.mode_order], dtype=object)
+    gc = g.create_group("cores")
+    for j, core in zip(fm.mode_order, fm.cores):
+        _array(gc, coordinates[j].name, core, digests)
 
 
 def load_parts(path: str | os.PathLike, basis, *, evaluation_only: bool = False) -> dict:
@@ -210,6 +217,12 @@ def read_contents(f, p: str, basis, *, evaluation_only: bool = False) -> dict:
         if declared > limit("codebook_bytes"):
             raise CodebookError(f"{p}: corrupt codebook: its arrays declare more than "
                                 f"{limit('codebook_bytes')} bytes (PGD_MAX_CODEBOOK_BYTES)")
+    events = read_events(found, coords, lambda e, mine, where: _tensor_train(found, e, mine, digests, where=where,
+                                                                             what="event"))
+    declared += sum(size for _, size in events.values())
+    if declared > limit("codebook_bytes"):
+        raise CodebookError(f"{p}: corrupt codebook: its arrays declare more than "
+                            f"{limit('codebook_bytes')} bytes (PGD_MAX_CODEBOOK_BYTES)")
     spec = ""
     if not evaluation_only and "spec" in found.datasets:
         spec = read_text(found, "spec", digests=digests)
@@ -218,7 +231,7 @@ def read_contents(f, p: str, basis, *, evaluation_only: bool = False) -> dict:
         report=_report(found, digests, arrays=not evaluation_only),
         description=attr_str(found.attr("", "description", "")),
         created=attr_str(found.attr("", "created", "")) or None,
-        partial=evaluation_only, format_version=version,
+        partial=evaluation_only, format_version=version, events={e: ev for e, (ev, _) in events.items()},
     )
 
 
@@ -328,16 +341,17 @@ def _field(found: Survey, u: str, coords: list, digests: dict | None):
     return cp_field(u, alphas, modes), 8 * rank * (1 + sum(c.nodes for c in coords))
 
 
-def _tensor_train(found: Survey, u: str, coords: list, digests: dict | None):
+def _tensor_train(found: Survey, u: str, coords: list, digests: dict | None, *, where: str | None = None,
+                  what: str = "unknown"):
     p = found.source
-    where = f"unknowns/{u}"
+    where = where or f"unknowns/{u}"
     names = [c.name for c in coords]
-    order = _names(found.attr(where, "mode-order"), f"unknown {u!r}: mode", len(names), p)
+    order = _names(found.attr(where, "mode-order"), f"{what} {u!r}: mode", len(names), p)
     stray = [c for c in order if c not in names]
     if stray:
-        raise CodebookError(f"{p}: unknown {u!r}: tensor-train core for unknown coordinate {stray[0]!r}")
+        raise CodebookError(f"{p}: {what} {u!r}: tensor-train core for unknown coordinate {stray[0]!r}")
     if len(order) != len(names):
-        raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: {len(order)} cores for {len(names)} "
+        raise CodebookError(f"{p}: corrupt codebook: {what} {u!r}: {len(order)} cores for {len(names)} "
                             f"coordinates")
     shapes, left = [], 1
     for k, c in enumerate(order):
@@ -345,12 +359,13 @@ def _tensor_train(found: Survey, u: str, coords: list, digests: dict | None):
         n = coords[names.index(c)].nodes
         last = k == len(order) - 1
         if len(shape) != 3 or shape[0] != left or shape[1] != n or (last and shape[2] != 1):
-            raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: core {c!r} has shape {shape}, "
+            raise CodebookError(f"{p}: corrupt codebook: {what} {u!r}: core {c!r} has shape {shape}, "
                                 f"expected ({left}, {n}, {'1' if last else 'r'})")
         shapes.append(shape)
         left = shape[2]
     cores = tuple(read_array(found, f"{where}/cores/{c}", shape, digests=digests) for c, shape in zip(order, shapes))
-    return tt_field(u, cores, [names.index(c) for c in order]), sum(8 * int(np.prod(s)) for s in shapes)
+    return (tt_field(u if what == "unknown" else f"{what} {u}", cores, [names.index(c) for c in order]),
+            sum(8 * int(np.prod(s)) for s in shapes))
 
 
 def _report(found: Survey, digests: dict | None, *, arrays: bool) -> dict:

@@ -106,8 +106,27 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
         table = np.asarray(rep["resolution"], dtype=float)
         out["resolution"] = {u: {c: (float(v) if np.isfinite(v) else None) for c, v in zip(names, row)}
                              for u, row in zip(cb.fields, table)}
+    if cb.events:
+        out["events"] = event_summary(cb)
     if path is not None:
         out["size_bytes"] = os.path.getsize(path)
+    return out
+
+
+def event_summary(cb) -> dict:
+    """Event name -> its condition, direction, and the error of its time measured at the solve (if any)."""
+    rep = cb.report
+    checked = str(rep.get("events", "")).split(",")
+    errors = np.asarray(rep.get("event_errors", []), dtype=float).reshape(-1)
+    ratios = np.asarray(rep.get("event_ratios", []), dtype=float).reshape(-1)
+    out = {}
+    for name, event in cb.events.items():
+        entry = {"when": event.when, "direction": event.direction, "error": None, "ratio": None}
+        if name in checked and checked.index(name) < min(errors.size, ratios.size):
+            k = checked.index(name)
+            entry["error"] = float(errors[k]) if np.isfinite(errors[k]) else None
+            entry["ratio"] = float(ratios[k]) if np.isfinite(ratios[k]) else None
+        out[name] = entry
     return out
 
 

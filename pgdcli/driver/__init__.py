@@ -26,6 +26,7 @@ from ..errors import SolverError
 from ..problem.compatibility import check_coefficients_finite, check_initial_finite, check_initial_meets_boundary
 from ..problem.spec import Problem, load_spec
 from ..progress import PhaseStarted, ProgressEvent, emit
+from .events import record_events
 from .method import Settings
 from .methods import choose_method
 from .refinement import solve_rounds
@@ -76,6 +77,7 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     emit(callback, PhaseStarted("solve", f"method {choice.methods[0].name} ({choice.reason})", 1))
     with one_blas_thread(), executors.using(executor):  # small dense products: faster on one BLAS thread
         result, _ = solve_rounds(problem, choice, settings, callback)
+        result = record_events(problem, result, settings, callback)
     rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
     if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info
         result.codebook.report["rates"] = ",".join(f"{rate}={x}" for rate, x in rates)

@@ -124,6 +124,8 @@ class Problem:
         The YAML text as given.
     source : str
         File path or ``'<string>'``, used in messages.
+    events : tuple of pgdcli.problem.events.Event
+        Named conditions whose first crossing in time is recorded (``events:``).
     """
 
     name: str
@@ -137,6 +139,7 @@ class Problem:
     output: pathlib.Path
     source_text: str
     source: str
+    events: tuple = ()  # of pgdcli.problem.events.Event: conditions whose first crossing the codebook records
 
     def coordinate(self, name: str) -> Coordinate:
         """The coordinate called ``name`` (KeyError if there is none)."""

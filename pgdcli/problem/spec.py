@@ -29,6 +29,7 @@ from typing import Any, Iterable
 
 from ..errors import SpecError
 from .checker import RESERVED_NAMES, Checker, NameRegistry, show_value
+from .events import parse_events
 from .expressions import ParseOptions, Separable, format_monomial, parse_equation, parse_expression
 from .model import Boundary, Coordinate, Equation, Problem, SolverOptions, Unknown
 from .second_order import INITIAL_KEYS, rate_name, reduce_to_first_order
@@ -53,7 +54,8 @@ __all__ = [
 ]
 
 
-TOP_LEVEL_KEYS = ("name", "description", "coordinates", "time", "constants", "unknowns", "equations", "solver", "output")
+TOP_LEVEL_KEYS = ("name", "description", "coordinates", "time", "constants", "unknowns", "equations", "events", "solver",
+                  "output")
 UNKNOWN_KEYS = ("initial", "boundary")
 BOUNDARY_SIDES = ("low", "high")
 
@@ -281,6 +283,7 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
         raise check.error("time", "no coordinate is named 't' and no equation has a space derivative: name the time "
                                   "coordinate ('t' or 'time: <name>') for an initial-value problem, or add "
                                   "der(u, x, 2) for a steady one")
+    events = parse_events(check, names, data.get("events"), context, any(c.role == "space" for c in coordinates))
 
     problem = Problem(
         name=problem_name,
@@ -294,6 +297,7 @@ def parse_spec(text: str, *, source: str = "<string>", name: str | None = None, 
         output=parse_output(check, data, problem_name),
         source_text=text,
         source=source,
+        events=events,
     )
     check_derivatives_linear(problem)
     if not allow_nonlinear:

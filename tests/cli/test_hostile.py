@@ -34,9 +34,10 @@ PROBLEMS = ROOT / "problems"
 #: Shipped problems too slow to solve once more here: the nonlinear PDEs (minutes, tests/solve/test_nonlinear_pde.py
 #: and tests/solve/test_reaction_diffusion.py), the 10-D rigid body (~40 s, tests/algorithms/test_cross_march.py),
 #: the 15-coordinate chain (a cluster's build, tests/test_cluster.py) and the linear problems of the tensor-train
-#: solver (minutes, tests/solve/test_moving_loads.py and tests/solve/test_hotplate.py).
+#: solver (minutes, tests/solve/test_moving_loads.py and tests/solve/test_hotplate.py), and the ball with events
+#: (tests/solve/test_event_problems.py).
 SLOW = {"fisher", "burgers", "brusselator_pde", "allen_cahn2d", "rigid_body10", "chain15", "moving_source",
-        "suspension", "moving_heater", "hotplate"}
+        "suspension", "moving_heater", "hotplate", "landing"}
 ALL_SHIPPED = sorted(p.stem for p in PROBLEMS.glob("*.yaml") if p.stem not in SLOW)
 
 

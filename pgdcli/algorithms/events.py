@@ -1,0 +1,249 @@
+"""Event times from a codebook: the first crossing of an event's condition, as a separated field.
+
+For a parameter point the condition ``g(u(t, p), t, p)`` is scanned along the codebook's time
+nodes and the midpoints between them (the codebook resolves ``u`` there, so a crossing between
+two scan points is a single sign change of a smooth function); the first bracket in the event's
+direction is narrowed on the codebook's own interpolant by the Illinois variant of regula falsi,
+all points at once. At the start time the exact initial values decide (a condition that holds
+there exactly is not an event there, as in ``solve_ivp``'s event location).
+
+:func:`event_field` builds the event time on the grid of the codebook's parameter nodes as a tensor
+train (a cross approximation, or the whole grid when small) whose time core is constant: a field
+of the codebook's coordinates that does not depend on time.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import SolverError
+from ..problem.events import Event, condition_values
+from ..codebook.codebook import Codebook
+from ..discretization.coordinates import CoordinateInfo
+from ..tensors.cross import tt_cross
+from ..tensors.tt import TT
+
+__all__ = ["first_crossings", "event_field", "NoEvent", "MAX_DOUBLINGS"]
+
+#: Scan values held at once (points x scan times x unknowns): bounds the memory of one batch.
+SCAN_BATCH_VALUES = 2_000_000
+ILLINOIS_ITERATIONS = 80
+#: Times a coordinate's node intervals may be halved for an event (beyond the codebook's nodes).
+MAX_DOUBLINGS = 4
+#: Most nodes of an event's coordinate.
+MAX_EVENT_NODES = 1025
+#: Points off the nodes per coordinate at which an event field is measured before it is kept.
+LINE_POINTS = 24
+
+
+class NoEvent(SolverError):
+    """The event does not happen before the end time at some parameter point."""
+
+
+def _initial_values(problem, params: Mapping[str, np.ndarray], S: int) -> dict[str, np.ndarray]:
+    return {u.name: np.broadcast_to(np.asarray(u.initial.evaluate(**params), dtype=float), (S,))
+            for u in problem.unknowns}
+
+
+def _crossed(g0: np.ndarray, g1: np.ndarray, direction: str) -> np.ndarray:
+    rising = (g0 < 0) & (g1 >= 0)
+    falling = (g0 > 0) & (g1 <= 0)
+    return rising if direction == "rising" else falling if direction == "falling" else rising | falling
+
+
+def _scan_times(codebook, time: str) -> np.ndarray:
+    nodes = codebook.coordinate(time).basis().nodes
+    scan = np.empty(2 * nodes.size - 1)
+    scan[0::2] = nodes
+    scan[1::2] = 0.5 * (nodes[1:] + nodes[:-1])
+    return scan
+
+
+def _condition(event: Event, codebook, time: str, t: np.ndarray, params: Mapping[str, np.ndarray]) -> np.ndarray:
+    """``g`` at one time per point (``t`` of shape (S,))."""
+    values = codebook.evaluate({time: t, **params})
+    return condition_values(event, values, {time: t, **params})
+
+
+def _brackets(problem, codebook, event: Event, params: Mapping[str, np.ndarray], S: int):
+    """Per point, the first scan interval where the condition crosses: (a, b, g(a), g(b), found)."""
+    time = problem.time
+    scan = _scan_times(codebook, time)
+    g = np.empty((S, scan.size))
+    step = max(1, SCAN_BATCH_VALUES // (scan.size * max(1, len(problem.unknowns))))
+    for lo in range(0, S, step):
+        rows = {n: v[lo:lo + step] for n, v in params.items()}
+        values = codebook.evaluate_series(rows, {time: scan}) if params else \
+            {u: v.reshape(1, -1) for u, v in codebook.evaluate_series({}, {time: scan}).items()}
+        g[lo:lo + step] = condition_values(event, values, {time: scan[None, :], **{n: v[:, None] for n, v in rows.items()}})
+    start = condition_values(event, _initial_values(problem, params, S), {time: np.full(S, scan[0]), **params})
+    g[:, 0] = np.where(start == 0.0, g[:, 1], start)  # met exactly at the start: not an event there
+    hit = _crossed(g[:, :-1], g[:, 1:], event.direction)
+    found = hit.any(axis=1)
+    k = np.argmax(hit, axis=1)
+    rows = np.arange(S)
+    return scan[k], scan[k + 1], g[rows, k], g[rows, k + 1], found
+
+
+def first_crossings(problem, codebook, event: Event, params: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The event's time at parameter points, from the codebook (NaN where it does not happen).
+
+    Parameters
+    ----------
+    problem : pgdcli.problem.spec.Problem
+        An ODE problem (a time coordinate, no space coordinates).
+    codebook : pgdcli.Codebook
+    event : pgdcli.problem.events.Event
+    params : mapping of str to ndarray, shape (S,)
+        Every parameter coordinate's values (``{}``: the one point of a problem without parameters).
+
+    Returns
+    -------
+    ndarray, shape (S,)
+    """
+    params = {n: np.asarray(v, dtype=float).reshape(-1) for n, v in params.items()}
+    S = next(iter(params.values())).size if params else 1
+    a, b, ga, gb, found = _brackets(problem, codebook, event, params, S)
+    span = codebook.coordinate(problem.time).domain
+    width = 4 * np.finfo(float).eps * max(abs(span[0]), abs(span[1]))
+    side = np.zeros(S, dtype=int)  # Illinois: the end kept twice in a row has its value halved
+    for _ in range(ILLINOIS_ITERATIONS):
+        active = found & (b - a > width) & (ga != 0) & (gb != 0)
+        if not active.any():
+            break
+        with np.errstate(all="ignore"):
+            m = b - gb * (b - a) / (gb - ga)
+        m = np.where(np.isfinite(m) & (m > a) & (m < b), m, 0.5 * (a + b))
+        gm = _condition(event, codebook, problem.time, m, params)
+        left = active & (np.sign(gm) == np.sign(ga))  # the root is in [m, b]
+        right = active & ~left
+        a, ga = np.where(left, m, a), np.where(left, gm, ga)
+        b, gb = np.where(right, m, b), np.where(right, gm, gb)
+        gb = np.where(left & (side == 1), 0.5 * gb, gb)
+        ga = np.where(right & (side == -1), 0.5 * ga, ga)
+        side = np.where(left, 1, np.where(right, -1, side))
+    root = np.where(gb == 0, b, np.where(ga == 0, a, b - gb * (b - a) / np.where(gb - ga == 0, 1.0, gb - ga)))
+    root = np.clip(root, a, b)
+    return np.where(found, root, np.nan)
+
+
+def _event_coordinates(codebook, time: str, doublings: dict[str, int]) -> list:
+    """The event field's coordinates: time with two nodes (the field is constant along it), every other
+    coordinate as the codebook's with its node intervals doubled ``doublings[name]`` times."""
+    out = []
+    for c in codebook.coordinates:
+        if c.name == time:
+            out.append(CoordinateInfo(c.name, c.domain, 2, "chebyshev", c.role))
+        else:
+            out.append(CoordinateInfo(c.name, c.domain, (c.nodes - 1) * 2 ** doublings[c.name] + 1, c.discretization,
+                                      c.role, c.breakpoints))
+    return out
+
+
+def _train_on(problem, codebook, event: Event, coordinates: list, tolerance: float, counter: list) -> TT:
+    """The event time on the grid of ``coordinates``' nodes (time excluded) as a train, time core first."""
+    time = problem.time
+    others = [c for c in coordinates if c.name != time]
+    nodes = [c.basis().nodes for c in others]
+
+    def times_at(indices: np.ndarray) -> np.ndarray:
+        params = {c.name: x[indices[:, j]] for j, (c, x) in enumerate(zip(others, nodes))}
+        out = first_crossings(problem, codebook, event, params)
+        counter[0] += out.size
+        missing = np.flatnonzero(~np.isfinite(out))
+        if missing.size:
+            where = ", ".join(f"{n}={v[missing[0]]:.6g}" for n, v in params.items())
+            end = codebook.coordinate(time).domain[1]
+            raise NoEvent(f"event {event.name!r} ({event.text}) does not happen before {time}={end:g} at "
+                          f"{where or 'the start'}: an event time is stored for every parameter point; extend the "
+                          f"time domain or narrow the parameters' domains")
+        return out
+
+    names = [c.name for c in coordinates]
+    if not others:
+        value = float(times_at(np.zeros((1, 0), dtype=int))[0])
+        return TT([np.full((1, 2, 1), value)], [names.index(time)])
+    result = tt_cross(times_at, [x.size for x in nodes], tolerance)
+    if not result.converged:
+        raise SolverError(f"event {event.name!r}: its time is not a smooth function of the parameters "
+                          f"({result.message}); it may jump where the first crossing changes")
+    cores = [np.ones((1, 2, 1))] + [np.asarray(c) for c in result.train.cores]
+    order = [names.index(time)] + [names.index(others[j].name) for j in result.train.mode_order]
+    return TT(cores, order)
+
+
+def _line_errors(problem, codebook, event: Event, book, coordinates: list, rng) -> dict[str, float]:
+    """Per parameter coordinate, the largest error of the field off its nodes in that coordinate alone
+    (the others at random nodes), against the crossing located on the codebook itself."""
+    time = problem.time
+    others = [c for c in coordinates if c.name != time]
+    nodes = {c.name: c.basis().nodes for c in others}
+    errors = {}
+    for c in others:
+        x = nodes[c.name]
+        k = rng.integers(0, x.size - 1, LINE_POINTS)
+        points = {n: v[rng.integers(0, v.size, LINE_POINTS)] for n, v in nodes.items()}
+        points[c.name] = x[k] + (x[k + 1] - x[k]) * rng.uniform(0.3, 0.7, LINE_POINTS)
+        exact = first_crossings(problem, codebook, event, points)
+        got = book.evaluate({**points, time: float(codebook.coordinate(time).domain[0])}, [event.name])[event.name]
+        errors[c.name] = float(np.nanmax(np.abs(got - exact))) if np.isfinite(exact).all() else np.inf
+    return errors
+
+
+def event_field(problem, codebook, event: Event, tolerance: float, rng=None) -> tuple[list, TT, dict]:
+    """The event's time as a tensor train on its own grid, refined until it interpolates within ``tolerance``.
+
+    The grid starts from the codebook's parameter nodes; a coordinate whose points off the nodes
+    (the others at nodes) miss ``tolerance`` has its node intervals halved, up to
+    :data:`MAX_DOUBLINGS` times (an event time may need more nodes than the solution: the root of a
+    polynomial in a parameter is not a polynomial in it).
+
+    Parameters
+    ----------
+    problem, codebook, event
+        As :func:`first_crossings`.
+    tolerance : float
+        Max error of the field's interpolation against the crossing located on the codebook (time units).
+
+    Returns
+    -------
+    coordinates : list of CoordinateInfo
+        The field's coordinates, in codebook order (time with 2 nodes).
+    field : TT
+        Mode order: time first, then the parameters.
+    info : dict
+        ``evaluations`` (crossings located), ``nodes`` (per coordinate) and ``error`` (the largest
+        off-node error measured).
+
+    Raises
+    ------
+    NoEvent
+        The event does not happen before the end time at a parameter node, named.
+    SolverError
+        The field does not converge (its time jumps) within :data:`MAX_DOUBLINGS` refinements.
+    """
+    rng = rng or np.random.default_rng(7)
+    time = problem.time
+    doublings = {c.name: 0 for c in codebook.coordinates if c.name != time}
+    counter = [0]
+    while True:
+        coordinates = _event_coordinates(codebook, time, doublings)
+        train = _train_on(problem, codebook, event, coordinates, 0.1 * tolerance, counter)
+        if not doublings:
+            return coordinates, train, {"evaluations": counter[0], "nodes": {}, "error": 0.0}
+        book = Codebook(coordinates, {event.name: train}, name=event.name)
+        errors = _line_errors(problem, codebook, event, book, coordinates, rng)
+        worst = max(errors.values())
+        short = [n for n, e in errors.items() if not e <= tolerance]
+        if not short:
+            return coordinates, train, {"evaluations": counter[0], "error": worst,
+                                        "nodes": {c.name: c.nodes for c in coordinates if c.name != time}}
+        if any(doublings[n] >= MAX_DOUBLINGS or
+               (codebook.coordinate(n).nodes - 1) * 2 ** (doublings[n] + 1) + 1 > MAX_EVENT_NODES for n in short):
+            raise SolverError(f"event {event.name!r}: its time is not resolved along {short[0]!r} (error {worst:.2g} "
+                              f"off the nodes with {dict((c.name, c.nodes) for c in coordinates)[short[0]]} nodes); "
+                              f"it may jump where the first crossing changes, or graze the condition")
+        for n in short:
+            doublings[n] += 1
