@@ -19,13 +19,13 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import SolverError
-from ..problem.events import Event, condition_values
+from ..problem.events import Event, condition_values, state_gradient_norm
 from ..codebook.codebook import Codebook
 from ..discretization.coordinates import CoordinateInfo
 from ..tensors.cross import tt_cross
 from ..tensors.tt import TT
 
-__all__ = ["first_crossings", "event_field", "NoEvent", "MAX_DOUBLINGS"]
+__all__ = ["first_crossings", "event_field", "time_per_state", "NoEvent", "MAX_DOUBLINGS"]
 
 #: Scan values held at once (points x scan times x unknowns): bounds the memory of one batch.
 SCAN_BATCH_VALUES = 2_000_000
@@ -85,6 +85,21 @@ def _brackets(problem, codebook, event: Event, params: Mapping[str, np.ndarray],
     k = np.argmax(hit, axis=1)
     rows = np.arange(S)
     return scan[k], scan[k + 1], g[rows, k], g[rows, k + 1], found
+
+
+def time_per_state(problem, codebook, event: Event, params: Mapping[str, np.ndarray], t: np.ndarray) -> np.ndarray:
+    """``sum_i |dg/du_i| / |dg/dt|`` at the crossings ``t`` on the codebook: how far in time an error of
+    the state moves the event (1 where the crossing is not slow: at least the time's own units)."""
+    time = problem.time
+    lo, hi = codebook.coordinate(time).domain
+    h = 1e-6 * (hi - lo)
+    a, b = np.clip(t - h, lo, hi), np.clip(t + h, lo, hi)
+    with np.errstate(all="ignore"):
+        rate = np.abs(_condition(event, codebook, time, b, params) - _condition(event, codebook, time, a, params)) / (b - a)
+        state = codebook.evaluate({time: t, **params})
+        norm = state_gradient_norm(event, state, {time: t, **params})
+        scale = norm / rate
+    return np.where(np.isfinite(scale), np.maximum(scale, 1.0), 1.0)
 
 
 def first_crossings(problem, codebook, event: Event, params: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -176,7 +191,8 @@ def _train_on(problem, codebook, event: Event, coordinates: list, tolerance: flo
 
 def _line_errors(problem, codebook, event: Event, book, coordinates: list, rng) -> dict[str, float]:
     """Per parameter coordinate, the largest error of the field off its nodes in that coordinate alone
-    (the others at random nodes), against the crossing located on the codebook itself."""
+    (the others at random nodes), against the crossing located on the codebook itself, over the time an
+    error of one unit of the state moves the crossing (:func:`time_per_state`, at least 1)."""
     time = problem.time
     others = [c for c in coordinates if c.name != time]
     nodes = {c.name: c.basis().nodes for c in others}
@@ -188,7 +204,11 @@ def _line_errors(problem, codebook, event: Event, book, coordinates: list, rng) 
         points[c.name] = x[k] + (x[k + 1] - x[k]) * rng.uniform(0.3, 0.7, LINE_POINTS)
         exact = first_crossings(problem, codebook, event, points)
         got = book.evaluate({**points, time: float(codebook.coordinate(time).domain[0])}, [event.name])[event.name]
-        errors[c.name] = float(np.nanmax(np.abs(got - exact))) if np.isfinite(exact).all() else np.inf
+        if not np.isfinite(exact).all():
+            errors[c.name] = np.inf
+            continue
+        scale = time_per_state(problem, codebook, event, points, exact)
+        errors[c.name] = float(np.max(np.abs(got - exact) / scale))
     return errors
 
 
@@ -205,7 +225,8 @@ def event_field(problem, codebook, event: Event, tolerance: float, rng=None) -> 
     problem, codebook, event
         As :func:`first_crossings`.
     tolerance : float
-        Max error of the field's interpolation against the crossing located on the codebook (time units).
+        Max error of the field's interpolation against the crossing located on the codebook, in time
+        units, or in the state's where the crossing is slow (see :func:`time_per_state`).
 
     Returns
     -------
@@ -243,7 +264,7 @@ def event_field(problem, codebook, event: Event, tolerance: float, rng=None) -> 
         if any(doublings[n] >= MAX_DOUBLINGS or
                (codebook.coordinate(n).nodes - 1) * 2 ** (doublings[n] + 1) + 1 > MAX_EVENT_NODES for n in short):
             raise SolverError(f"event {event.name!r}: its time is not resolved along {short[0]!r} (error {worst:.2g} "
-                              f"off the nodes with {dict((c.name, c.nodes) for c in coordinates)[short[0]]} nodes); "
+                              f"> {tolerance:.2g} off the nodes with {dict((c.name, c.nodes) for c in coordinates)[short[0]]} nodes); "
                               f"it may jump where the first crossing changes, or graze the condition")
         for n in short:
             doublings[n] += 1

@@ -5,7 +5,10 @@ in one coordinate at a time: :func:`~pgdcli.checks.sampling.check_sample`,
 :func:`~pgdcli.checks.sampling.line_sample`) each event's condition is located by ``solve_ivp`` on
 the problem's own equations at tight tolerances, one point at a time (an event is a property of
 one trajectory); the codebook's event times must be within ``tolerance + relative_tolerance * |t|``
-of it. A reference event at the start time itself is not an event (the codebook's rule).
+of it, or else be the exact event time of a trajectory within ``tolerance`` of the true one (the
+reference state at the codebook's event time within ``tolerance`` of the event's surface: a slow
+crossing moves far in time for a small error of the state). A reference event at the start time
+itself is not an event (the codebook's rule).
 """
 
 from __future__ import annotations
@@ -14,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..problem.events import condition_values
-from .reference_ode import CompiledSystem
+from ..problem.events import condition_values, state_gradient_norm
+from .reference_ode import CompiledSystem, implicit_options
 from .sampling import check_sample, line_sample
 
 __all__ = ["EventCheck", "check_events", "reference_event_times", "EVENT_POINTS"]
@@ -37,7 +40,9 @@ class EventCheck:
     error : float
         Max abs error of the event time over the points (inf where the reference finds no event).
     ratio : float
-        Max of error / (tolerance + relative_tolerance * |t|).
+        Max over the points of the smaller of error / (tolerance + relative_tolerance * |t|) and
+        distance / tolerance, ``distance`` the reference state's at the codebook's event time from
+        the event's surface (``|g| / sum_i |dg/du_i|``).
     where : dict
         The parameter point of the largest ratio.
     points : int
@@ -82,9 +87,75 @@ def _event_function(event, system, time: str, params: dict):
     return g
 
 
-def reference_event_times(problem, points: dict, *, stiff: bool = False, max_evaluations: int = 2_000_000
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Every event's first time after the start at parameter points, by ``solve_ivp`` with event location.
+def reference_event_times(problem, points: dict, *, stiff: bool = False, max_evaluations: int = 2_000_000,
+                          at: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every event's first time after the start at parameter points, from ``solve_ivp``.
+
+    All points in one vectorized call with dense output (each event's first crossing bracketed
+    between the solver's steps and located by ``brentq`` on the dense output); where that call
+    fails, one call per point with ``solve_ivp``'s own event location (:func:`_one_by_one`).
+    Parameters and returns are those of :func:`_one_by_one`.
+    """
+    together = _together(problem, points, stiff, max_evaluations, at)
+    return together if together is not None else _one_by_one(problem, points, stiff=stiff,
+                                                              max_evaluations=max_evaluations, at=at)
+
+
+def _together(problem, points: dict, stiff: bool, max_evaluations: int, at):
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    time = problem.time
+    t0, t1 = problem.coordinate(time).domain
+    S = next(iter(points.values())).size if points else 1
+    method = "Radau" if stiff else "DOP853"
+    with np.errstate(all="ignore"):
+        system = CompiledSystem(problem, points, S, max_evaluations)
+        y0 = system.initial(problem, points)
+    if system.bad.any() or not np.isfinite(y0).all():
+        return None
+    try:
+        with np.errstate(all="ignore"):
+            sol = solve_ivp(system, (t0, t1), y0.reshape(-1), method=method, rtol=RTOL, atol=ATOL, dense_output=True,
+                            **implicit_options(method, system.q, S))
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError):
+        return None
+    if sol.status != 0 or not np.isfinite(sol.y).all():
+        return None
+    q, index = system.q, system.index
+    states = sol.y.reshape(S, q, -1)
+    times = np.full((len(problem.events), S), np.nan)
+    distance = np.full((len(problem.events), S), np.nan)
+    for k, event in enumerate(problem.events):
+        where = {time: sol.t[None, :], **{n: v[:, None] for n, v in points.items()}}
+        g = condition_values(event, {u: states[:, i, :] for u, i in index.items()}, where)
+        g = np.array(g)
+        g[:, 0] = np.where(g[:, 0] == 0.0, g[:, 1], g[:, 0])  # met exactly at the start: not an event there
+        rising, falling = (g[:, :-1] < 0) & (g[:, 1:] >= 0), (g[:, :-1] > 0) & (g[:, 1:] <= 0)
+        hit = rising if event.direction == "rising" else falling if event.direction == "falling" else rising | falling
+        for i in np.flatnonzero(hit.any(axis=1)):
+            j = int(np.argmax(hit[i]))
+            params = {n: v[i:i + 1] for n, v in points.items()}
+
+            def g_at(t, i=i, params=params):
+                y = sol.sol(t).reshape(S, q)[i]
+                return float(condition_values(event, {u: y[c:c + 1] for u, c in index.items()},
+                                              {time: np.array([t]), **params})[0])
+
+            a, b = float(sol.t[j]), float(sol.t[j + 1])
+            times[k, i] = b if g_at(b) == 0.0 else brentq(g_at, a, b, xtol=1e-15 * max(1.0, abs(b)), rtol=1e-15)
+        if at is not None:
+            for i in np.flatnonzero(np.isfinite(at[k])):
+                y = sol.sol(float(at[k, i])).reshape(S, q)[i]
+                distance[k, i] = _distance(event, system, y, time, float(at[k, i]),
+                                           {n: v[i:i + 1] for n, v in points.items()})
+    return times, np.ones(S, dtype=bool), distance
+
+
+def _one_by_one(problem, points: dict, *, stiff: bool = False, max_evaluations: int = 2_000_000,
+                at: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every event's first time after the start at parameter points, one ``solve_ivp`` with event location
+    per point.
 
     Parameters
     ----------
@@ -94,6 +165,8 @@ def reference_event_times(problem, points: dict, *, stiff: bool = False, max_eva
         Every parameter coordinate's values (``{}``: the one point of a problem without parameters).
     stiff : bool
         Integrate with Radau instead of DOP853.
+    at : ndarray, shape (n_events, S), optional
+        Times at which to measure the distance of the reference state from each event's surface.
 
     Returns
     -------
@@ -101,6 +174,8 @@ def reference_event_times(problem, points: dict, *, stiff: bool = False, max_eva
         NaN where the event does not happen before the end time.
     ok : ndarray of bool, shape (S,)
         False where the integration failed.
+    distance : ndarray, shape (n_events, S)
+        ``|g| / sum_i |dg/du_i|`` of the reference state at ``at`` (NaN without ``at``).
     """
     from scipy.integrate import solve_ivp
 
@@ -108,6 +183,7 @@ def reference_event_times(problem, points: dict, *, stiff: bool = False, max_eva
     t0, t1 = problem.coordinate(time).domain
     S = next(iter(points.values())).size if points else 1
     times = np.full((len(problem.events), S), np.nan)
+    distance = np.full((len(problem.events), S), np.nan)
     ok = np.ones(S, dtype=bool)
     for i in range(S):
         params = {n: v[i:i + 1] for n, v in points.items()}
@@ -121,7 +197,7 @@ def reference_event_times(problem, points: dict, *, stiff: bool = False, max_eva
         try:
             with np.errstate(all="ignore"):
                 sol = solve_ivp(system, (t0, t1), y0, method="Radau" if stiff else "DOP853", rtol=RTOL, atol=ATOL,
-                                events=functions)
+                                events=functions, dense_output=at is not None)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError):
             ok[i] = False
             continue
@@ -132,7 +208,19 @@ def reference_event_times(problem, points: dict, *, stiff: bool = False, max_eva
             later = found[found > t0 + 8 * np.spacing(max(abs(t0), abs(t1)))]
             if later.size:
                 times[k, i] = later[0]
-    return times, ok
+            if at is not None and np.isfinite(at[k, i]):
+                distance[k, i] = _distance(problem.events[k], system, sol.sol(at[k, i]), time, at[k, i], params)
+    return times, ok, distance
+
+
+def _distance(event, system, y: np.ndarray, time: str, t: float, params: dict) -> float:
+    """``|g| / sum_i |dg/du_i|`` at the state ``y``: how far it is from the event's surface."""
+    values = {u: y[i:i + 1] for u, i in system.index.items()}
+    where = {time: np.array([t]), **params}
+    with np.errstate(all="ignore"):
+        g = condition_values(event, values, where)[0]
+        norm = state_gradient_norm(event, values, where)[0]
+    return float(abs(g) / norm) if norm > 0 else float(abs(g))
 
 
 def check_events(problem, codebook, *, tolerance: float, relative_tolerance: float = 0.0, stiff: bool = False,
@@ -145,16 +233,18 @@ def check_events(problem, codebook, *, tolerance: float, relative_tolerance: flo
         One per event of the problem, in spec order.
     """
     points = _sample(problem, codebook, seed)
-    reference, ok = reference_event_times(problem, points, stiff=stiff)
     approx = codebook.event_times(points) if points else {k: np.atleast_1d(v)
                                                            for k, v in codebook.event_times({}).items()}
+    at = np.array([np.asarray(approx[e.name], dtype=float).reshape(-1) for e in problem.events])
+    reference, ok, distance = reference_event_times(problem, points, stiff=stiff, at=at)
     out = []
     for k, event in enumerate(problem.events):
         ref = reference[k][ok]
-        got = np.asarray(approx[event.name], dtype=float).reshape(-1)[ok]
+        got = at[k][ok]
         with np.errstate(invalid="ignore"):
             error = np.where(np.isnan(ref), np.inf, np.abs(got - ref))
-            ratio = error / (tolerance + relative_tolerance * np.abs(np.nan_to_num(ref)))
+            in_time = error / (tolerance + relative_tolerance * np.abs(np.nan_to_num(ref)))
+            ratio = np.fmin(in_time, distance[k][ok] / tolerance)
         if ratio.size == 0:
             out.append(EventCheck(event.name, float("nan"), float("nan"), {}, 0, int((~ok).sum())))
             continue

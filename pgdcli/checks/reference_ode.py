@@ -20,7 +20,7 @@ from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, 
                              checked_params, checked_times, chunk_executor, chunk_size_for, run_in_chunks,
                              sample_subset)
 
-__all__ = ["solve_reference_vectorized"]
+__all__ = ["solve_reference_vectorized", "implicit_options", "CompiledSystem"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -212,7 +212,7 @@ def _integrate(problem, params, S, t0, times, method, rtol, atol, max_evaluation
     out[:, :, ~late] = y0[:, :, None]  # times at t0
     if not late.any():
         return out, np.zeros(S, dtype=bool), ""
-    options = _implicit_options(method, q, S)
+    options = implicit_options(method, q, S)
     if method == "LSODA":
         options["lband"] = options["uband"] = q - 1
     # Integrate from output time to output time, so that every reported value is the end of a real
@@ -402,7 +402,7 @@ def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int
                 return None
             fun = system if progress is None else _reporting(system, float(times[0]), float(times[-1]), progress)
             sol = solve_ivp(fun, (float(times[0]), float(times[-1])), y0.reshape(-1), method=method,
-                            rtol=rtol, atol=atol, t_eval=times, **_implicit_options(method, system.q, S))
+                            rtol=rtol, atol=atol, t_eval=times, **implicit_options(method, system.q, S))
     except (ReferenceBudgetExceeded, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError):
         return None
     if sol.status != 0 or sol.y.shape[1] != times.size or not np.isfinite(sol.y).all():
@@ -411,7 +411,7 @@ def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int
     return {u: values[:, i, :] for i, u in enumerate(names)}
 
 
-def _implicit_options(method: str, q: int, S: int) -> dict:
+def implicit_options(method: str, q: int, S: int) -> dict:
     """solve_ivp's options of an implicit method on S independent samples of q unknowns: their Jacobian is
     block diagonal (finite differences of few columns each), and the right-hand side vectorized."""
     if method not in ("Radau", "BDF"):

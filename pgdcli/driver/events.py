@@ -91,8 +91,8 @@ def _record(problem, result: SolveResult, settings: Settings, callback) -> Solve
         what = ("no event there in scipy's reference" if not np.isfinite(worst.error)
                 else f"error {worst.error:.3g} ({worst.ratio:.2g} x the tolerance)")
         return _refused(result, Status.INACCURATE,
-                        f"tolerance not met: the time of event {worst.name!r}: {what} at {where or 'the start'}; "
-                        f"a crossing at a shallow angle magnifies the solution's error in its time",
+                        f"tolerance not met: the time of event {worst.name!r}: {what} at {where or 'the start'}, "
+                        f"and the reference state there is off the event's surface by more than the tolerance",
                         False)
     result = dataclasses.replace(result, message=result.message + f"; event times within {worst.ratio:.2g} x the "
                                                                   f"tolerance")

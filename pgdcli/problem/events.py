@@ -28,7 +28,7 @@ from .expressions import ParseOptions, Polynomial, parse_equation
 from .general import evaluate as general_tree_values
 from .general import is_general, tree_of
 
-__all__ = ["Event", "DIRECTIONS", "EVENT_KEYS", "parse_events", "condition_values"]
+__all__ = ["Event", "DIRECTIONS", "EVENT_KEYS", "parse_events", "condition_values", "state_gradient_norm"]
 
 #: ``rising``: g goes from negative to non-negative; ``falling``: positive to non-positive.
 DIRECTIONS = ("any", "rising", "falling")
@@ -126,3 +126,20 @@ def condition_values(event: Event, unknowns: Mapping[str, np.ndarray], coordinat
             total = total + term
     shape = np.broadcast_shapes(*(np.shape(v) for v in values.values()))
     return np.broadcast_to(np.asarray(total, dtype=float), shape)
+
+
+def state_gradient_norm(event: Event, unknowns: Mapping[str, np.ndarray], coordinates: Mapping[str, np.ndarray]
+                        ) -> np.ndarray:
+    """``sum_i |dg/du_i|`` at points, by central differences: ``|g| / norm`` is the smallest change of the
+    state (in the max norm) that puts it on the event's surface, to first order.
+
+    A scale, not a claimed value: the step is ``1e-6 (1 + |u_i|)``.
+    """
+    total = 0.0
+    for name in unknowns:  # every unknown: a general term's (sin(th)) are inside its tree
+        u = np.asarray(unknowns[name], dtype=float)
+        h = 1e-6 * (1.0 + np.abs(u))
+        up = condition_values(event, {**unknowns, name: u + h}, coordinates)
+        down = condition_values(event, {**unknowns, name: u - h}, coordinates)
+        total = total + np.abs(up - down) / (2 * h)
+    return np.asarray(total, dtype=float)

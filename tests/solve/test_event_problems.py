@@ -194,3 +194,30 @@ def test_shipped_landing_within_tolerance_against_solve_ivp():
     ref = np.array([_reference_landing(a, b) for a, b in zip(p["v0"], p["c"])])
     assert np.abs(got["landing"] - ref[:, 0]).max() <= 1e-6
     assert np.abs(got["apex"] - ref[:, 1]).max() <= 1e-6
+
+
+def test_a_slow_crossing_is_held_to_the_solutions_tolerance():
+    # u = exp(-1e-4 k t) passes 0.5 at ln 2 / (1e-4 k), with |du/dt| = 5e-5 k there: an error of 1e-6 in u
+    # moves the crossing by up to 0.02 in time, so the event time is promised to that (the state's tolerance)
+    text = """
+coordinates:
+  t: {domain: [0, 10000]}
+  k: {domain: [1, 2]}
+unknowns:
+  u: {initial: 1}
+equations:
+  - "der(u) = -1e-4*k*u"
+events:
+  half: "u = 0.5"
+solver:
+  tolerance: 1.0e-6
+"""
+    result = pgdcli.solve(parse_spec(text, source="slow.yaml"))
+    assert result.converged and result.accurate, result.message
+    k = np.r_[np.linspace(1, 2, 101), np.random.default_rng(2).uniform(1, 2, 300)]
+    got = result.codebook.event_times({"k": k})["half"]
+    exact = np.log(2) / (1e-4 * k)
+    allowed = 1e-6 / (5e-5 * k)  # the time an error of 1e-6 in u moves the crossing
+    assert np.all(np.abs(got - exact) <= allowed)
+    # and the state of the exact solution at the stored time is within the tolerance of 0.5
+    assert np.abs(np.exp(-1e-4 * k * got) - 0.5).max() <= 1e-6
