@@ -122,17 +122,22 @@ def fit_command(codebook, data, fix, sigma, starts, seed, no_check, fmt, plot_pa
               help="Write to FILE [default: stdout].")
 @click.option("--force", is_flag=True, help="Export even past the size limit (16 MiB of float64 numbers).")
 @click.option("-q", "--quiet", is_flag=True, help="No size line on stderr.")
-def export_command(codebook, target, output, force, quiet):
+@click.option("--event", metavar="NAME", help="Export the time of this event instead of the unknowns: an "
+                                              "evaluator of the coordinates other than time.")
+def export_command(codebook, target, output, force, quiet, event):
     """Write a self-contained evaluator of CODEBOOK for engines and other languages.
 
     \b
       pgd export codebooks/rigid_body.h5 --to c -o pgd_rigid_body.h
       pgd export codebooks/coupled.h5 --to json > coupled.json
+      pgd export codebooks/landing.h5 --event landing --to c -o pgd_landing_landing.h
     """
     from ..codebook.codebook import Codebook
     from ..codebook.export import export
 
     cb = Codebook.load(codebook, evaluation_only=True)
+    if event is not None:
+        cb = cb.event_codebook(event)
     files, size = export(cb, target, force=force)
     ((name, text),) = files.items()
     if output is None:

@@ -14,7 +14,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import QueryError
-from .events import event_times
+from .events import event_times, event_without_time
 from .gradient import gradient_grid, gradient_points
 from .notebook import to_xarray
 from .sensitivity import sensitivity
@@ -44,6 +44,22 @@ class CodebookAnalysis:
             self._event_book = {e: type(self)(ev.coordinates, {e: ev.field}, name=self.name)
                                 for e, ev in self.events.items()}
         return event_times(self, self._event_book, coordinates, events)
+
+    def event_codebook(self, name: str) -> "Codebook":
+        """The time of event ``name`` as a codebook of its own, for export: the coordinates but time, one
+        unknown named ``name``, the time core contracted at the start (the field is constant in time).
+
+        Raises
+        ------
+        QueryError
+            No event of that name.
+        """
+        if name not in self.events:
+            known = ", ".join(self.events) or "none"
+            raise QueryError(f"unknown event {name!r}; this codebook's events: {known}")
+        event = self.events[name]
+        coords, train = event_without_time(event)
+        return type(self)(coords, {name: train}, name=f"{self.name}_{name}", description=f"time of {event.when}")
 
     def evaluate_series(self, points: Mapping[str, object], series: Mapping[str, object],
                         fields: Sequence[str] | None = None) -> dict[str, np.ndarray]:

@@ -19,7 +19,7 @@ from ..errors import CodebookError, QueryError
 from ..names import identifier_problem, printable
 from .fields import TT, validate_field
 
-__all__ = ["EventTime", "DIRECTIONS", "validate_event", "event_times"]
+__all__ = ["EventTime", "DIRECTIONS", "validate_event", "event_times", "event_without_time"]
 
 DIRECTIONS = ("any", "rising", "falling")
 #: Longest condition text kept with a codebook (a spec's expressions are shorter).
@@ -108,3 +108,22 @@ def event_times(cb, books: Mapping, coordinates: Mapping[str, object], events: S
     given = dict(coordinates)
     given[time.name] = float(time.domain[0])  # the fields are constant in time
     return {e: books[e].evaluate(given)[e] for e in selected}
+
+
+def event_without_time(event: EventTime) -> tuple[list, TT]:
+    """An event's coordinates and train without the time core (contracted at the start of time), or as
+    they are when time is the only coordinate."""
+    coords = list(event.coordinates)
+    j = next(k for k, c in enumerate(coords) if c.role == "time")
+    if len(coords) == 1:
+        return coords, event.field
+    cores, order = [np.asarray(c) for c in event.field.cores], list(event.field.mode_order)
+    k = order.index(j)
+    weights = coords[j].basis().interpolation_matrix(np.array([coords[j].domain[0]]))[0]
+    matrix = np.einsum("anb,n->ab", cores[k], weights)
+    if k + 1 < len(cores):
+        cores[k + 1] = np.einsum("ab,bnc->anc", matrix, cores[k + 1])
+    else:
+        cores[k - 1] = np.einsum("anb,bc->anc", cores[k - 1], matrix)
+    del cores[k], order[k]
+    return coords[:j] + coords[j + 1:], TT(cores, [m - (m > j) for m in order])

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+
 import h5py
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from pgdcli import Codebook
+from pgdcli.cli.main import cli
 from pgdcli.codebook.codebook import CoordinateInfo
 from pgdcli.codebook.events import EventTime
 from pgdcli.errors import CodebookError, QueryError
@@ -100,3 +105,35 @@ def test_saved_events_load_back(saved):
     back = Codebook.load(saved, evaluation_only=True)
     assert back.events["half"].when == "u = 1.5" and back.events["half"].coordinates[1].nodes == 9
     assert float(back.event_times({"k": 2.0})["half"]) == pytest.approx(1.0, rel=1e-14)
+
+
+def test_event_codebook_drops_time_wherever_its_core_sits():
+    rng = np.random.default_rng(4)
+    mine = (CoordinateInfo("k", (1.0, 2.0), 6), CoordinateInfo("t", (0.0, 1.0), 2, "chebyshev", "time"),
+            CoordinateInfo("a", (0.0, 3.0), 5))
+    coords = (CoordinateInfo("k", (1.0, 2.0), 5), COORDS[0], CoordinateInfo("a", (0.0, 3.0), 4))
+    field = TT([rng.normal(size=(1, 6, 2)), np.stack([np.eye(2)] * 2, axis=1) * 1.5, rng.normal(size=(2, 5, 1))])
+    base = Codebook(coords, {"u": TT([np.ones((1, 5, 1)), np.ones((1, 5, 1)), np.ones((1, 4, 1))])},
+                    events={"e": EventTime("u = 1", "any", mine, field)}, name="three")
+    alone = base.event_codebook("e")
+    assert alone.coordinate_names == ["k", "a"] and alone.unknown_names == ["e"]
+    k, a = rng.uniform(1, 2, 50), rng.uniform(0, 3, 50)
+    np.testing.assert_allclose(alone.evaluate({"k": k, "a": a})["e"], base.event_times({"k": k, "a": a})["e"],
+                               rtol=1e-13)
+    with pytest.raises(QueryError, match="unknown event 'f'"):
+        base.event_codebook("f")
+
+
+@pytest.mark.skipif(shutil.which("cc") is None, reason="no C compiler (cc) on this machine")
+def test_exported_event_time_in_c_matches_the_codebook(saved, tmp_path):
+    run = CliRunner().invoke(cli, ["export", str(saved), "--event", "half", "--to", "c", "-o",
+                                   str(tmp_path / "half.h")], prog_name="pgd")
+    assert run.exit_code == 0, run.output
+    (tmp_path / "main.c").write_text('#include <stdio.h>\n#include "half.h"\nint main(void) {\n'
+                                     '  double k[3] = {1.0, 1.37, 2.0}, out[1]; int i;\n'
+                                     '  for (i = 0; i < 3; ++i) { pgd_toy_half_eval(&k[i], out); '
+                                     'printf("%.17g\\n", out[0]); }\n  return 0;\n}\n')
+    subprocess.run(["cc", "-std=c99", "-O1", "-o", str(tmp_path / "main"), str(tmp_path / "main.c")], check=True)
+    got = [float(v) for v in subprocess.run([str(tmp_path / "main")], capture_output=True, text=True,
+                                            check=True).stdout.split()]
+    np.testing.assert_allclose(got, [0.5, 0.685, 1.0], rtol=1e-13)
