@@ -224,15 +224,18 @@ def _distance(event, system, y: np.ndarray, time: str, t: float, params: dict) -
 
 
 def check_events(problem, codebook, *, tolerance: float, relative_tolerance: float = 0.0, stiff: bool = False,
-                 seed: int = 0) -> list[EventCheck]:
+                 seed: int = 0, points: dict | None = None) -> list[EventCheck]:
     """The codebook's event times (``codebook.event_times``) against :func:`reference_event_times`.
+
+    ``points`` (parameter coordinate -> values) replaces the check sample (``pgd verify`` gives its own).
 
     Returns
     -------
     list of EventCheck
         One per event of the problem, in spec order.
     """
-    points = _sample(problem, codebook, seed)
+    points = _sample(problem, codebook, seed) if points is None else {n: np.asarray(v, dtype=float).reshape(-1)
+                                                                         for n, v in points.items()}
     approx = codebook.event_times(points) if points else {k: np.atleast_1d(v)
                                                            for k, v in codebook.event_times({}).items()}
     at = np.array([np.asarray(approx[e.name], dtype=float).reshape(-1) for e in problem.events])

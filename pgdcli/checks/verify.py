@@ -50,6 +50,7 @@ import numpy as np
 from .. import executors
 from ..codebook.codebook import Codebook
 from ..errors import CodebookError, VerifyError
+from .events import check_events
 from .compare import UnknownErrors, codebook_at_samples, codebook_on_space_grid, error_statistics
 from .reference import DEFAULT_SPACE_NODES, METHODS, PDE_METHODS, solve_reference, solve_reference_pde
 from .reference_base import TIME_UP, chunk_executor, time_budget
@@ -218,8 +219,14 @@ def verify(
         result, approx, space_grid = _reference_and_codebook(cb, problem, sample_points, S, all_times, opts,
                                                              settings, method, rtol, atol, space_nodes,
                                                              report_progress, runner)
-    return _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,
-                   _time.perf_counter() - started)
+    report = _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,
+                     _time.perf_counter() - started)
+    if cb.events and problem.events and report.tolerance is not None:  # the event times, at the same points
+        checks = check_events(problem, cb, tolerance=report.tolerance, relative_tolerance=report.relative_tolerance,
+                              stiff=method in ("Radau", "BDF", "LSODA"), points=sample_points)
+        report.events = {c.name: c for c in checks}
+        report.wall_time = _time.perf_counter() - started
+    return report
 
 
 def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, settings, method, rtol, atol,

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -63,6 +64,9 @@ class VerifyReport:
         Seconds.
     space_points : dict of str to ndarray
         With space coordinates: the points of each (sorted); else empty.
+    events : dict of str to pgdcli.checks.events.EventCheck
+        The codebook's event times against scipy's event location at the same parameter points
+        (empty for a codebook without events); held to the codebook's tolerance.
     """
 
     codebook: str | None
@@ -82,6 +86,7 @@ class VerifyReport:
     space_points: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     tolerance: float | None = None
     relative_tolerance: float = 0.0
+    events: dict = field(default_factory=dict, repr=False)
 
     @property
     def n_points(self) -> int:
@@ -143,6 +148,11 @@ class VerifyReport:
             if self.tolerance_gate(max_error, max_rel_error) and not stats.tolerance_ratio <= 1:
                 reasons.append(f"{name}: max abs error {stats.max_abs_error:.3e} at {_format_point(stats.where)}, "
                                f"{stats.tolerance_ratio:.3g} x the codebook's tolerance {self.tolerance:.3g}")
+        for name, check in self.events.items():
+            if not check.accurate:
+                reasons.append(f"event {name}: time error {check.error:.3e} at {_format_point(check.where)}, "
+                               f"{check.ratio:.3g} x the codebook's tolerance (in time, or in the state for a slow "
+                               f"crossing)")
         return reasons
 
     def passed(self, max_error: float | None = None, max_rel_error: float | None = None) -> bool:
@@ -178,8 +188,15 @@ class VerifyReport:
             "unknowns": {name: stats.to_dict() for name, stats in self.unknowns.items()},
             "failures": {"count": len(self.failures), "points": [f.to_dict() for f in self.failures]},
             "complete": self.not_checked == 0,
+            **({"events": {n: {"max_abs_error": _finite(c.error), "tolerance_ratio": _finite(c.ratio),
+                               "where": dict(c.where), "points": c.points, "failed": c.failed}
+                           for n, c in self.events.items()}} if self.events else {}),
             "wall_time": float(self.wall_time),
         }
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 def _format_point(point: Mapping[str, float]) -> str:

@@ -189,6 +189,14 @@ def _verify_tables(report, max_error, max_rel_error) -> list:
             cells.append("n/a" if not math.isfinite(stats.tolerance_ratio) else f"{stats.tolerance_ratio:.3g}")
         table.add_row(name, *cells, at)
     out: list = [table]
+    if report.events:
+        events = Table(title="event times against scipy's event location", title_justify="left")
+        for column in ("event", "max abs error", "error / tolerance", "worst at"):
+            events.add_column(column, justify="left" if column in ("event", "worst at") else "right")
+        for name, check in report.events.items():
+            events.add_row(name, number(check.error), "n/a" if not math.isfinite(check.ratio) else f"{check.ratio:.3g}",
+                           ", ".join(f"{k}={v:.6g}" for k, v in check.where.items()) or "-")
+        out.append(events)
     if report.not_checked:
         out.append(f"[bold red]stopped at the time budget of {s['max_seconds']:g} s[/]: {report.not_checked} of "
                    f"{s['parameter_points']} parameter points not checked (raise --max-seconds)")

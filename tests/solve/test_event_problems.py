@@ -221,3 +221,20 @@ solver:
     assert np.all(np.abs(got - exact) <= allowed)
     # and the state of the exact solution at the stored time is within the tolerance of 0.5
     assert np.abs(np.exp(-1e-4 * k * got) - 0.5).max() <= 1e-6
+
+
+def test_verify_checks_the_event_times_and_fails_a_wrong_one(drop, tmp_path):
+    _, result = drop
+    cb = result.codebook
+    good, bad = tmp_path / "good.h5", tmp_path / "bad.h5"
+    cb.save(good)
+    event = cb.events["landing"]
+    cores = [c.copy() for c in event.field.cores]
+    cores[-1] = cores[-1] * (1 + 1e-4)  # every landing 1e-4 of itself late
+    cb.with_events({**cb.events, "landing": EventTime(event.when, event.direction, event.coordinates,
+                                                      type(event.field)(cores, event.field.mode_order))}).save(bad)
+    report = pgdcli.verify(good, samples=16)
+    assert report.passed() and set(report.events) == {"landing", "apex"}
+    assert report.to_dict()["events"]["landing"]["tolerance_ratio"] <= 1
+    run = CliRunner().invoke(cli, ["verify", str(bad), "--samples", "16"], prog_name="pgd")
+    assert run.exit_code == 1 and "verification failed: event landing: time error 1." in run.output, run.output
