@@ -3,8 +3,8 @@
 For a parameter point the condition ``g(u(t, p), t, p)`` is scanned along the codebook's time
 nodes and the midpoints between them (the codebook resolves ``u`` there, so a crossing between
 two scan points is a single sign change of a smooth function); the first bracket in the event's
-direction is narrowed on the codebook's own interpolant by the Illinois variant of regula falsi,
-all points at once. At the start time the exact initial values decide (a condition that holds
+direction is narrowed on the codebook's own interpolant by Chandrupatla's bracketing method
+(``scipy.optimize.elementwise.find_root``), all points at once. At the start time the exact initial values decide (a condition that holds
 there exactly is not an event there, as in ``solve_ivp``'s event location).
 
 :func:`event_field` builds the event time on the grid of the codebook's parameter nodes as a tensor
@@ -17,11 +17,12 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
+from scipy.optimize.elementwise import find_root
 
-from ..errors import SolverError
-from ..problem.events import Event, condition_values, state_gradient_norm
 from ..codebook.codebook import Codebook
 from ..discretization.coordinates import CoordinateInfo
+from ..errors import SolverError
+from ..problem.events import Event, condition_values, state_gradient_norm
 from ..tensors.cross import tt_cross
 from ..tensors.tt import TT
 
@@ -29,7 +30,11 @@ __all__ = ["first_crossings", "event_field", "time_per_state", "NoEvent", "MAX_D
 
 #: Scan values held at once (points x scan times x unknowns): bounds the memory of one batch.
 SCAN_BATCH_VALUES = 2_000_000
-ILLINOIS_ITERATIONS = 80
+ROOT_ITERATIONS = 80
+#: A crossing is located to this share of the time span (far below any tolerance).
+SETTLED = 1e-13
+#: Grids of parameter nodes of at most this many points are located whole (cheaper than a cross).
+DENSE_EVENT_GRID = 20_000
 #: Times a coordinate's node intervals may be halved for an event (beyond the codebook's nodes).
 MAX_DOUBLINGS = 4
 #: Most nodes of an event's coordinate.
@@ -121,26 +126,21 @@ def first_crossings(problem, codebook, event: Event, params: Mapping[str, np.nda
     params = {n: np.asarray(v, dtype=float).reshape(-1) for n, v in params.items()}
     S = next(iter(params.values())).size if params else 1
     a, b, ga, gb, found = _brackets(problem, codebook, event, params, S)
-    span = codebook.coordinate(problem.time).domain
-    width = 4 * np.finfo(float).eps * max(abs(span[0]), abs(span[1]))
-    side = np.zeros(S, dtype=int)  # Illinois: the end kept twice in a row has its value halved
-    for _ in range(ILLINOIS_ITERATIONS):
-        active = found & (b - a > width) & (ga != 0) & (gb != 0)
-        if not active.any():
-            break
+    lo, hi = codebook.coordinate(problem.time).domain
+    names = list(params)
+    root = a.copy()
+    rows = np.flatnonzero(found)
+    if rows.size:
+        def g(t, *values):
+            return _condition(event, codebook, problem.time, t, dict(zip(names, values)))
+
         with np.errstate(all="ignore"):
-            m = b - gb * (b - a) / (gb - ga)
-        m = np.where(np.isfinite(m) & (m > a) & (m < b), m, 0.5 * (a + b))
-        gm = _condition(event, codebook, problem.time, m, params)
-        left = active & (np.sign(gm) == np.sign(ga))  # the root is in [m, b]
-        right = active & ~left
-        a, ga = np.where(left, m, a), np.where(left, gm, ga)
-        b, gb = np.where(right, m, b), np.where(right, gm, gb)
-        gb = np.where(left & (side == 1), 0.5 * gb, gb)
-        ga = np.where(right & (side == -1), 0.5 * ga, ga)
-        side = np.where(left, 1, np.where(right, -1, side))
-    root = np.where(gb == 0, b, np.where(ga == 0, a, b - gb * (b - a) / np.where(gb - ga == 0, 1.0, gb - ga)))
-    root = np.clip(root, a, b)
+            res = find_root(g, (a[rows], b[rows]), args=tuple(params[n][rows] for n in names),
+                            tolerances={"xatol": SETTLED * (hi - lo), "xrtol": 4 * np.finfo(float).eps,
+                                        "fatol": 0.0, "frtol": 0.0}, maxiter=ROOT_ITERATIONS)
+        # a bracket the codebook's own values do not confirm (a crossing within rounding of the start)
+        # keeps its start
+        root[rows] = np.where(np.isfinite(res.x) & (res.status >= 0), res.x, a[rows])
     return np.where(found, root, np.nan)
 
 
@@ -180,7 +180,7 @@ def _train_on(problem, codebook, event: Event, coordinates: list, tolerance: flo
     if not others:
         value = float(times_at(np.zeros((1, 0), dtype=int))[0])
         return TT([np.full((1, 2, 1), value)], [names.index(time)])
-    result = tt_cross(times_at, [x.size for x in nodes], tolerance)
+    result = tt_cross(times_at, [x.size for x in nodes], tolerance, dense_limit=DENSE_EVENT_GRID)
     if not result.converged:
         raise SolverError(f"event {event.name!r}: its time is not a smooth function of the parameters "
                           f"({result.message}); it may jump where the first crossing changes")

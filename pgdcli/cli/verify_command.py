@@ -147,6 +147,19 @@ def _verify_with_progress(console, codebook, verify_codebook, options):
             progress.stop()
 
 
+def _events_table(report, number):
+    """The event times' errors (a codebook with events)."""
+    from rich.table import Table
+
+    events = Table(title="event times against scipy's event location", title_justify="left")
+    for column in ("event", "max abs error", "error / tolerance", "worst at"):
+        events.add_column(column, justify="left" if column in ("event", "worst at") else "right")
+    for name, check in report.events.items():
+        events.add_row(name, number(check.error), "n/a" if not math.isfinite(check.ratio) else f"{check.ratio:.3g}",
+                       ", ".join(f"{k}={v:.6g}" for k, v in check.where.items()) or "-")
+    return events
+
+
 def _verify_tables(report, max_error, max_rel_error) -> list:
     from rich.table import Table
 
@@ -190,13 +203,7 @@ def _verify_tables(report, max_error, max_rel_error) -> list:
         table.add_row(name, *cells, at)
     out: list = [table]
     if report.events:
-        events = Table(title="event times against scipy's event location", title_justify="left")
-        for column in ("event", "max abs error", "error / tolerance", "worst at"):
-            events.add_column(column, justify="left" if column in ("event", "worst at") else "right")
-        for name, check in report.events.items():
-            events.add_row(name, number(check.error), "n/a" if not math.isfinite(check.ratio) else f"{check.ratio:.3g}",
-                           ", ".join(f"{k}={v:.6g}" for k, v in check.where.items()) or "-")
-        out.append(events)
+        out.append(_events_table(report, number))
     if report.not_checked:
         out.append(f"[bold red]stopped at the time budget of {s['max_seconds']:g} s[/]: {report.not_checked} of "
                    f"{s['parameter_points']} parameter points not checked (raise --max-seconds)")
