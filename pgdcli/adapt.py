@@ -260,16 +260,19 @@ def _to_refine(problem, check, march: bool, discretization_limited=False) -> tup
     An error at the nodes that did not fall with the solver's residual
     (``discretization_limited``) is the time and space discretization's, which only
     more nodes there reduce: of those coordinates, the ones whose tail is at least
-    :data:`LIMITED_TAIL` of the tolerance (or that have no tail) are refined; all of
-    them when no coordinate at all shows a lack of nodes.
+    :data:`LIMITED_TAIL` of the tolerance (or that have no tail) are refined. When no
+    coordinate at all shows a lack of nodes, the ones with the largest tails are
+    (:func:`_largest_tails`: a parameter's error off its nodes is in the error the
+    check of a PDE measures as a whole), or else all of time and space.
     """
     limited = bool(discretization_limited) and check.node_ratio > 1.0
     candidates = [c for c in problem.coordinates if not (march and c.role == "time")]  # the march's follow its steps
     discretization = [c for c in candidates if limited and c.role in ("time", "space")]
     chosen = {c.name for c in candidates if _lacks_nodes(check, c.name)}
     chosen |= {c.name for c in discretization if not _has_tail(c) or check.tail_ratio.get(c.name, 0.0) > LIMITED_TAIL}
-    if not chosen:
-        chosen = {c.name for c in discretization}
+    if not chosen and limited:
+        # the tails say where the error between the nodes is, if anywhere (a parameter's, off its nodes)
+        chosen = set(_largest_tails(check, candidates)) or {c.name for c in discretization}
     refine, stuck = [], []
     for c in candidates:
         if c.name not in chosen:
@@ -279,6 +282,15 @@ def _to_refine(problem, check, march: bool, discretization_limited=False) -> tup
         else:
             stuck.append(c.name)
     return refine, stuck
+
+
+def _largest_tails(check, coordinates) -> list[str]:
+    """Of ``coordinates``, those whose Chebyshev tail is at least half the largest, when that is at least
+    :data:`LIMITED_TAIL` of the tolerance: where the error between the nodes is likeliest, when neither the
+    tails nor the measured errors show a lack of nodes alone."""
+    tails = {c.name: check.tail_ratio.get(c.name, 0.0) for c in coordinates}
+    top = max(tails.values(), default=0.0)
+    return [n for n, r in tails.items() if r >= 0.5 * top] if top > LIMITED_TAIL else []
 
 
 def _largest_off_node(problem, check, march: bool) -> list[str]:
@@ -323,13 +335,15 @@ def next_nodes(problem, check, decay: dict, history: dict, *, march: bool = Fals
         The problem at its new nodes.
     chosen : list of str
         The automatic coordinates chosen for refinement (those that lack nodes, or else the ones with the
-        largest off-node errors).
+        largest off-node errors or Chebyshev tails).
     stuck : list of str
         Those of ``chosen`` that could not be refined (at ``solver.max_nodes``).
     """
     chosen, stuck = _to_refine(problem, check, march, limited)
     if not chosen and not stuck and not stopping:
-        chosen = _largest_off_node(problem, check, march)
+        automatic = [c for c in problem.coordinates if c.auto and total_nodes(c) < problem.solver.max_nodes
+                     and not (march and c.role == "time")]
+        chosen = _largest_off_node(problem, check, march) or _largest_tails(check, automatic)
     if not chosen:
         return problem, [], []
     refined, stuck = _refine(problem, check, chosen, history, decay, error_estimates(check, chosen))

@@ -84,6 +84,16 @@ def test_a_limited_round_whose_tails_show_nothing_refines_all_of_time_and_space(
     assert nodes(refined) == {"x": 33, "t": 65, "g": 9, "k": 9}  # no rate to go by: doubled
 
 
+def test_a_limited_round_refines_the_parameter_with_the_largest_tail_when_no_tail_is_large():
+    """The check of a PDE measures the error as a whole: a parameter's error off its nodes is in it, and its
+    tail (an RMS over the other coordinates) can be small beside a local error there."""
+    problem = heat(x=17, t=33, g=9, k=24)
+    check = pde_check(2.7, {"x": 0.017, "t": 0.02, "g": 1e-9, "k": 0.25})
+    refined, chosen, _ = next_nodes(problem, check, {"x": 1.15, "t": 0.5, "k": 0.53}, {}, limited=True)
+    assert chosen == ["k"]
+    assert nodes(refined) == {"x": 17, "t": 33, "g": 9, "k": predicted(24, 2.7, 0.53, TARGET)}
+
+
 def test_a_time_coordinate_with_a_moderate_tail_is_refined_in_a_limited_round():
     problem = heat(x=17, t=33, g=9, k=9)
     check = pde_check(3.0, {"x": 2.0, "t": 0.1, "g": 0.0, "k": 0.0})
