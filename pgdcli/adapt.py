@@ -32,11 +32,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .algorithms.outcome import Status
-from .checks.resolution import chebyshev_decay
+from .checks.resolution import chebyshev_decay, error_estimates, nodes_for_decay
 
 __all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "Resolution", "Verdict", "refusal", "refined_nodes",
-           "initial_nodes", "total_nodes", "split_elements", "error_estimates",
-           "next_nodes"]
+           "initial_nodes", "total_nodes", "split_elements", "next_nodes"]
 
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
 INACCURATE = Status.INACCURATE
@@ -56,9 +55,6 @@ TARGET = 0.1
 #: The share of the tolerance the coordinates refined at once are brought to together (each to at most
 #: :data:`TARGET`): their errors can add up at one point.
 ROOM = 0.25
-#: Fewest new node intervals of a refinement, as a fraction of a coordinate's: a prediction a little short
-#: costs a whole solve, a few nodes more only a part of one.
-MIN_GROWTH = 0.25
 #: Of the time and space coordinates of a discretization-limited solve, those whose Chebyshev tail is below
 #: this share of the tolerance are left as they are: more nodes there would not lower the error.
 LIMITED_TAIL = 0.05
@@ -112,14 +108,7 @@ def _predicted_nodes(c, ratio: float, past: list, target: float = TARGET) -> int
     if not before > ratio or c.nodes <= n_before:
         return 0
     # at most two doublings at once: a rate measured over a pre-asymptotic step can be far too slow
-    return min(_nodes_to(c.nodes, ratio / target, np.log(before / ratio) / (c.nodes - n_before)), 4 * c.nodes - 3)
-
-
-def _nodes_to(nodes: int, factor: float, per_node: float) -> int:
-    """Nodes that cut an error falling by ``exp(per_node)`` per node ``factor``-fold, and at least
-    :data:`MIN_GROWTH` more intervals than ``nodes`` (a prediction a little short costs a whole solve)."""
-    predicted = int(np.ceil(nodes + np.log(factor) / per_node))
-    return max(predicted, nodes + int(np.ceil(MIN_GROWTH * (nodes - 1))))
+    return min(nodes_for_decay(c.nodes, ratio / target, np.log(before / ratio) / (c.nodes - n_before)), 4 * c.nodes - 3)
 
 
 #: Slowest decay of the Chebyshev coefficients (per node, natural log) that a first prediction trusts:
@@ -147,7 +136,7 @@ def _spectral_nodes(c, ratio: float, decay: float | None, target: float = TARGET
     """
     if decay is None or not decay >= MIN_DECAY or not ratio > target:
         return 0
-    predicted = _nodes_to(c.nodes, ratio / target, decay)
+    predicted = nodes_for_decay(c.nodes, ratio / target, decay)
     if predicted > MAX_ELEMENT_NODES and _h_able(c):
         return 0
     return min(predicted, 4 * c.nodes - 3)
@@ -173,7 +162,7 @@ def _refine(problem, check, names, history, decay=None, estimates=None):
     """More nodes (p) or more elements where the error is (h) for each named coordinate.
 
     A coordinate gets the nodes at which its estimated error (``estimates``: ratio to
-    the tolerance, :func:`error_estimates`; the off-node ratio by default) falls to its
+    the tolerance, :func:`pgdcli.checks.resolution.error_estimates`; the off-node ratio by default) falls to its
     share of the tolerance (:data:`TARGET`, or :data:`ROOM` shared by the coordinates
     refined at once), predicted from the geometric decay of that error over its last
     refinement or, at the first, from ``decay`` (coordinate -> log rho of its Chebyshev
@@ -213,25 +202,6 @@ def _refine(problem, check, names, history, decay=None, estimates=None):
             continue
         stuck.append(name)
     return problem, stuck
-
-
-def error_estimates(check, names) -> dict[str, float]:
-    """Per named coordinate, its share of the measured error, as a ratio to the tolerance.
-
-    Where the check samples a coordinate off its nodes (a parameter or time of an
-    ODE), the share is that measured ratio. Elsewhere (the space and time of a
-    PDE, whose check measures the error as a whole) the Chebyshev tails estimate
-    it, scaled up together when they add up to less than the measured error they
-    must explain (a tail is the size of the last coefficients, not of the error
-    between the nodes); a coordinate without a tail (too few nodes, linear
-    elements) is given the whole measured error.
-    """
-    measured = {n: check.coordinate_ratio[n] for n in names if n in check.coordinate_ratio}
-    tails = {n: check.tail_ratio.get(n, 0.0) for n in names if n not in measured}
-    total = sum(tails.values())
-    whole = check.ratio if np.isfinite(check.ratio) else 0.0
-    scale = max(1.0, whole / total) if total > 0 else 1.0
-    return {**measured, **{n: tail * scale if tail > 0 else whole for n, tail in tails.items()}}
 
 
 def _lacks_nodes(check, name: str) -> bool:
@@ -318,16 +288,13 @@ def next_nodes(problem, check, decay: dict, history: dict, *, march: bool = Fals
         At the nodes that were measured.
     check : pgdcli.checks.check.CheckResult
     decay : dict of str to float
-        Per coordinate, the decay rate of its Chebyshev spectrum
-        (:func:`pgdcli.checks.resolution.chebyshev_decay`).
+        Per coordinate, its :func:`~pgdcli.checks.resolution.chebyshev_decay`.
     history : dict
         Per coordinate, its refinements so far (updated here): ``("p" or "h", ratio, nodes before)``.
-    march : bool
-        The method's time nodes follow its steps (not refined here).
-    limited : bool
-        The solver's error at the nodes did not fall with its target (the time and space discretization).
-    stopping : bool
-        The solver stopped short of its target: only coordinates that lack nodes are refined.
+    march, limited, stopping : bool
+        The time nodes follow the method's steps (not refined here); the solver's error at the nodes did
+        not fall with its target (the time and space discretization); the solver stopped short of its
+        target (only coordinates that lack nodes are refined).
 
     Returns
     -------

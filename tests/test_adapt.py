@@ -18,7 +18,8 @@ import pytest
 from conftest import spec_text
 import pgdcli
 from pgdcli import parse_spec
-from pgdcli.adapt import MIN_GROWTH, ROOM, TARGET, error_estimates, next_nodes, total_nodes
+from pgdcli.adapt import ROOM, TARGET, next_nodes, total_nodes
+from pgdcli.checks.resolution import MIN_GROWTH, error_estimates
 from pgdcli.checks.check import CheckResult
 
 #: 1-D heat whose diffusivity k moves the decay rate (many nodes in k) and whose boundary value g enters
