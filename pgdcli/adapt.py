@@ -7,12 +7,15 @@ first lowers the solver's own error at the nodes (a tighter march, a smaller res
 :class:`Resolution` then turns the measurement of the codebook it kept into a decision:
 
 * the error within the tolerance (``ratio <= 1``): done;
-* too large at points off the nodes of a coordinate whose nodes the solver chooses
-  (``nodes: auto`` or no ``nodes:``): that coordinate gets more nodes (n -> 2n - 1,
-  which keeps Chebyshev-Lobatto nodes nested) or, for a parameter whose error does
-  not fall geometrically with its nodes, more elements where the error is
-  (hp-refinement), and the problem is solved again, up to ``solver.max_nodes`` nodes
-  in all per coordinate;
+* too large along a coordinate whose nodes the solver chooses (``nodes: auto`` or no
+  ``nodes:``), by the error measured off its nodes or, where the check measures the
+  error as a whole (space coordinates), by its Chebyshev tail: that coordinate, and
+  only it, gets the nodes at which the geometric decay of its error (measured over
+  its last refinement, or read from its Chebyshev spectrum) brings the error to its
+  share of the tolerance (n -> 2n - 1 without a rate to go by) or, for a parameter
+  whose error does not fall geometrically with its nodes, more elements where the
+  error is (hp-refinement), and the problem is solved again, up to
+  ``solver.max_nodes`` nodes in all per coordinate;
 * otherwise a refusal (:func:`refusal`): one clause saying how large the error is, where,
   and which coordinate lacks resolution; the driver marks the result inaccurate
   (status :data:`INACCURATE`), and the CLI writes nothing then (exit 1) unless asked to keep it.
@@ -29,10 +32,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .algorithms.outcome import Status
-from .checks.resolution import chebyshev_decay
+from .checks.resolution import chebyshev_decay, error_estimates, nodes_for_decay
 
 __all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "Resolution", "Verdict", "refusal", "refined_nodes",
-           "initial_nodes", "total_nodes", "split_elements"]
+           "initial_nodes", "total_nodes", "split_elements", "next_nodes"]
 
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
 INACCURATE = Status.INACCURATE
@@ -46,6 +49,15 @@ P_GAIN = 8.0
 #: A coordinate is refined when its off-node error ratio exceeds this share of the tolerance: the
 #: other parts of the error (the solver's, the other coordinates') need room too.
 REFINE_AT = 0.5
+#: The share of the tolerance a refined coordinate's predicted error is brought to: the other parts of the
+#: error, and a prediction a little short (another whole solve), need the rest.
+TARGET = 0.1
+#: The share of the tolerance the coordinates refined at once are brought to together (each to at most
+#: :data:`TARGET`): their errors can add up at one point.
+ROOM = 0.25
+#: Of the time and space coordinates of a discretization-limited solve, those whose Chebyshev tail is below
+#: this share of the tolerance are left as they are: more nodes there would not lower the error.
+LIMITED_TAIL = 0.05
 #: First node counts of automatic coordinates by role (the spec's default, 9, for parameters): an
 #: enrichment's time coordinate is one polynomial over the whole interval; space coordinates carry
 #: boundary layers. The march's time nodes are per step (9 >= 8 reproduces its dense output).
@@ -69,38 +81,34 @@ def total_nodes(c) -> int:
     return elements * (c.nodes - 1) + 1
 
 
-def refined_nodes(problem, names, at_least: int = 0):
-    """The problem with ``n -> max(2n - 1, at_least)`` nodes (per element) on the named coordinates,
-    within ``max_nodes`` in all."""
+def refined_nodes(problem, names, to: int = 0):
+    """The problem with ``to`` nodes (per element) on the named coordinates, ``n -> 2n - 1`` when 0 (a
+    doubling of the intervals, which keeps Chebyshev-Lobatto nodes nested), within ``max_nodes`` in all."""
     cap = problem.solver.max_nodes
     coords = []
     for c in problem.coordinates:
         if c.name in names:
             elements = max(1, len(c.breakpoints) - 1)
             most = (cap - 1) // elements + 1  # nodes per element that keep the total within the cap
-            c = dataclasses.replace(c, nodes=max(c.nodes, min(max(2 * c.nodes - 1, at_least), most)))
+            c = dataclasses.replace(c, nodes=max(c.nodes, min(to or 2 * c.nodes - 1, most)))
         coords.append(c)
     return dataclasses.replace(problem, coordinates=tuple(coords))
 
 
-def _predicted_nodes(c, ratio: float, past: list) -> int:
-    """Nodes at which the error ratio falls to a quarter, from its geometric decay over the last doubling.
+def _predicted_nodes(c, ratio: float, past: list, target: float = TARGET) -> int:
+    """Nodes at which the error ratio falls to ``target``, from its geometric decay over the last refinement.
 
     Chebyshev interpolation of an analytic function converges like rho**-n: two
     measurements give rho, and the count that reaches the target in one more solve
-    instead of several doublings (0 without a previous doubling to measure it by).
+    instead of several doublings (0 without a previous refinement to measure it by).
     """
-    if not past or past[-1][0] != "p" or not ratio > 0.25:
+    if not past or past[-1][0] != "p" or not ratio > target:
         return 0
     _, before, n_before = past[-1]
     if not before > ratio or c.nodes <= n_before:
         return 0
-    return _nodes_to_a_quarter(c.nodes, ratio, np.log(before / ratio) / (c.nodes - n_before))
-
-
-def _nodes_to_a_quarter(nodes: int, ratio: float, per_node: float) -> int:
-    """Nodes at which an error ratio falling by ``exp(per_node)`` per node reaches a quarter."""
-    return int(np.ceil(nodes + np.log(ratio / 0.25) / per_node))
+    # at most two doublings at once: a rate measured over a pre-asymptotic step can be far too slow
+    return min(nodes_for_decay(c.nodes, ratio / target, np.log(before / ratio) / (c.nodes - n_before)), 4 * c.nodes - 3)
 
 
 #: Slowest decay of the Chebyshev coefficients (per node, natural log) that a first prediction trusts:
@@ -109,26 +117,34 @@ MIN_DECAY = np.log(1.2)
 
 
 def _doublings(before: int, after: int) -> float:
-    """How many doublings of the node intervals lead from ``before`` to ``after`` nodes (at least 1)."""
-    return max(1.0, float(np.log2(max(after - 1, 1) / max(before - 1, 1))))
+    """How many doublings of the node intervals lead from ``before`` to ``after`` nodes (a fraction for a
+    smaller step, at least a half)."""
+    return max(0.5, float(np.log2(max(after - 1, 1) / max(before - 1, 1))))
 
 
-def _spectral_nodes(c, ratio: float, decay: float | None) -> int:
-    """Nodes at which the error ratio falls to a quarter, from the decay of the coefficients of one solve.
+def _spectral_nodes(c, ratio: float, decay: float | None, target: float = TARGET) -> int:
+    """Nodes at which the error ratio falls to ``target``, from the decay of the coefficients of one solve.
 
-    The first refinement of a coordinate has no earlier doubling to measure the
+    The first refinement of a coordinate has no earlier one to measure the
     convergence by (:func:`_predicted_nodes`); the Chebyshev spectrum of the
     codebook along the coordinate gives the rate instead
-    (:func:`pgdcli.checks.resolution.chebyshev_decay`). It is trusted only up to
-    :data:`MAX_ELEMENT_NODES` (beyond, the feature may be sharp: doubling and
-    measuring the gain decides between nodes and elements, as before: 0), and
-    gives at most two doublings at once, so that a pre-asymptotic spectrum cannot
-    ask for an oversized grid.
+    (:func:`pgdcli.checks.resolution.chebyshev_decay`). For a parameter that may
+    be split into elements it is trusted only up to :data:`MAX_ELEMENT_NODES`
+    (beyond, the feature may be sharp: doubling and measuring the gain decides
+    between nodes and elements, as before: 0); it gives at most two doublings at
+    once, so that a pre-asymptotic spectrum cannot ask for an oversized grid.
     """
-    if decay is None or not decay >= MIN_DECAY or not ratio > 0.25:
+    if decay is None or not decay >= MIN_DECAY or not ratio > target:
         return 0
-    predicted = _nodes_to_a_quarter(c.nodes, ratio, decay)
-    return 0 if predicted > MAX_ELEMENT_NODES else min(predicted, 4 * c.nodes - 3)
+    predicted = nodes_for_decay(c.nodes, ratio / target, decay)
+    if predicted > MAX_ELEMENT_NODES and _h_able(c):
+        return 0
+    return min(predicted, 4 * c.nodes - 3)
+
+
+def _h_able(c) -> bool:
+    """A coordinate that may be split into elements (a Chebyshev parameter)."""
+    return c.role == "parameter" and c.discretization == "chebyshev"
 
 
 def split_elements(problem, name: str, where: np.ndarray):
@@ -142,30 +158,36 @@ def split_elements(problem, name: str, where: np.ndarray):
     return dataclasses.replace(problem, coordinates=coords)
 
 
-def _refine(problem, check, names, history, decay=None):
+def _refine(problem, check, names, history, decay=None, estimates=None):
     """More nodes (p) or more elements where the error is (h) for each named coordinate.
 
-    A Chebyshev parameter goes on adding nodes while a doubling cuts its off-node
-    error :data:`P_GAIN`-fold or more (geometric convergence: the next count is
-    predicted from that rate, at least double) and the count stays within
-    :data:`MAX_ELEMENT_NODES` per element; otherwise the feature is sharp, and the
-    elements holding off-node points with too large an error are cut in two
-    (chebfun's splitting, by the measured error instead of the tail).
-    ``decay`` (coordinate -> log rho of its Chebyshev spectrum) predicts the first
-    p-refinement of a coordinate. Returns the refined problem and the coordinates
-    that could not be refined.
+    A coordinate gets the nodes at which its estimated error (``estimates``: ratio to
+    the tolerance, :func:`pgdcli.checks.resolution.error_estimates`; the off-node ratio by default) falls to its
+    share of the tolerance (:data:`TARGET`, or :data:`ROOM` shared by the coordinates
+    refined at once), predicted from the geometric decay of that error over its last
+    refinement or, at the first, from ``decay`` (coordinate -> log rho of its Chebyshev
+    spectrum); without either, its node intervals double. A Chebyshev parameter goes
+    on adding nodes while a doubling cuts its off-node error :data:`P_GAIN`-fold or
+    more (geometric convergence) and the count stays within :data:`MAX_ELEMENT_NODES`
+    per element; otherwise the feature is sharp, and the elements holding off-node
+    points with too large an error are cut in two (chebfun's splitting, by the
+    measured error instead of the tail). Returns the refined problem and the
+    coordinates that could not be refined.
     """
     cap = problem.solver.max_nodes
     decay = decay or {}
+    estimates = estimates if estimates is not None else {n: check.coordinate_ratio.get(n, 0.0) for n in names}
+    target = min(TARGET, ROOM / max(1, len(names)))
     stuck = []
     for name in names:
         c = problem.coordinate(name)
-        ratio = check.coordinate_ratio.get(name, 0.0)
+        ratio = estimates.get(name, 0.0)
         past = history.setdefault(name, [])
-        # P_GAIN per doubling of the nodes (a predicted jump can span several)
+        # P_GAIN per doubling of the nodes (a predicted step can span more or fewer)
         slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN ** _doublings(past[-1][2], c.nodes) * ratio
-        predicted = _predicted_nodes(c, ratio, past) or (0 if past else _spectral_nodes(c, ratio, decay.get(name)))
-        h_able = c.role == "parameter" and c.discretization == "chebyshev" and name in check.line_points
+        predicted = (_predicted_nodes(c, ratio, past, target)
+                     or (0 if past else _spectral_nodes(c, ratio, decay.get(name), target)))
+        h_able = _h_able(c) and name in check.line_points
         if h_able and (slow or max(c.nodes, predicted) > MAX_ELEMENT_NODES):
             x, r = check.line_points[name]
             # the elements where the error is; at least the worst one (a coordinate flagged by its tail)
@@ -195,22 +217,50 @@ def _lacks_nodes(check, name: str) -> bool:
     return (off > REFINE_AT and off > 2.0 * check.node_ratio) or check.tail_ratio.get(name, 0.0) > REFINE_AT
 
 
+def _has_tail(c) -> bool:
+    """The coordinate's nodes give it a tail indicator (:func:`pgdcli.checks.resolution.resolution_tails`)."""
+    if c.breakpoints and len(c.breakpoints) > 2:
+        return False
+    return c.nodes >= (4 if c.discretization == "chebyshev" else 3)
+
+
 def _to_refine(problem, check, march: bool, discretization_limited=False) -> tuple[list[str], list[str]]:
-    """Coordinates that lack nodes: (automatic ones below the cap, the others)."""
-    refine, stuck = [], []
-    # an enrichment whose error at the nodes did not fall with its residual: the time and space
-    # discretization, which only more nodes there reduce
+    """Coordinates that lack nodes: (automatic ones below the cap, the others).
+
+    An error at the nodes that did not fall with the solver's residual
+    (``discretization_limited``) is the time and space discretization's, which only
+    more nodes there reduce: of those coordinates, the ones whose tail is at least
+    :data:`LIMITED_TAIL` of the tolerance (or that have no tail) are refined. When no
+    coordinate at all shows a lack of nodes, the ones with the largest tails are
+    (:func:`_largest_tails`: a parameter's error off its nodes is in the error the
+    check of a PDE measures as a whole), or else all of time and space.
+    """
     limited = bool(discretization_limited) and check.node_ratio > 1.0
-    for c in problem.coordinates:
-        if march and c.role == "time":
-            continue  # the march's time nodes follow its steps
-        if not (_lacks_nodes(check, c.name) or (limited and c.role in ("time", "space"))):
+    candidates = [c for c in problem.coordinates if not (march and c.role == "time")]  # the march's follow its steps
+    discretization = [c for c in candidates if limited and c.role in ("time", "space")]
+    chosen = {c.name for c in candidates if _lacks_nodes(check, c.name)}
+    chosen |= {c.name for c in discretization if not _has_tail(c) or check.tail_ratio.get(c.name, 0.0) > LIMITED_TAIL}
+    if not chosen and limited:
+        # the tails say where the error between the nodes is, if anywhere (a parameter's, off its nodes)
+        chosen = set(_largest_tails(check, candidates)) or {c.name for c in discretization}
+    refine, stuck = [], []
+    for c in candidates:
+        if c.name not in chosen:
             continue
         if c.auto and total_nodes(c) < problem.solver.max_nodes:
             refine.append(c.name)
         else:
             stuck.append(c.name)
     return refine, stuck
+
+
+def _largest_tails(check, coordinates) -> list[str]:
+    """Of ``coordinates``, those whose Chebyshev tail is at least half the largest, when that is at least
+    :data:`LIMITED_TAIL` of the tolerance: where the error between the nodes is likeliest, when neither the
+    tails nor the measured errors show a lack of nodes alone."""
+    tails = {c.name: check.tail_ratio.get(c.name, 0.0) for c in coordinates}
+    top = max(tails.values(), default=0.0)
+    return [n for n, r in tails.items() if r >= 0.5 * top] if top > LIMITED_TAIL else []
 
 
 def _largest_off_node(problem, check, march: bool) -> list[str]:
@@ -226,6 +276,45 @@ def _largest_off_node(problem, check, march: bool) -> list[str]:
         return []
     top = max(ratios.values())
     return [n for n, r in ratios.items() if r > 0 and r >= 0.5 * top]
+
+
+def next_nodes(problem, check, decay: dict, history: dict, *, march: bool = False, limited: bool = False,
+               stopping: bool = False):
+    """The nodes of the next round after a measured error ``check`` that misses the tolerance.
+
+    Parameters
+    ----------
+    problem : pgdcli.problem.spec.Problem
+        At the nodes that were measured.
+    check : pgdcli.checks.check.CheckResult
+    decay : dict of str to float
+        Per coordinate, its :func:`~pgdcli.checks.resolution.chebyshev_decay`.
+    history : dict
+        Per coordinate, its refinements so far (updated here): ``("p" or "h", ratio, nodes before)``.
+    march, limited, stopping : bool
+        The time nodes follow the method's steps (not refined here); the solver's error at the nodes did
+        not fall with its target (the time and space discretization); the solver stopped short of its
+        target (only coordinates that lack nodes are refined).
+
+    Returns
+    -------
+    refined : Problem
+        The problem at its new nodes.
+    chosen : list of str
+        The automatic coordinates chosen for refinement (those that lack nodes, or else the ones with the
+        largest off-node errors or Chebyshev tails).
+    stuck : list of str
+        Those of ``chosen`` that could not be refined (at ``solver.max_nodes``).
+    """
+    chosen, stuck = _to_refine(problem, check, march, limited)
+    if not chosen and not stuck and not stopping:
+        automatic = [c for c in problem.coordinates if c.auto and total_nodes(c) < problem.solver.max_nodes
+                     and not (march and c.role == "time")]
+        chosen = _largest_off_node(problem, check, march) or _largest_tails(check, automatic)
+    if not chosen:
+        return problem, [], []
+    refined, stuck = _refine(problem, check, chosen, history, decay, error_estimates(check, chosen))
+    return refined, chosen, stuck
 
 
 @dataclass(frozen=True)
@@ -266,6 +355,12 @@ class Resolution:
         self.problem = refined
         return True
 
+    def at_most(self, name: str, nodes: int) -> None:
+        """At most ``nodes`` nodes on coordinate ``name`` from now on (no fewer than it had)."""
+        coords = tuple(dataclasses.replace(c, nodes=min(c.nodes, nodes)) if c.name == name else c
+                       for c in self.problem.coordinates)
+        self.problem = dataclasses.replace(self.problem, coordinates=coords)
+
     def judge(self, check, codebook, stopped: str | None = None, limited: bool = False,
               solver: str = "enrichment") -> Verdict | None:
         """The verdict on a round's codebook, or None when automatic coordinates were refined (solve again).
@@ -283,12 +378,10 @@ class Resolution:
         # a solver stopped short of the target the nodes ask for: its error at the nodes is not the
         # discretization's, and only the coordinates that lack nodes between them are refined
         stopping = bool(stopped) and check.node_ratio > 1.0
-        refine, stuck = _to_refine(self.problem, check, self.marches, limited)
-        if not refine and not stuck and not stopping:
-            refine = _largest_off_node(self.problem, check, self.marches)
+        refined, refine, stuck = next_nodes(self.problem, check, chebyshev_decay(codebook), self.history,
+                                            march=self.marches, limited=limited, stopping=stopping)
         pending = False
         if refine:
-            refined, stuck = _refine(self.problem, check, refine, self.history, chebyshev_decay(codebook))
             if stuck != refine and this_round < MAX_ROUNDS - 1:
                 self.problem = refined
                 return None

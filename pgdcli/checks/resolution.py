@@ -10,7 +10,10 @@ the other coordinates' nodes of ``max(|c_{n-2}|, |c_{n-1}|)``. Linear
 coordinates get the largest second difference over 8 instead (the
 piecewise-linear interpolation error of a smooth function).
 
-Computed from the separated form, never from the full tensor. numpy only.
+Computed from the separated form, never from the full tensor. The decay of the
+Chebyshev coefficients (:func:`chebyshev_decay`) gives the nodes a coordinate needs
+(:func:`nodes_for_decay`); :func:`error_estimates` shares a measured error among the
+coordinates. numpy only.
 """
 
 from __future__ import annotations
@@ -20,7 +23,11 @@ import numpy as np
 from ..tensors.cp_sweep import orthogonal_sweep
 from ..tensors.tt import TT, tt_centre_cores
 
-__all__ = ["resolution_tails", "chebyshev_decay"]
+__all__ = ["resolution_tails", "chebyshev_decay", "error_estimates", "nodes_for_decay", "MIN_GROWTH"]
+
+#: Fewest new node intervals of a refinement, as a fraction of a coordinate's: a prediction a little short
+#: costs a whole solve, a few nodes more only a part of one.
+MIN_GROWTH = 0.25
 
 
 def _coefficient_matrix(n: int) -> np.ndarray:
@@ -137,3 +144,29 @@ def chebyshev_decay(codebook) -> dict[str, float]:
         slope = np.polyfit(upper, np.log(s), 1)[0]
         out[c.name] = float(-slope)
     return out
+
+
+def nodes_for_decay(nodes: int, factor: float, per_node: float) -> int:
+    """Nodes that cut an error falling by ``exp(per_node)`` per node ``factor``-fold, and at least
+    :data:`MIN_GROWTH` more intervals than ``nodes`` (a prediction a little short costs a whole solve)."""
+    predicted = int(np.ceil(nodes + np.log(factor) / per_node))
+    return max(predicted, nodes + int(np.ceil(MIN_GROWTH * (nodes - 1))))
+
+
+def error_estimates(check, names) -> dict[str, float]:
+    """Per named coordinate, its share of the measured error, as a ratio to the tolerance.
+
+    Where the check samples a coordinate off its nodes (a parameter or time of an
+    ODE), the share is that measured ratio. Elsewhere (the space and time of a
+    PDE, whose check measures the error as a whole) the Chebyshev tails estimate
+    it, scaled up together when they add up to less than the measured error they
+    must explain (a tail is the size of the last coefficients, not of the error
+    between the nodes); a coordinate without a tail (too few nodes, linear
+    elements) is given the whole measured error.
+    """
+    measured = {n: check.coordinate_ratio[n] for n in names if n in check.coordinate_ratio}
+    tails = {n: check.tail_ratio.get(n, 0.0) for n in names if n not in measured}
+    total = sum(tails.values())
+    whole = check.ratio if np.isfinite(check.ratio) else 0.0
+    scale = max(1.0, whole / total) if total > 0 else 1.0
+    return {**measured, **{n: tail * scale if tail > 0 else whole for n, tail in tails.items()}}

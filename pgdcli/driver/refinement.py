@@ -162,8 +162,18 @@ class _Loop:
         before = self.problem
         verdict = self.resolution.judge(result.check, result.codebook, kept.stopped, kept.limited, self.method.title)
         if verdict is None:
+            self.largest_polynomial_first(before)
             self.refined(before)
         return verdict
+
+    def largest_polynomial_first(self, before) -> None:
+        """Time nodes predicted past :data:`POLYNOMIAL_TIME_NODES` by a method that hands time over: its largest
+        polynomial in time is tried first (the march takes over only when that misses the tolerance)."""
+        time = self.problem.time
+        if not self.method.hands_time_over or time is None:
+            return
+        if total_nodes(before.coordinate(time)) < POLYNOMIAL_TIME_NODES < total_nodes(self.problem.coordinate(time)):
+            self.resolution.at_most(time, POLYNOMIAL_TIME_NODES)
 
     def restart(self) -> None:
         """Solves at new nodes (or by another method) start from what met the tolerance before."""

@@ -409,11 +409,11 @@ def test_a_second_enrichment_starts_from_the_residual_learned():
 
 
 def test_an_enrichment_stopped_by_max_modes_is_named_not_blamed_on_nodes():
-    """The first solve meets its residual in 34 modes; the smaller residual the error at the nodes asks
+    """The first solve meets its residual in 30 modes; the smaller residual the error at the nodes asks
     for needs more. The refusal names max_modes; only k, whose error between nodes is large, is refined
     (before, time was refined to the cap and blamed)."""
     with threadpool_limits(1):
-        result = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 34\n  method: pgd\n", source="capped.yaml"))
+        result = pgdcli.solve(parse_spec(OSCILLATOR + "  max_modes: 30\n  method: pgd\n", source="capped.yaml"))
     assert result.status == INACCURATE and result.accurate is False
     assert "enrichment could not lower its residual further" in result.message
     assert "raise solver.max_modes" in result.message
