@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import LimitError, SolverError
 from ..limits import MAX_COORDINATES, MAX_UNKNOWNS, limit
-from .reference_ode import CompiledSystem
+from .reference_system import CompiledSystem
 
 __all__ = ["check_budget", "time_nodes", "fastest_rate"]
 
