@@ -20,7 +20,7 @@ from ..problem.general import is_general, tree_of
 from ..problem.trees import num_value
 from .reference_base import count_evaluation
 
-__all__ = ["CompiledCoefficient", "CompiledSystem"]
+__all__ = ["CompiledCoefficient", "CompiledSystem", "reference_jacobian"]
 
 class CompiledCoefficient:
     """A Separable coefficient at S parameter samples: ``static(p) + sum_i w_i(p) f_i(t) + sum_j g_j(t, p)``.
@@ -215,6 +215,21 @@ class CompiledSystem:
             y0[:, i] = np.broadcast_to(unknown.initial.evaluate(**params), (self.S,)) if params else \
                 np.full(self.S, float(unknown.initial.evaluate()))
         return y0
+
+
+def reference_jacobian(system: CompiledSystem, t: float, y: np.ndarray) -> np.ndarray:
+    """The Jacobian (S, q, q) of the reference's right-hand side at states ``y`` (S, q): exact, or forward
+    differences (one call of the vectorized right-hand side) where a function has no derivative rule."""
+    try:
+        return system.jacobian(t, y.reshape(-1))
+    except ValueError:
+        q = system.q
+        typical = np.max(np.abs(y), axis=0)  # (q,): steps relative to the state, or to its typical size
+        h = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(y), 1e-3 * np.where(typical > 0, typical, 1.0))
+        columns = np.repeat(y[:, :, None], q + 1, axis=2)  # column 0: y, column 1 + j: u_j moved
+        columns[:, np.arange(q), 1 + np.arange(q)] += h
+        f = system(t, columns.reshape(system.S * q, q + 1)).reshape(system.S, q, q + 1)
+        return (f[:, :, 1:] - f[:, :, :1]) / h[:, None, :]
 
 
 @functools.lru_cache(maxsize=1024)

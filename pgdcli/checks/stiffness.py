@@ -7,8 +7,8 @@ reference crawls, or spends its evaluation budget and falls back to integrating 
 :func:`estimate_stiffness` decides before integrating, from cheap quantities at the sample:
 
 * the fastest decay rate ``max(-Re lambda)`` of the right-hand side's Jacobian (exact:
-  :meth:`CompiledSystem.jacobian <pgdcli.checks.reference_system.CompiledSystem.jacobian>`; finite
-  differences where a function cannot be differentiated) at the initial states and at
+  :func:`~pgdcli.checks.reference_system.reference_jacobian`; finite differences where a function
+  cannot be differentiated) at the initial states and at
   :data:`PROBES` states along the way, which gives the explicit method's stability-limited steps
   ``span * rate / EXPLICIT_LIMIT``;
 * the rate at which the solution varies once the fast transients have died out (``|du/dt| / max |u|``
@@ -34,9 +34,9 @@ from typing import Mapping
 import numpy as np
 
 from .compare import codebook_at_samples
-from .reference_system import CompiledSystem
+from .reference_system import CompiledSystem, reference_jacobian
 
-__all__ = ["Stiffness", "decide_stiffness", "estimate_stiffness", "forced", "reference_jacobian", "not_estimated", "probe_times", "EXPLICIT_LIMIT", "STEPS_PER_RADIAN", "RATIO", "MIN_STEPS", "PROBES"]
+__all__ = ["Stiffness", "decide_stiffness", "estimate_stiffness", "forced", "not_estimated", "probe_times", "EXPLICIT_LIMIT", "STEPS_PER_RADIAN", "RATIO", "MIN_STEPS", "PROBES"]
 
 #: DOP853's step times the decay rate it is held to (its stability region reaches about 6 on the negative real
 #: axis; at the reference's tolerances scipy's step control holds it well below).
@@ -190,21 +190,6 @@ def _decay_rates(system: CompiledSystem, times: np.ndarray, Y: np.ndarray) -> np
         decay = np.where(np.isfinite(J).all(axis=(1, 2)), -values.real.min(axis=1), np.nan)
         rates = np.fmax(rates, decay)
     return np.maximum(rates, 0.0)
-
-
-def reference_jacobian(system: CompiledSystem, t: float, y: np.ndarray) -> np.ndarray:
-    """The Jacobian (S, q, q) of the reference's right-hand side at states ``y`` (S, q): exact, or forward
-    differences (one call of the vectorized right-hand side) where a function has no derivative rule."""
-    try:
-        return system.jacobian(t, y.reshape(-1))
-    except ValueError:
-        q = system.q
-        typical = np.max(np.abs(y), axis=0)  # (q,): steps relative to the state, or to its typical size
-        h = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(y), 1e-3 * np.where(typical > 0, typical, 1.0))
-        columns = np.repeat(y[:, :, None], q + 1, axis=2)  # column 0: y, column 1 + j: u_j moved
-        columns[:, np.arange(q), 1 + np.arange(q)] += h
-        f = system(t, columns.reshape(system.S * q, q + 1)).reshape(system.S, q, q + 1)
-        return (f[:, :, 1:] - f[:, :, :1]) / h[:, None, :]
 
 
 def _solution_rate(times: np.ndarray, Y: np.ndarray, rate: np.ndarray) -> float:

@@ -11,9 +11,9 @@ from scipy.integrate import solve_ivp
 import pgdcli
 from pgdcli.checks import check as checks
 from pgdcli.checks.reference import solve_reference, solve_reference_vectorized
-from pgdcli.checks.reference_system import CompiledSystem
+from pgdcli.checks.reference_system import CompiledSystem, reference_jacobian
 from pgdcli.checks.sampling import check_sample, line_sample, nodes_and_midpoints
-from pgdcli.checks.stiffness import decide_stiffness, estimate_stiffness, reference_jacobian
+from pgdcli.checks.stiffness import decide_stiffness, estimate_stiffness
 from pgdcli.codebook.codebook import Codebook, CPTensor
 
 PROBLEMS = Path(__file__).resolve().parents[2] / "problems"
