@@ -170,19 +170,19 @@ def reference_stiffness(problem, codebook, seed: int = 0, rtol: float = 1e-13) -
 
     A codebook whose report says a stiff stepper marched it (``stiff``) is stiff whatever the estimate.
     """
-    points, group, times = _sample(problem, codebook, seed)
+    points, group, times, _ = _sample(problem, codebook, seed)
     return decide_stiffness(problem, codebook, points, group.size if points else 1, times, rtol)
 
 
-def _sample(problem, codebook, seed: int) -> tuple[dict, np.ndarray, np.ndarray]:
+def _sample(problem, codebook, seed: int) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
     """The check's parameter points ``{name: (S,)}``, their groups ``(S,)`` (-1 grid nodes, -2 uniform,
-    ``j`` off the nodes of parameter ``j``) and its times."""
+    ``j`` off the nodes of parameter ``j``), its times ``(T,)`` and which of them are time nodes ``(T,)``."""
     points, at_nodes = check_sample(problem, codebook, seed)
     lines, line = line_sample(problem, codebook, seed)
     group = np.concatenate([np.where(at_nodes, -1, -2), line])
     if points:
         points = {n: np.concatenate([points[n], lines[n]]) for n in points}
-    return points, group, nodes_and_midpoints(codebook, problem.time)[0]
+    return (points, group) + nodes_and_midpoints(codebook, problem.time)
 
 
 def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float, progress=None,
@@ -256,10 +256,9 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     CheckResult
     """
     tol = problem.solver.tolerance if tolerance is None else float(tolerance)
-    points, group, times = _sample(problem, codebook, seed)
+    points, group, times, time_node = _sample(problem, codebook, seed)
     names = list(points)
     time = problem.time
-    time_node = nodes_and_midpoints(codebook, time)[1]
     S = group.size if names else 1
     if not isinstance(stiff, Stiffness):
         stiff = decide_stiffness(problem, codebook, points, S, times, rtol) if stiff is None else forced(bool(stiff))

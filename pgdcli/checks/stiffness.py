@@ -8,13 +8,13 @@ reference crawls, or spends its evaluation budget and falls back to integrating 
 
 * the fastest decay rate ``max(-Re lambda)`` of the right-hand side's Jacobian (exact:
   :func:`~pgdcli.checks.reference_system.reference_jacobian`; finite differences where a function
-  cannot be differentiated) at the initial states and at
-  :data:`PROBES` states along the way, which gives the explicit method's stability-limited steps
-  ``span * rate / EXPLICIT_LIMIT``;
+  cannot be differentiated) at the initial states and at :data:`PROBES` states along the way, which
+  gives the explicit method's stability-limited steps ``span * rate / EXPLICIT_LIMIT`` (a purely
+  imaginary eigenvalue is an oscillation the steps must follow anyway: it does not count);
 * the rate at which the solution varies once the fast transients have died out (``|du/dt| / max |u|``
   per unknown, from differences between up to :data:`RATE_PROBES` states along the way), which gives
-  the steps accuracy needs,
-  :data:`STEPS_PER_RADIAN` per unit of rate and time at the reference's tolerance.
+  the steps accuracy needs, :data:`STEPS_PER_RADIAN` per unit of rate and time at the reference's
+  tolerance.
 
 The problem is stiff when the stability-limited steps exceed :data:`MIN_STEPS` and :data:`RATIO`
 times the accuracy steps; the reference then integrates with Radau (an A-stable implicit method,
@@ -36,10 +36,12 @@ import numpy as np
 from .compare import codebook_at_samples
 from .reference_system import CompiledSystem, reference_jacobian
 
-__all__ = ["Stiffness", "decide_stiffness", "estimate_stiffness", "forced", "not_estimated", "probe_times", "EXPLICIT_LIMIT", "STEPS_PER_RADIAN", "RATIO", "MIN_STEPS", "PROBES"]
+__all__ = ["Stiffness", "decide_stiffness", "estimate_stiffness", "forced", "not_estimated", "probe_times",
+           "EXPLICIT_LIMIT", "STEPS_PER_RADIAN", "RATIO", "MIN_STEPS", "PROBES", "RATE_PROBES"]
 
-#: DOP853's step times the decay rate it is held to (its stability region reaches about 6 on the negative real
-#: axis; at the reference's tolerances scipy's step control holds it well below).
+#: DOP853's step times the decay rate it is held to (its stability region reaches about 6 on the negative
+#: real axis; at the reference's tolerances scipy's step control holds it well below, so that this
+#: underestimates its steps: the choice leans to DOP853).
 EXPLICIT_LIMIT = 3.3
 #: DOP853's steps per unit of ``rate * time`` (per radian of an oscillation) at rtol = atol = 1e-13,
 #: measured on sines and harmonic oscillators (5 to 7); it scales as ``rtol^(-1/8)``.
@@ -90,8 +92,9 @@ class Stiffness:
         if not np.isfinite(self.stability_steps):
             return self.reason
         verdict = "stiff" if self.stiff else "not stiff"
-        return (f"{verdict}: a decay rate of {self.decay_rate:.3g} over a time domain of {self.span:.3g} holds "
-                f"an explicit method to ~{self.stability_steps:.2g} steps, accuracy needs ~{self.accuracy_steps:.2g}")
+        return (f"{verdict}: an explicit method needs ~{self.stability_steps:.2g} steps for stability (decay "
+                f"rate {self.decay_rate:.3g} over a time domain of {self.span:.3g}), ~{self.accuracy_steps:.2g} for "
+                f"accuracy")
 
 
 def forced(stiff: bool, reason: str = "") -> Stiffness:

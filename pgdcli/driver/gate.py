@@ -1,8 +1,8 @@
 """The error gate: measure a solve against the independent reference, and the result that says what was measured.
 
 :func:`measure` runs the check of :mod:`pgdcli.checks.check` (scipy's DOP853 for ODE problems, Radau for stiff
-ones, the method of lines for problems with space coordinates or steady ones) and turns what it could not do into warnings;
-:func:`kept_result` and :func:`finish` write the report of the codebook kept, and its message.
+ones, the method of lines for problems with space coordinates or steady ones) and turns what it could not do
+into warnings; :func:`kept_result` and :func:`finish` write the report of the codebook kept, and its message.
 """
 
 from __future__ import annotations
