@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import LimitError, SolverError
 from ..limits import MAX_COORDINATES, MAX_UNKNOWNS, limit
-from .reference_ode import CompiledSystem
+from .reference_system import CompiledSystem, reference_jacobian
 
 __all__ = ["check_budget", "time_nodes", "fastest_rate"]
 
@@ -96,8 +96,8 @@ def _check_periods(problem) -> None:
 def fastest_rate(problem) -> float | None:
     """The largest angular frequency ``|Im lambda|`` of the equations' Jacobian at the initial values.
 
-    At the centre of the parameter box and up to :data:`LINEARIZATION_CORNERS` of its corners, by
-    forward differences of the reference's right-hand side. None when the reference cannot
+    At the centre of the parameter box and up to :data:`LINEARIZATION_CORNERS` of its corners, the
+    reference's Jacobian (:func:`~pgdcli.checks.reference_system.reference_jacobian`). None when the reference cannot
     compile the equations (they are refused elsewhere) or the Jacobian is not finite.
     """
     params = _linearization_points(problem)
@@ -107,14 +107,8 @@ def fastest_rate(problem) -> float | None:
             system = CompiledSystem(problem, params, S, max_evaluations=10 * MAX_UNKNOWNS)
             y0 = system.initial(problem, params)
             t0 = float(problem.time_coordinate.domain[0])
-            f0 = system(t0, y0.reshape(-1)).reshape(S, system.q)
-            J = np.empty((S, system.q, system.q))
-            for i in range(system.q):
-                h = 1e-7 * np.maximum(1.0, np.abs(y0[:, i]))
-                y = y0.copy()
-                y[:, i] += h
-                J[:, :, i] = (system(t0, y.reshape(-1)).reshape(S, system.q) - f0) / h[:, None]
-    except (SolverError, ValueError, ArithmeticError):
+            J = reference_jacobian(system, t0, y0)
+    except (SolverError, ValueError, ArithmeticError, np.linalg.LinAlgError):
         return None
     finite = np.isfinite(J).all(axis=(1, 2))
     if not finite.any():

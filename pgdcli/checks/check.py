@@ -13,7 +13,8 @@ satisfy ``|u - u_ref| <= atol + rtol * |u_ref|`` (``solver.tolerance`` is atol,
 
 The reference is scipy's DOP853 (one vectorized ``solve_ivp`` call,
 :mod:`pgdcli.checks.reference`, which shares no code with the solvers) at rtol = atol =
-1e-13 (space coordinates: :func:`pgdcli.checks.verify.verify`'s method of lines).
+1e-13, or on a stiff problem (:mod:`pgdcli.checks.stiffness`) Radau at rtol 1e-12, atol 1e-14
+(space coordinates: :func:`pgdcli.checks.verify.verify`'s method of lines).
 The sample of the parameter box has parts that fail for different reasons and
 are reported apart, so that the gate can name what is missing:
 
@@ -43,10 +44,11 @@ from .reference import solve_reference, solve_reference_vectorized
 from .reference_base import DEFAULT_SPACE_NODES
 from .resolution import resolution_tails
 from .sampling import BETWEEN, CORNER_LINES, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
+from .stiffness import Stiffness, decide_stiffness, forced
 from .verify import verify
 
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
-           "ordinal", "points_text", "reference_space_nodes", "unchecked"]
+           "ordinal", "points_text", "reference_space_nodes", "reference_stiffness", "unchecked"]
 
 @dataclass
 class CheckResult:
@@ -161,6 +163,28 @@ def ordinal(n: int) -> str:
 STIFF_METHOD, STIFF_RTOL, STIFF_ATOL = "Radau", 1e-12, 1e-14
 
 
+def reference_stiffness(problem, codebook, seed: int = 0, rtol: float = 1e-13) -> Stiffness:
+    """Whether :func:`check_codebook`'s reference at its sample should be :data:`STIFF_METHOD`: the
+    estimate of :func:`pgdcli.checks.stiffness.estimate_stiffness`, along the codebook's states at
+    the sample's times.
+
+    A codebook whose report says a stiff stepper marched it (``stiff``) is stiff whatever the estimate.
+    """
+    points, group, times, _ = _sample(problem, codebook, seed)
+    return decide_stiffness(problem, codebook, points, group.size if points else 1, times, rtol)
+
+
+def _sample(problem, codebook, seed: int) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
+    """The check's parameter points ``{name: (S,)}``, their groups ``(S,)`` (-1 grid nodes, -2 uniform,
+    ``j`` off the nodes of parameter ``j``), its times ``(T,)`` and which of them are time nodes ``(T,)``."""
+    points, at_nodes = check_sample(problem, codebook, seed)
+    lines, line = line_sample(problem, codebook, seed)
+    group = np.concatenate([np.where(at_nodes, -1, -2), line])
+    if points:
+        points = {n: np.concatenate([points[n], lines[n]]) for n in points}
+    return (points, group) + nodes_and_midpoints(codebook, problem.time)
+
+
 def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: float, progress=None,
                stiff: bool = False):
     """Reference values ``{unknown: (S, T)}`` and a success mask ``(S,)``.
@@ -207,8 +231,8 @@ def _integrate_reference(problem, points, S: int, times: np.ndarray, rtol: float
 
 def check_codebook(problem, codebook, *, tolerance: float | None = None, relative_tolerance: float = 0.0,
                    seed: int = 0, rtol: float = 1e-13, atol: float = 1e-13, progress=None,
-                   stiff: bool = False) -> CheckResult:
-    """Error of a codebook of an ODE problem against scipy's DOP853 at the check sample.
+                   stiff: bool | Stiffness | None = None) -> CheckResult:
+    """Error of a codebook of an ODE problem against scipy's DOP853 (Radau if stiff) at the check sample.
 
     Parameters
     ----------
@@ -222,24 +246,23 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
         Tolerances of the reference integration.
     progress : callable, optional
         Called with :class:`~pgdcli.progress.ReferenceProgress` events as the reference integrates.
-    stiff : bool
-        Integrate the reference with :data:`STIFF_METHOD` at :data:`STIFF_RTOL`, :data:`STIFF_ATOL`.
+    stiff : bool or Stiffness, optional
+        Integrate the reference with :data:`STIFF_METHOD` at :data:`STIFF_RTOL`, :data:`STIFF_ATOL`
+        (True), with DOP853 at ``rtol``, ``atol`` (False), or as :func:`reference_stiffness` decides
+        (None, or its result).
 
     Returns
     -------
     CheckResult
     """
     tol = problem.solver.tolerance if tolerance is None else float(tolerance)
-    points, at_nodes = check_sample(problem, codebook, seed)
-    lines, line = line_sample(problem, codebook, seed)
+    points, group, times, time_node = _sample(problem, codebook, seed)
     names = list(points)
-    if names:
-        points = {n: np.concatenate([points[n], lines[n]]) for n in names}
-    group = np.concatenate([np.where(at_nodes, -1, -2), line])  # -1 nodes, -2 uniform, j: line of coordinate j
     time = problem.time
-    times, time_node = nodes_and_midpoints(codebook, time)
     S = group.size if names else 1
-    reference, ok = _reference(problem, points, S, times, rtol, atol, progress, stiff)
+    if not isinstance(stiff, Stiffness):
+        stiff = decide_stiffness(problem, codebook, points, S, times, rtol) if stiff is None else forced(bool(stiff))
+    reference, ok = _reference(problem, points, S, times, rtol, atol, progress, stiff.stiff)
     unknowns = [u.name for u in problem.unknowns]
     approx = codebook_at_samples(codebook, points, time, times, unknowns)
     err, ratio, per_unknown = error_and_ratio(reference, approx, ok, tol, relative_tolerance)
@@ -248,7 +271,7 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     which = ("every time node and the midpoints between them" if int(time_node.sum()) == all_nodes else
              f"{int(time_node.sum())} of the {all_nodes} time nodes (every {stride}, the last) and the midpoints "
              f"after them")
-    method = (f"{_reference_text(stiff, rtol)} at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
+    method = (f"{_reference_text(stiff, rtol, atol)} at {points_text(int(ok.sum()))}: {int((group == -1).sum())} at "
               f"grid nodes, {BETWEEN if names else 0} uniform, {LINE} per parameter off its nodes and one from each "
               f"corner of the others (up to {CORNER_LINES}); {which}")
     if not ok.any():
@@ -274,9 +297,14 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
                        relative_tolerance=relative_tolerance, method=method)
 
 
-def _reference_text(stiff: bool, rtol: float) -> str:
-    """The reference of the check, for its ``method`` text."""
-    return f"{STIFF_METHOD} (rtol {STIFF_RTOL:.0e}, atol {STIFF_ATOL:.0e})" if stiff else f"DOP853 (rtol = atol = {rtol:.0e})"
+def _reference_text(stiff: Stiffness, rtol: float, atol: float) -> str:
+    """The reference of the check and why, for its ``method`` text."""
+    why = stiff.text()
+    why = f"; {why}" if why else ""
+    if stiff.stiff:
+        return f"{STIFF_METHOD} (rtol {STIFF_RTOL:.0e}, atol {STIFF_ATOL:.0e}{why})"
+    tolerances = f"rtol = atol = {rtol:.0e}" if rtol == atol else f"rtol {rtol:.0e}, atol {atol:.0e}"
+    return f"DOP853 ({tolerances}{why})"
 
 
 def error_and_ratio(reference: dict, approx: dict, ok: np.ndarray, tolerance: float,

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..problem.events import condition_values, state_gradient_norm
-from .reference_ode import CompiledSystem, implicit_options
+from .reference_ode import implicit_options
+from .reference_system import CompiledSystem
 from .sampling import check_sample, line_sample
 
 __all__ = ["EventCheck", "check_events", "reference_event_times", "EVENT_POINTS"]

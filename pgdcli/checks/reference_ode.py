@@ -1,5 +1,6 @@
-"""The ODE reference: equations compiled pointwise from their parsed polynomials, samples integrated
-together by one vectorized ``solve_ivp`` per chunk, failures isolated by halving the chunk.
+"""The ODE reference: equations compiled pointwise from their parsed polynomials
+(:mod:`pgdcli.checks.reference_system`), samples integrated together by one vectorized ``solve_ivp``
+per chunk, failures isolated by halving the chunk.
 """
 
 from __future__ import annotations
@@ -12,178 +13,12 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import SolverError
-from ..problem.expressions import format_monomial
-from ..problem.general import evaluate as general_tree_values
-from ..problem.general import is_general, tree_of
 from ..problem.switches import switch_points
-from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, count_evaluation,
-                             checked_params, checked_times, chunk_executor, chunk_size_for, run_in_chunks,
-                             sample_subset)
+from .reference_base import (METHODS, ReferenceBudgetExceeded, ReferenceResult, check_tolerances, checked_params,
+                             checked_times, chunk_executor, chunk_size_for, run_in_chunks, sample_subset)
+from .reference_system import CompiledSystem
 
-__all__ = ["solve_reference_vectorized", "implicit_options", "CompiledSystem"]
-
-
-# ----------------------------------------------------------------------------------------------
-# compiled right-hand side
-# ----------------------------------------------------------------------------------------------
-class CompiledCoefficient:
-    """A Separable coefficient at S parameter samples: ``static(p) + sum_i w_i(p) f_i(t) + sum_j g_j(t, p)``.
-
-    The non-separable parts ``g_j`` (joints) are evaluated from their expression trees
-    directly, at the samples and the time of each call: never from the solvers' separation.
-    """
-
-    __slots__ = ("static", "timed", "is_static", "joints", "params", "time", "S")
-
-    def __init__(self, sep, time: str, params: Mapping[str, np.ndarray], S: int) -> None:
-        self.params, self.time, self.S = params, time, S
-        self.joints = [joint for joint in sep.joints if time in joint.coordinates]
-        static = np.zeros(S)
-        for joint in sep.joints:
-            if time not in joint.coordinates:
-                static = static + np.broadcast_to(joint.evaluate(**params), (S,))
-        timed: dict = {}
-        for term in sep.terms:
-            weight = np.full(S, term.coef)
-            time_func = None
-            for name, func in term.factors:
-                if name == time:
-                    time_func = func
-                else:
-                    weight = weight * func(params[name])
-            if time_func is None:
-                static = static + weight
-            else:
-                # terms with the same time function share one evaluation
-                key = time_func.tree
-                if key in timed:
-                    timed[key] = (time_func, timed[key][1] + weight)
-                else:
-                    timed[key] = (time_func, weight)
-        self.static = static
-        self.timed = list(timed.values())
-        self.is_static = not self.timed and not self.joints
-
-    def at(self, t: float) -> np.ndarray:
-        if self.is_static:
-            return self.static
-        out = self.static
-        for func, weight in self.timed:
-            out = out + weight * float(func(t))
-        if self.joints:
-            values = {**self.params, self.time: np.asarray(float(t))}
-            for joint in self.joints:
-                out = out + np.broadcast_to(joint.evaluate(**values), (self.S,))
-        return out
-
-
-class CompiledSystem:
-    """``u' = F(t, u)`` for S samples at once, from the problem's polynomials."""
-
-    def __init__(self, problem, params: Mapping[str, np.ndarray], S: int, max_evaluations: int) -> None:
-        time = problem.time
-        names = list(problem.unknown_names)
-        index = {name: i for i, name in enumerate(names)}
-        self.q = q = len(names)
-        self.S = S
-        self.max_evaluations = max_evaluations
-        self.evaluations = 0
-        der: list[list[tuple[int, CompiledCoefficient]]] = [[] for _ in range(q)]
-        rest: list[list[tuple[tuple[int, ...], CompiledCoefficient]]] = [[] for _ in range(q)]
-        for r, equation in enumerate(problem.equations):
-            for monomial, sep in equation.polynomial.items():
-                derivatives = [a for a in monomial if a.order > 0]
-                for atom in derivatives:
-                    if atom.order != 1 or atom.coordinate != time:
-                        raise SolverError(
-                            f"{problem.source}: equations[{r}]: the reference integrator supports first-order "
-                            f"time derivatives only, got '{atom.text(time)}'"
-                        )
-                coef = CompiledCoefficient(sep, time, params, S)
-                if derivatives:
-                    if len(monomial) != 1:
-                        raise SolverError(
-                            f"{problem.source}: equations[{r}]: '{format_monomial(monomial, time)}': der() may "
-                            "only appear linearly (not multiplied by unknowns) for the reference integrator"
-                        )
-                    der[r].append((index[monomial[0].unknown], coef))
-                else:  # an unknown's index, or the tree of a general atom (sin(th)), evaluated per call
-                    rest[r].append((tuple(tree_of(a) if is_general(a) else index[a.unknown] for a in monomial), coef))
-        self.der = der
-        self.rest = rest
-        self.index, self.time = index, time
-        self.params = {name: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for name, v in params.items()}
-        self.static_mass = all(c.is_static for row in der for _, c in row)
-        # fast path: every equation holds exactly one der(), each of a different unknown
-        targets = [row[0][0] for row in der if len(row) == 1]
-        self.permutation = np.array(targets) if len(targets) == q and len(set(targets)) == q else None
-        self.last_y = None  # the state of the last right-hand-side call: who blew up when a call fails
-        self.bad = np.zeros(S, dtype=bool)  # samples whose der() coefficients are singular
-        self.bad_reason = ""
-        if self.static_mass:
-            self._mass = self._mass_at(0.0)
-            self._check_static_mass(problem)
-
-    # -- mass matrix --------------------------------------------------------------------------
-    def _mass_at(self, t: float) -> np.ndarray:
-        if self.permutation is not None:
-            return np.stack([row[0][1].at(t) for row in self.der], axis=1)  # (S, q): diagonal after permuting
-        A = np.zeros((self.S, self.q, self.q))
-        for r, row in enumerate(self.der):
-            for s, coef in row:
-                A[:, r, s] += coef.at(t)
-        return A
-
-    def _check_static_mass(self, problem) -> None:
-        A = self._mass
-        if self.permutation is not None:
-            bad = ~np.isfinite(A).all(axis=1) | (A == 0).any(axis=1)
-            reason = "a coefficient of der() vanishes or is not finite at this point"
-        else:
-            with np.errstate(all="ignore"):
-                finite = np.isfinite(A).all(axis=(1, 2))
-                cond = np.full(self.S, np.inf)
-                if finite.any():
-                    cond[finite] = np.linalg.cond(A[finite])
-            bad = ~finite | ~(cond < 1e14)
-            reason = "the matrix of der() coefficients is singular at this point (not an ODE system there)"
-        self.bad = bad
-        self.bad_reason = reason
-
-    # -- right-hand side ----------------------------------------------------------------------
-    def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
-        count_evaluation(self, y)
-        K = 1 if y.ndim == 1 else y.shape[1]
-        U = y.reshape(self.S, self.q, K)
-        G = np.zeros((self.S, self.q, K))
-        for r, terms in enumerate(self.rest):
-            acc = G[:, r, :]
-            for idx, coef in terms:
-                product = coef.at(t)[:, None]
-                for s in idx:
-                    product = product * (U[:, s, :] if isinstance(s, int) else self._general(s, t, U))
-                acc += product
-        A = self._mass if self.static_mass else self._mass_at(t)
-        if self.permutation is not None:
-            D = np.empty_like(G)
-            D[:, self.permutation, :] = -G / A[:, :, None]
-        else:
-            D = np.linalg.solve(A, -G)
-        return D.reshape(y.shape)
-
-    def _general(self, tree: tuple, t: float, U: np.ndarray) -> np.ndarray:
-        """A general atom's tree at the samples (S, K): unknowns from the state, coordinates per sample."""
-        values = {name: U[:, i, :] for name, i in self.index.items()}
-        values.update({name: v[:, None] for name, v in self.params.items()})
-        values[self.time] = t
-        return general_tree_values(tree, values)
-
-    def initial(self, problem, params: Mapping[str, np.ndarray]) -> np.ndarray:
-        y0 = np.empty((self.S, self.q))
-        for i, unknown in enumerate(problem.unknowns):
-            y0[:, i] = np.broadcast_to(unknown.initial.evaluate(**params), (self.S,)) if params else \
-                np.full(self.S, float(unknown.initial.evaluate()))
-        return y0
+__all__ = ["solve_reference_vectorized", "implicit_options"]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -56,6 +56,7 @@ from .reference import DEFAULT_SPACE_NODES, METHODS, PDE_METHODS, solve_referenc
 from .reference_base import TIME_UP, chunk_executor, time_budget
 from .sampling import (DEFAULT_RANDOM_SPACE_POINTS, MAX_CORNERS, SAMPLINGS, check_times, default_samples,
                        parameter_points, sampled_coordinates, space_coordinates, space_points_grid)
+from .stiffness import decide_stiffness
 from .verify_report import Failure, VerifyReport
 from .reference_pde_nonlinear import is_nonlinear_pde, solve_reference_nonlinear_grid
 
@@ -147,7 +148,9 @@ def verify(
     times : int
         Random times (>= 0) in addition to every node of the time coordinate.
     method : str, optional
-        ``solve_ivp`` method: DOP853 (default), RK45, Radau, BDF or LSODA. With
+        ``solve_ivp`` method: RK45, Radau, BDF, LSODA or DOP853 (default: DOP853, or Radau at
+        rtol 1e-12, atol 1e-14 when the problem is stiff at the sample, as the error gate decides:
+        :func:`pgdcli.checks.stiffness.decide_stiffness`; the settings' ``stiffness`` says why). With
         space coordinates the method-of-lines system is stiff: BDF (default)
         or Radau; any other method given is replaced by BDF (the settings
         record the method used).
@@ -197,15 +200,20 @@ def verify(
     problem = _parse_problem(cb, source)
     time = problem.time
     space = [c.name for c in space_coordinates(problem)]
-    method, rtol, atol = _reference_tolerances(bool(space), opts["method"], opts["rtol"], opts["atol"],
-                                               stiff=bool(cb.report.get("stiff", 0)))
     n_samples = default_samples(problem) if opts["samples"] is None else opts["samples"]
     sample_points, S, settings = parameter_points(problem, points, n_samples, opts["sampling"], opts["seed"],
                                                   opts["max_corners"])
     all_times, time_counts = check_times(cb, time, opts["seed"], opts["times"])
+    stiffness = None
+    if not space and time is not None and opts["method"] is None:  # the error gate's choice of method
+        stiffness = decide_stiffness(problem, cb, sample_points, S, all_times,
+                                     1e-12 if opts["rtol"] is None else opts["rtol"])
+    method, rtol, atol = _reference_tolerances(bool(space), opts["method"], opts["rtol"], opts["atol"],
+                                               stiff=stiffness is not None and stiffness.stiff)
     settings.update(parameter_points=int(S), **time_counts,
                     method="direct" if time is None else method,  # steady: one sparse LU solve per point
-                    rtol=float(rtol), atol=float(atol), jobs=int(opts["jobs"]))
+                    rtol=float(rtol), atol=float(atol), jobs=int(opts["jobs"]),
+                    stiffness=None if stiffness is None else stiffness.text())
 
     def report_progress(done: int) -> None:
         if progress is not None:
@@ -328,7 +336,7 @@ def _load(codebook) -> tuple:
 
 def _reference_tolerances(space: bool, method, rtol, atol, stiff: bool = False) -> tuple[str, float, float]:
     """The reference's method and tolerances: DOP853 at 1e-12, or for the (stiff) method of lines BDF/Radau
-    at rtol 1e-10, or for a codebook marched by a stiff stepper (its report's ``stiff``) Radau at rtol
+    at rtol 1e-10, or for a stiff problem (:func:`pgdcli.checks.stiffness.decide_stiffness`) Radau at rtol
     1e-12, atol 1e-14, as its error gate."""
     if space:
         method = method if method in PDE_METHODS else "BDF"

@@ -50,8 +50,10 @@ def write_json(report) -> None:
                    "the samples and corners.")
 @click.option("--times", "n_times", type=click.IntRange(min=0), default=16, show_default=True, metavar="N",
               help="Random times, checked in addition to every node of the time coordinate.")
-@click.option("--method", type=_MethodChoice(VERIFY_METHODS, case_sensitive=False), default="DOP853",
-              metavar="[" + "|".join(VERIFY_METHODS) + "]", show_default=True, help="solve_ivp method of the reference (Radau, BDF or LSODA for stiff problems).")
+@click.option("--method", type=_MethodChoice(VERIFY_METHODS, case_sensitive=False), default=None,
+              metavar="[" + "|".join(VERIFY_METHODS) + "]",
+              help="solve_ivp method of the reference [default: DOP853, or Radau where the problem is stiff, as the "
+                   "error gate decides; BDF with space coordinates].")
 @click.option("--rtol", type=click.FloatRange(0, 1, min_open=True, max_open=True),
               help="Relative tolerance of the reference [default: 1e-12; 1e-10 with space coordinates].")
 @click.option("--atol", type=click.FloatRange(0, 1, min_open=True, max_open=True),
@@ -108,7 +110,7 @@ def _verify(codebook, samples, sampling, seed, points, n_times, method, rtol, at
     for hint, value in (("'--max-error'", max_error), ("'--max-rel-error'", max_rel_error)):
         if value is not None and not math.isfinite(value):
             raise click.BadParameter(f"expected a finite number >= 0, got {value}", param_hint=hint)
-    method = next(m for m in VERIFY_METHODS if m.lower() == method.lower())
+    method = None if method is None else next(m for m in VERIFY_METHODS if m.lower() == method.lower())
     options = dict(samples=samples, sampling=sampling, seed=seed, points=points, times=n_times, method=method,
                    rtol=rtol, atol=atol, jobs=jobs, max_error=max_error, max_rel_error=max_rel_error,
                    max_seconds=max_seconds, executor=executor)

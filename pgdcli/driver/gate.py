@@ -1,8 +1,8 @@
 """The error gate: measure a solve against the independent reference, and the result that says what was measured.
 
-:func:`measure` runs the check of :mod:`pgdcli.checks.check` (scipy's DOP853 for ODE problems, the method of
-lines for problems with space coordinates or steady ones) and turns what it could not do into warnings;
-:func:`kept_result` and :func:`finish` write the report of the codebook kept, and its message.
+:func:`measure` runs the check of :mod:`pgdcli.checks.check` (scipy's DOP853 for ODE problems, Radau for stiff
+ones, the method of lines for problems with space coordinates or steady ones) and turns what it could not do
+into warnings; :func:`kept_result` and :func:`finish` write the report of the codebook kept, and its message.
 """
 
 from __future__ import annotations
@@ -35,12 +35,13 @@ def measure(problem, codebook, settings: Settings, callback=None, solve: int = 1
     warnings : list of str
     """
     pde = any(c.role == "space" for c in problem.coordinates) or problem.time is None
-    # a march by a stiff stepper: an explicit reference would crawl at its stability limit
-    stiff = not pde and bool(codebook.report.get("stiff", 0))
-    what = "the method-of-lines reference" if pde else f"scipy's {checks.STIFF_METHOD if stiff else 'DOP853'}"
-    emit(callback, PhaseStarted("check", f"error gate against {what}", solve))
     try:
-        options = {"stiff": True} if stiff else {}
+        # stiff (a decay rate far faster than the solution varies): an explicit reference would crawl at its
+        # stability limit, an implicit one takes the steps accuracy needs
+        options = {} if pde else {"stiff": checks.reference_stiffness(problem, codebook)}
+        stiff = not pde and options["stiff"].stiff
+        what = "the method-of-lines reference" if pde else f"scipy's {checks.STIFF_METHOD if stiff else 'DOP853'}"
+        emit(callback, PhaseStarted("check", f"error gate against {what}", solve))
         run = checks.check_codebook_pde if pde else checks.check_codebook
         check = run(problem, codebook, tolerance=settings.tolerance, relative_tolerance=settings.relative_tolerance,
                     progress=callback, **options)

@@ -21,7 +21,8 @@ PROBLEMS = ROOT / "problems"
 
 TOP_KEYS = {"codebook", "problem", "passed", "gate", "settings", "unknowns", "failures", "complete", "wall_time"}
 SETTINGS_KEYS = {"sampling", "samples", "seed", "corners", "corners_total", "points_file", "parameter_points",
-                 "random_times", "time_nodes", "times", "method", "rtol", "atol", "jobs", "max_seconds", "not_checked"}
+                 "random_times", "time_nodes", "times", "method", "rtol", "atol", "jobs", "stiffness", "max_seconds",
+                 "not_checked"}
 UNKNOWN_KEYS = {"max_abs_error", "max_rel_error", "rms_error", "reference_scale", "where", "codebook_value",
                 "reference_value", "tolerance_ratio"}
 
