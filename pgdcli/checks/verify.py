@@ -230,11 +230,16 @@ def verify(
     report = _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,
                      _time.perf_counter() - started)
     if cb.events and problem.events and report.tolerance is not None:  # the event times, at the same points
-        checks = check_events(problem, cb, tolerance=report.tolerance, relative_tolerance=report.relative_tolerance,
-                              stiff=method in ("Radau", "BDF", "LSODA"), points=sample_points)
-        report.events = {c.name: c for c in checks}
+        _check_events(report, cb, problem, method, sample_points)
         report.wall_time = _time.perf_counter() - started
     return report
+
+
+def _check_events(report, cb, problem, method: str, sample_points) -> None:
+    """The codebook's event times against scipy's event location at the report's points, into ``report.events``."""
+    checks = check_events(problem, cb, tolerance=report.tolerance, relative_tolerance=report.relative_tolerance,
+                          stiff=method in ("Radau", "BDF", "LSODA"), points=sample_points)
+    report.events = {c.name: c for c in checks}
 
 
 def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, settings, method, rtol, atol,

@@ -18,7 +18,7 @@ import numpy as np
 from ..algorithms.events import event_field
 from ..algorithms.outcome import Status
 from ..algorithms.result import SolveResult
-from ..checks import check as checks
+from ..checks.check import reference_stiffness
 from ..checks.events import check_events
 from ..codebook.events import EventTime
 from ..errors import SolverError
@@ -73,7 +73,7 @@ def _record(problem, result: SolveResult, settings: Settings, callback) -> Solve
     cb = cb.with_events(events)
     result = dataclasses.replace(result, codebook=cb)
     emit(callback, PhaseStarted("check", f"event times against scipy's event location ({names})"))
-    stiff = checks.reference_stiffness(problem, cb).stiff  # as the error gate decides
+    stiff = reference_stiffness(problem, cb).stiff  # as the error gate decides
     checking = _time.perf_counter()
     checks = check_events(problem, cb, tolerance=settings.tolerance, relative_tolerance=settings.relative_tolerance,
                           stiff=stiff)
