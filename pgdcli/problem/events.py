@@ -33,6 +33,8 @@ __all__ = ["Event", "DIRECTIONS", "EVENT_KEYS", "parse_events", "condition_value
 #: ``rising``: g goes from negative to non-negative; ``falling``: positive to non-positive.
 DIRECTIONS = ("any", "rising", "falling")
 EVENT_KEYS = ("when", "direction")
+#: Keys of what other tools do at an event, refused with a reason (the motion is not stopped or reset).
+ACTION_KEYS = ("then", "action", "terminal", "stop", "reset")
 #: At most this many events per spec (each is one more field to build and check).
 MAX_EVENTS = 16
 
@@ -81,6 +83,11 @@ def parse_events(check: Checker, names: NameRegistry, value: Any, options: Parse
         path = f"events.{name}"
         direction = "any"
         if isinstance(body, dict):
+            acting = [k for k in ACTION_KEYS if k in body]
+            if acting:
+                raise check.error(f"{path}.{acting[0]}", "acting on an event (stopping the motion, or a reset such "
+                                                         "as a bounce) is not supported: the codebook records the "
+                                                         "event's time only (keys: when, direction)")
             body = check.mapping(body, path, EVENT_KEYS)
             direction = check.choice(body.get("direction", "any"), f"{path}.direction", DIRECTIONS)
             body = check.require(body, "when", path)

@@ -51,6 +51,8 @@ def test_condition_values_are_lhs_minus_rhs_at_points():
     ('  landing: "der(y) = 0"\n', "events.landing: the condition 'der(y) = 0' uses der()"),
     ('  landing: "y = q"\n', "events.landing"),
     ("  []\n", "events"),
+    ('  bounce: {when: "y = 0", then: {v: "-0.8*v"}}\n', "events.bounce.then: acting on an event"),
+    ('  landing: {when: "y = 0", terminal: true}\n', "events.landing.terminal: acting on an event"),
 ])
 def test_bad_events_name_the_key(events, message):
     with pytest.raises(SpecError) as info:
