@@ -4,8 +4,9 @@ For a parameter point the condition ``g(u(t, p), t, p)`` is scanned along the co
 nodes and the midpoints between them (the codebook resolves ``u`` there, so a crossing between
 two scan points is a single sign change of a smooth function); the first bracket in the event's
 direction is narrowed on the codebook's own interpolant by Chandrupatla's bracketing method
-(``scipy.optimize.elementwise.find_root``), all points at once. At the start time the exact initial values decide (a condition that holds
-there exactly is not an event there, as in ``solve_ivp``'s event location).
+(``scipy.optimize.elementwise.find_root``), all points at once. At the start time the exact initial
+values decide (a condition that holds there exactly is not an event there, as in ``solve_ivp``'s
+event location).
 
 :func:`event_field` builds the event time on the grid of the codebook's parameter nodes as a tensor
 train (a cross approximation, or the whole grid when small) whose time core is constant: a field
@@ -73,7 +74,7 @@ def _condition(event: Event, codebook, time: str, t: np.ndarray, params: Mapping
 
 
 def _brackets(problem, codebook, event: Event, params: Mapping[str, np.ndarray], S: int):
-    """Per point, the first scan interval where the condition crosses: (a, b, g(a), g(b), found)."""
+    """Per point, the first scan interval where the condition crosses: (a, b, found)."""
     time = problem.time
     scan = _scan_times(codebook, time)
     g = np.empty((S, scan.size))
@@ -88,8 +89,7 @@ def _brackets(problem, codebook, event: Event, params: Mapping[str, np.ndarray],
     hit = _crossed(g[:, :-1], g[:, 1:], event.direction)
     found = hit.any(axis=1)
     k = np.argmax(hit, axis=1)
-    rows = np.arange(S)
-    return scan[k], scan[k + 1], g[rows, k], g[rows, k + 1], found
+    return scan[k], scan[k + 1], found
 
 
 def time_per_state(problem, codebook, event: Event, params: Mapping[str, np.ndarray], t: np.ndarray) -> np.ndarray:
@@ -125,7 +125,7 @@ def first_crossings(problem, codebook, event: Event, params: Mapping[str, np.nda
     """
     params = {n: np.asarray(v, dtype=float).reshape(-1) for n, v in params.items()}
     S = next(iter(params.values())).size if params else 1
-    a, b, ga, gb, found = _brackets(problem, codebook, event, params, S)
+    a, b, found = _brackets(problem, codebook, event, params, S)
     lo, hi = codebook.coordinate(problem.time).domain
     names = list(params)
     root = a.copy()

@@ -12,7 +12,7 @@ import numpy as np
 from ..discretization.coordinates import CoordinateInfo
 from ..errors import CodebookError
 from ..limits import limit
-from ..names import identifier_problem, printable
+from ..names import printable
 from .events import DIRECTIONS, EventTime
 
 __all__ = ["write_events", "read_events", "MAX_EVENTS"]
@@ -42,31 +42,19 @@ def _text(value) -> str:
     return value if isinstance(value, str) else ""
 
 
-def _event_names(found, p: str) -> list[str]:
-    value = found.attr("", "event-order")
-    items = [value] if isinstance(value, (str, bytes)) else list(np.asarray(value, dtype=object).reshape(-1))
-    if not 1 <= len(items) <= MAX_EVENTS:
-        raise CodebookError(f"{p}: corrupt codebook: {len(items)} events (expected 1 to {MAX_EVENTS})")
-    names = [_text(v) for v in items]
-    for name in names:
-        why = identifier_problem(name)
-        if why:
-            raise CodebookError(f"{p}: corrupt codebook: event name {printable(name)!r}: {why}")
-    if len(set(names)) != len(names):
-        raise CodebookError(f"{p}: corrupt codebook: an event name appears twice")
-    return names
-
-
-def read_events(found, coords: list, read_train) -> dict:
+def read_events(found, coords: list, read_names, read_train) -> dict:
     """Event name -> (EventTime, bytes its arrays declare) of a surveyed file (``{}`` without events).
 
-    ``read_train(name, coordinates, where)`` reads the train at ``where`` against ``coordinates``.
+    ``read_names(value, what, most)`` checks a list of names read from an attribute (the reader of the
+    coordinates' and unknowns'); ``read_train(name, coordinates, where)`` reads the train at ``where``
+    against ``coordinates``.
     """
     p = found.source
-    if found.attr("", "event-order") is None:
+    value = found.attr("", "event-order")
+    if value is None:
         return {}
     events = {}
-    for e in _event_names(found, p):
+    for e in read_names(value, "event", MAX_EVENTS):
         where = f"events/{e}"
         if where not in found.attrs:
             raise CodebookError(f"{p}: corrupt codebook: no event {e!r}")

@@ -217,8 +217,8 @@ def read_contents(f, p: str, basis, *, evaluation_only: bool = False) -> dict:
         if declared > limit("codebook_bytes"):
             raise CodebookError(f"{p}: corrupt codebook: its arrays declare more than "
                                 f"{limit('codebook_bytes')} bytes (PGD_MAX_CODEBOOK_BYTES)")
-    events = read_events(found, coords, lambda e, mine, where: _tensor_train(found, e, mine, digests, where=where,
-                                                                             what="event"))
+    events = read_events(found, coords, lambda value, what, most: _names(value, what, most, p),
+                         lambda e, mine, where: _tensor_train(found, e, mine, digests, where=where, what="event"))
     declared += sum(size for _, size in events.values())
     if declared > limit("codebook_bytes"):
         raise CodebookError(f"{p}: corrupt codebook: its arrays declare more than "
