@@ -42,6 +42,10 @@ RESIDUAL_FLOOR = 1e-13
 # the target closely, and a smaller factor drives the ranks up for little gain.
 CHECK_FIRST = 0.7
 MARCH_SAFETY = 0.8
+# A march this many times tighter than the last whose error did not halve: the error is not the
+# march's (time nodes the spec fixes, a parameter between its nodes), and a tighter one only costs
+# steps (down to max_steps at a target below rounding).
+MARCH_STALL = 10.0
 
 
 class Enrichment(Method):
@@ -232,6 +236,10 @@ class OdeMarch(Method):
         ratio = self.solver_ratio(last.check, problem)
         if not np.isfinite(ratio) or ratio <= 1.0:
             return None
+        measured = [t for t in tries if t.check is not None and t.outcome.converged]
+        if len(measured) > 1 and measured[-1].target * MARCH_STALL <= measured[-2].target \
+                and ratio > 0.5 * self.solver_ratio(measured[-2].check, problem):
+            return None  # a much tighter march did not lower the error
         return last.target * (MARCH_SAFETY / ratio)
 
     def keep(self, tries) -> Kept | None:

@@ -131,6 +131,30 @@ def test_a_tighter_amen_solve_that_stalls_far_below_the_error_at_the_nodes_blame
     assert entries["discretization_limited"] == 1 and "enrichment_stopped" not in entries
 
 
+def test_a_much_tighter_march_that_left_the_error_as_it_was_is_not_tightened_again():
+    """Time nodes a spec fixes across a kink: the error at the nodes is the interpolation's, and a march
+    tightened without end would only run into max_steps at a target below rounding."""
+    from types import SimpleNamespace
+
+    from pgdcli.algorithms.outcome import SolverOutcome, Status
+    from pgdcli.driver.method import Try
+    from pgdcli.driver.methods import METHODS, MARCH_SAFETY
+
+    march, settings = METHODS["march"], None
+
+    def attempt(target, ratio):
+        outcome = SolverOutcome(None, Status.CONVERGED, "converged", target, "march", residuals=np.array([target]))
+        return Try(target, outcome, SimpleNamespace(node_ratio=ratio, coordinate_ratio={}))
+
+    problem = SimpleNamespace(time=None)
+    first = attempt(7e-7, 4.5e5)
+    assert march.next_target(problem, [first], settings) == pytest.approx(7e-7 * MARCH_SAFETY / 4.5e5)
+    assert march.next_target(problem, [first, attempt(1.2e-12, 4.4e5)], settings) is None
+    # a tighter march that lowered the error goes on; so does a small step of tightening
+    assert march.next_target(problem, [first, attempt(1.2e-12, 40.0)], settings) is not None
+    assert march.next_target(problem, [attempt(7e-7, 2.0), attempt(2.8e-7, 1.9)], settings) is not None
+
+
 def test_a_coefficient_too_large_for_the_enrichment_goes_to_amen(monkeypatch):
     # forced.yaml's sin(w*t) separates into a few Kronecker terms; with the enrichment's cap at one term it
     # is refused with the advice to use amen, and auto follows that advice itself
