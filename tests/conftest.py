@@ -13,16 +13,41 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import os
 import textwrap
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 import pytest
+import scipy.linalg  # noqa: F401 - its BLAS loaded now, to be limited with numpy's below
+import threadpoolctl
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"
 SHIPPED = ("parametric", "spring", "relaxation")
+
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
+    # One BLAS thread per worker of -n auto: the workers fill the cores, and more BLAS threads only
+    # wait for each other (a QR of a test took ten times longer with two per worker on two busy cores).
+    # pgdcli.solve runs on one BLAS thread whatever the caller's, so no result changes.
+    _ONE_BLAS_THREAD = threadpoolctl.threadpool_limits(1, user_api="blas")
+
+
+@pytest.fixture
+def two_blas_threads():
+    """BLAS on two threads during the test, whatever the suite's workers run on: the tests of a limit and
+    of its lifting see a change."""
+    with threadpoolctl.threadpool_limits(2, user_api="blas"):
+        yield
+
+
+def pytest_collection_modifyitems(config, items):
+    """The modules with long accuracy tests (``slow``) first, each kept whole (its module fixtures
+    are made once): the workers of ``-n auto`` take them while the short ones are left to even
+    out the end (the suite ended with a slow test otherwise)."""
+    slow = {item.module.__name__ for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.module.__name__ not in slow)
 
 
 # ----------------------------------------------------------------------------------------------

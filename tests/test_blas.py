@@ -15,8 +15,9 @@ def _blas_threads() -> list[int]:
     return [m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"]
 
 
-def test_blocks_share_one_limit_lifted_by_the_last():
+def test_blocks_share_one_limit_lifted_by_the_last(two_blas_threads):
     before = _blas_threads()
+    assert set(before) == {2}
     with blas.one_blas_thread():
         assert blas.blas_users() == 1 and set(_blas_threads()) == {1}
         with blas.one_blas_thread():
@@ -25,7 +26,7 @@ def test_blocks_share_one_limit_lifted_by_the_last():
     assert blas.blas_users() == 0 and _blas_threads() == before
 
 
-def test_a_block_in_another_thread_keeps_the_limit():
+def test_a_block_in_another_thread_keeps_the_limit(two_blas_threads):
     seen = []
 
     def worker():

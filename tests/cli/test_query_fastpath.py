@@ -442,10 +442,11 @@ def _blas_threads(threadpoolctl):
     return [m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"]
 
 
-def test_blas_limit_is_restored_after_batches(solved):
+def test_blas_limit_is_restored_after_batches(solved, two_blas_threads):
     threadpoolctl = pytest.importorskip("threadpoolctl")
     cb = solved("spring").codebook
     before = _blas_threads(threadpoolctl)
+    assert set(before) == {2}
     for n in (threads_module.BLAS_LIMIT_MIN_POINTS, threads_module.PARALLEL_MIN_POINTS + 1):
         cb(t=np.linspace(0, 4, n), k=np.full(n, 2.0), c=np.full(n, 0.3))
         assert _blas_threads(threadpoolctl) == before

@@ -31,7 +31,7 @@ def test_sketched_meets_the_bound_with_the_exact_ranks(shape, relative):
 
 
 def test_a_too_narrow_sketch_is_widened_and_noise_goes_to_the_exact_svd():
-    values = smooth_tensor((60, 30, 30, 30), 1e-6, 2)  # full rank below 1e-6: no sketch can be narrow
+    values = smooth_tensor((40, 24, 24, 24), 1e-6, 2)  # full rank below 1e-6: no sketch can be narrow
     absolute = 1e-9 * np.linalg.norm(values)
     sketched = tt_from_full_sketched(values, absolute, np.random.default_rng(3), rank_guesses=(2, 2, 2))
     assert np.linalg.norm(sketched.full() - values) <= absolute
