@@ -6,10 +6,11 @@ at the event, restart from there, until the end time. One point at a time (DOP85
 Radau for a stiff problem); each segment's dense output gives the state at any time of that segment.
 
 :func:`check_phases` measures a phased codebook at parameter points (corners, faces, random points)
-and times across every phase. The state jumps at an event, so a time between the codebook's event
-time and the reference's has its value on the other side of the jump in one of them: such a time is
-not compared (the event times themselves are measured under the event rule); every other time is held
-to ``tolerance + relative_tolerance * |u|``.
+and times across every phase. The state jumps at an event, so at a time between the codebook's event
+time and the reference's the two are on either side of the jump: the reference is taken on the
+codebook's side (with the codebook's own event time), and the event times are measured apart. Every
+value is held to ``tolerance + relative_tolerance * |u|``, every later event time to
+``tolerance + relative_tolerance * |t|``.
 """
 
 from __future__ import annotations
@@ -20,9 +21,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..problem.events import acting_event, condition_values, reset_values
+from .events import EventCheck
 from .reference_system import CompiledSystem
 
-__all__ = ["Motion", "reference_motion", "PhaseCheck", "check_phases", "phase_sample", "RTOL", "ATOL"]
+__all__ = ["Motion", "reference_motion", "PhaseValues", "phase_values", "PhaseCheck", "check_phases", "phase_sample",
+           "RTOL", "ATOL"]
 
 RTOL, ATOL = 1e-12, 1e-13
 _DIRECTION = {"any": 0, "rising": 1, "falling": -1}
@@ -52,14 +55,12 @@ class Motion:
     failed: bool = False
     index: dict = field(default_factory=dict)
 
-    def state(self, t: float) -> np.ndarray | None:
-        """The state at ``t`` (None after a terminal event or beyond the segments); at an event time, after it."""
-        if self.ended and t >= self.events[0]:
+    def segment_state(self, k: int, t: float) -> np.ndarray | None:
+        """The state at ``t`` on segment ``k`` (after the k-th event; None after a terminal event or without
+        that segment). A ``t`` just outside the segment extends its last (or first) step."""
+        if self.ended and k >= 1 or k >= len(self.segments):
             return None
-        for start, end, sol in self.segments:
-            if start <= t < end or (t == end and sol is self.segments[-1][2]):
-                return sol(t)
-        return None
+        return self.segments[k][2](t)
 
 
 def _event_function(event, system, time: str, params: dict):
@@ -132,6 +133,77 @@ def phase_sample(problem, random: int, seed: int = 0) -> dict[str, np.ndarray]:
 
 
 @dataclass
+class PhaseValues:
+    """The codebook and the reference at ``S`` parameter points and ``T`` times (:func:`phase_values`).
+
+    Attributes
+    ----------
+    reference, codebook : dict of str to ndarray, shape (S, T)
+        Per unknown (NaN: no value, after a terminal event, or a failed reference).
+    success : ndarray of bool, shape (S,)
+    messages : list of str
+        Why the reference failed at a point ('' where it did not).
+    events : list of EventCheck
+        The acting event's second, third, ... times (``name[2]``, ...) against the reference's.
+    """
+
+    reference: dict
+    codebook: dict
+    success: np.ndarray
+    messages: list
+    events: list
+
+
+def phase_values(problem, codebook, points: dict, times: np.ndarray, *, tolerance: float,
+                 relative_tolerance: float = 0.0, stiff: bool = False) -> PhaseValues:
+    """The phased codebook and :func:`reference_motion` at every point and time.
+
+    At a time between the codebook's event time and the reference's the two are on either side of the
+    jump: the reference is then taken on the codebook's side (its segment's dense output, a step beyond
+    the segment's end by at most that gap), so a value is always compared with the motion it follows.
+    """
+    time = problem.time
+    event = acting_event(problem.events)
+    S = next(iter(points.values())).size if points else 1
+    T = times.size
+    names = list(problem.unknown_names)
+    reference = {u: np.full((S, T), np.nan) for u in names}
+    mine = codebook.evaluate({time: np.broadcast_to(times, (S, T)),
+                              **{n: np.broadcast_to(v[:, None], (S, T)) for n, v in points.items()}})
+    sequences = codebook.event_sequence(points) if points else codebook.event_sequence({})[None, :]
+    success, messages = np.ones(S, dtype=bool), [""] * S
+    gaps = {}
+    for i in range(S):
+        params = {n: v[i:i + 1] for n, v in points.items()}
+        motion = reference_motion(problem, params, stiff=stiff)
+        if motion.failed:
+            success[i], messages[i] = False, "the restarted reference failed"
+            continue
+        ours = sequences[i]
+        for k, theirs in enumerate(motion.events[:ours.size]):
+            if k > 0:
+                gaps.setdefault(k, []).append((i, ours[k], theirs))
+        for j, t in enumerate(times):
+            k = int(np.sum(ours <= t))
+            state = motion.segment_state(k, float(t))
+            for u in names:
+                reference[u][i, j] = np.nan if state is None else state[motion.index[u]]
+    checks = [_event_check(f"{event.name}[{k + 1}]", rows, points, tolerance, relative_tolerance)
+              for k, rows in sorted(gaps.items())]
+    return PhaseValues(reference, {u: np.asarray(mine[u]) for u in names}, success, messages, checks)
+
+
+def _event_check(name: str, rows: list, points: dict, tolerance: float, relative_tolerance: float) -> EventCheck:
+    i = np.array([r[0] for r in rows])
+    ours, theirs = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
+    error = np.abs(ours - theirs)
+    ratio = error / (tolerance + relative_tolerance * np.abs(theirs))
+    worst = int(np.argmax(ratio))
+    where = {n: float(v[i[worst]]) for n, v in points.items()}
+    return EventCheck(name, float(error.max()), float(ratio.max()), where, int(i.size), 0)
+
+
+@dataclass
 class PhaseCheck:
     """The phased codebook against the reference: largest error, its ratio to the tolerance, where."""
 
@@ -139,59 +211,34 @@ class PhaseCheck:
     ratio: float
     where: dict
     points: int
-    compared: int
-    skipped: int
-    failed: int
+    events: list
 
 
 def check_phases(problem, codebook, *, tolerance: float, relative_tolerance: float = 0.0, stiff: bool = False,
-                 points: dict | None = None, times: int = 24, seed: int = 0) -> PhaseCheck:
-    """The codebook's values against :func:`reference_motion` at ``points`` (default :func:`phase_sample`)
-    and ``times`` times per point (uniform, plus just after each reference event)."""
-    points = phase_sample(problem, 24, seed) if points is None else points
+                 points: dict | None = None, times: int = 40, seed: int = 0) -> PhaseCheck:
+    """The codebook's values and later event times against :func:`reference_motion` at ``points`` (default
+    :func:`phase_sample`) and ``times`` uniform times plus both ends."""
+    points = phase_sample(problem, 40, seed) if points is None else points
     time = problem.time
     t0, t1 = problem.coordinate(time).domain
-    S = next(iter(points.values())).size if points else 1
     rng = np.random.default_rng([seed, 19])
-    worst = PhaseCheck(0.0, 0.0, {}, 0, 0, 0, 0)
-    for i in range(S):
-        params = {n: v[i:i + 1] for n, v in points.items()}
-        motion = reference_motion(problem, params, stiff=stiff)
-        if motion.failed:
-            worst.failed += 1
-            continue
-        worst.points += 1
-        ts = np.concatenate([rng.uniform(t0, t1, times), [t0, t1],
-                             [e + 1e-3 * (t1 - t0) for e in motion.events if e + 1e-3 * (t1 - t0) < t1]])
-        _compare(problem, codebook, motion, params, ts, tolerance, relative_tolerance, worst)
+    ts = np.sort(np.concatenate([rng.uniform(t0, t1, times), [t0, t1]]))
+    got = phase_values(problem, codebook, points, ts, tolerance=tolerance, relative_tolerance=relative_tolerance,
+                       stiff=stiff)
+    worst = PhaseCheck(0.0, 0.0, {}, int(got.success.sum()), got.events)
+    for u, ref in got.reference.items():
+        mine = got.codebook[u][got.success]
+        ref = ref[got.success]
+        with np.errstate(invalid="ignore"):
+            error = np.where(np.isnan(ref) & np.isnan(mine), 0.0, np.abs(mine - ref))
+            error = np.where(np.isnan(error), np.inf, error)
+            ratio = error / (tolerance + relative_tolerance * np.abs(np.nan_to_num(ref)))
+        if ratio.size and ratio.max() > worst.ratio:
+            i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+            rows = np.flatnonzero(got.success)
+            worst.ratio, worst.error = float(ratio[i, j]), float(error[i, j])
+            worst.where = {**{n: float(v[rows[i]]) for n, v in points.items()}, time: float(ts[j])}
+    for check in got.events:
+        if check.ratio > worst.ratio:
+            worst.ratio, worst.error, worst.where = check.ratio, check.error, {**check.where, "event": check.name}
     return worst
-
-
-def _compare(problem, codebook, motion: Motion, params: dict, ts: np.ndarray, tolerance: float,
-             relative_tolerance: float, worst: PhaseCheck) -> None:
-    time = problem.time
-    mine = codebook.event_sequence({n: v for n, v in params.items()})[0] if params else codebook.event_sequence({})
-    mine = np.atleast_1d(mine)
-    theirs = np.array(motion.events, dtype=float)
-    got = codebook.evaluate({time: ts, **{n: np.full(ts.size, v[0]) for n, v in params.items()}})
-    names = list(got)
-    for j, t in enumerate(ts):
-        k_mine, k_ref = int(np.sum(mine <= t)), int(np.sum(theirs <= t))
-        if k_mine != k_ref:  # between the two event times: on either side of the jump
-            worst.skipped += 1
-            continue
-        state = motion.state(float(t))
-        values = np.array([got[u][j] for u in names])
-        if state is None:
-            ok = bool(np.all(np.isnan(values)))
-            ratio, error = (0.0, 0.0) if ok else (np.inf, np.inf)
-        else:
-            ref = np.array([state[motion.index[u]] for u in names])
-            error = float(np.max(np.abs(values - ref)))
-            ratio = float(np.max(np.abs(values - ref) / (tolerance + relative_tolerance * np.abs(ref))))
-            ratio = ratio if np.isfinite(ratio) else np.inf
-        worst.compared += 1
-        if ratio > worst.ratio:
-            worst.ratio, worst.error = ratio, error
-            worst.where = {**{n: float(v[0]) for n, v in params.items()}, time: float(t)}
-

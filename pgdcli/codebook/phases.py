@@ -22,7 +22,7 @@ from ..errors import CodebookError, QueryError
 from .codebook import Codebook
 from .phase_io import ACTIONS, MAX_PHASES
 
-__all__ = ["PhasedCodebook", "ACTIONS", "MAX_PHASES", "validate_phases"]
+__all__ = ["PhasedCodebook", "ACTIONS", "MAX_PHASES", "validate_phases", "refuse_phases"]
 
 
 def validate_phases(cb: Codebook, acting: str, action: str, phases: Sequence[Codebook]) -> tuple:
@@ -169,27 +169,33 @@ class PhasedCodebook(Codebook):
         return np.asarray(coordinates[self._time.name], dtype=float) >= first
 
     # ------------------------------------------------------------------ paths that read the fields directly
-    def _refuse(self, what: str):
+    def refuse(self, what: str):
         raise QueryError(f"{what} reads the fields of one phase; this codebook has an event that acts "
                          f"({self.acting!r}: {self.action}): evaluate it at points (pgd query, Codebook.evaluate)")
 
     def evaluate_grid(self, axes, fields=None):
-        self._refuse("evaluate_grid")
+        self.refuse("evaluate_grid")
 
     def evaluate_series(self, points, series, fields=None):
-        self._refuse("evaluate_series")
+        self.refuse("evaluate_series")
 
     def gradient(self, coordinates, wrt=None, fields=None, grid=False):
-        self._refuse("gradient")
+        self.refuse("gradient")
 
     def sensitivity(self, **kwargs):
-        self._refuse("sensitivity")
+        self.refuse("sensitivity")
 
     def nodal_values(self, field_name):
-        self._refuse("nodal_values")
+        self.refuse("nodal_values")
 
     def to_xarray(self, axes=None, /, *, fields=None, **coordinates):
-        self._refuse("to_xarray")
+        self.refuse("to_xarray")
+
+
+def refuse_phases(cb, what: str) -> None:
+    """QueryError (one line, naming ``what``) for a codebook with phases: ``what`` reads one phase's fields."""
+    if isinstance(cb, PhasedCodebook):
+        cb.refuse(what)
 
 
 def _from_parts(coordinates, fields, attributes: dict, acting: str, action: str, phases) -> PhasedCodebook:

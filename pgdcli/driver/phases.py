@@ -214,7 +214,7 @@ def _checked(problem, result, settings, spans: list, callback):
         return dataclasses.replace(result, warnings=result.warnings + [
             "the phases could not be checked: the restarted reference failed at every point"])
     if check.ratio > 1.0:
-        where = ", ".join(f"{k}={v:.6g}" for k, v in check.where.items())
+        where = ", ".join(f"{k}={v:.6g}" if k != "event" else f"event {v}" for k, v in check.where.items())
         message = (f"tolerance not met: the phases' error {check.error:.3g} ({check.ratio:.2g} x the tolerance) "
                    f"at {where} against the restarted reference")
         rep.update(converged=False, status=int(Status.INACCURATE), message=message, accurate=0)
