@@ -143,7 +143,8 @@ class PhasedCodebook(Codebook):
         out = {u: np.full(S, np.nan) for u in selected}
         if S == 0:
             return out
-        starts = self.event_sequence(params) if params else np.broadcast_to(self.event_sequence({}), (S, 1 + len(self.phases)))
+        sequence = self.event_sequence(params) if params else self.event_sequence({})
+        starts = np.broadcast_to(sequence, (S, 1 + len(self.phases)))
         k = np.sum(starts <= t[:, None], axis=1)  # at an event time itself: after it
         books = (self.zero, *self.phases)
         for j in np.unique(k):

@@ -23,6 +23,7 @@ parameters would resolve badly; it is solved phase by phase (:mod:`pgdcli.codebo
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 
@@ -57,6 +58,7 @@ def solve_phased(problem, choice, settings, callback=None):
     event = acting_event(problem.events)
     if event is None:
         return None
+    started = time.perf_counter()
     if event.terminal:
         result, _ = solve_rounds(problem, choice, settings, callback)
         result = record_events(problem, result, settings, callback)
@@ -81,7 +83,10 @@ def solve_phased(problem, choice, settings, callback=None):
         spans.append(phase.coordinate(problem.time).domain[1])
     if not result.converged:
         return dataclasses.replace(result, message=f"phase {len(books) - 1}: {result.message}")
-    return _checked(problem, _wrapped(result, event, books[1:], first=books[0]), settings, spans, callback)
+    result = _checked(problem, _wrapped(result, event, books[1:], first=books[0]), settings, spans, callback)
+    spent = time.perf_counter() - started  # every phase's solve and check
+    result.codebook.report["wall_time"] = spent
+    return dataclasses.replace(result, wall_time=spent)
 
 
 def _count_phases(problem) -> int:

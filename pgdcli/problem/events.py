@@ -129,6 +129,10 @@ def _parse_event(check: Checker, name: str, body: Any, options: ParseOptions) ->
                 raise check.error(f"{path}.terminal", f"expected true or false, got {show_value(terminal)}")
         if "then" in body:
             reset = _parse_reset(check, body["then"], f"{path}.then", options)
+            if direction == "any":
+                raise check.error(f"{path}.direction", "a reset needs direction: falling or rising (just after it "
+                                                       "the state is on the event's surface, where any direction "
+                                                       "would meet the event again)")
         body = check.require(body, "when", path)
         path = f"{path}.when"
     if not isinstance(body, str):

@@ -8,7 +8,6 @@ reference). A thrown ball that lands (terminal) has no values after its landing.
 
 from __future__ import annotations
 
-import io
 import itertools
 import json
 from pathlib import Path
@@ -20,9 +19,9 @@ from click.testing import CliRunner
 from scipy.integrate import solve_ivp
 
 import pgdcli
+from conftest import reseal
 from pgdcli.cli.main import cli
-from pgdcli.codebook.file_checks import ARRAY_DIGESTS, CONTENT_DIGEST, array_digest, metadata_digest, survey
-from pgdcli.codebook.io import to_bytes, write_contents
+from pgdcli.codebook.io import to_bytes
 from pgdcli.errors import PgdError
 from pgdcli.problem.spec import load_spec, parse_spec
 
@@ -143,27 +142,12 @@ def test_paths_that_read_one_phase_refuse(bounce, tmp_path):
         assert run.exit_code == 2 and "reads the fields of one phase" in run.stderr and "Traceback" not in run.output
 
 
-def _reseal(f) -> None:
-    digests = {}
-
-    def visit(name, obj):
-        if isinstance(obj, h5py.Dataset):
-            value = obj[()]
-            digests[name] = array_digest(value.decode() if isinstance(value, bytes) else value)
-
-    f.visititems(visit)
-    f.attrs[ARRAY_DIGESTS] = json.dumps(digests, sort_keys=True, separators=(",", ":"))
-    f.attrs[CONTENT_DIGEST] = metadata_digest(survey(f, "<memory>"))
-
-
 def _crafted(bounce, tmp_path, edit) -> str:
-    buffer = io.BytesIO()
-    with h5py.File(buffer, "w", libver=("v110", "v110")) as f:
-        write_contents(bounce, f)
-        edit(f)
-        _reseal(f)
     path = tmp_path / "crafted.h5"
-    path.write_bytes(buffer.getvalue())
+    bounce.save(path)
+    with h5py.File(path, "r+") as f:
+        edit(f)
+    reseal(path)
     run = CliRunner().invoke(cli, ["query", str(path), "--t", "1", "--h", "1.5", "--e", "0.8"])
     assert run.exit_code == 2 and run.stderr.startswith("Error: ") and len(run.stderr.splitlines()) == 1, run.output
     assert "Traceback" not in run.output
