@@ -62,7 +62,7 @@ def solve_phased(problem, choice, settings, callback=None):
     if event.terminal:
         result, _ = solve_rounds(problem, choice, settings, callback)
         result = record_events(problem, result, settings, callback)
-        return _wrapped(result, event, [])
+        return _wrapped(result, event, []) if result.converged else _unwritable(result, "")
     count = _count_phases(problem)
     share = dataclasses.replace(settings, tolerance=settings.tolerance / count)
     emit(callback, PhaseStarted("solve", f"{count} phases at most ({event.name!r} resets the motion); each to "
@@ -82,11 +82,18 @@ def solve_phased(problem, choice, settings, callback=None):
         books.append(result.codebook)
         spans.append(phase.coordinate(problem.time).domain[1])
     if not result.converged:
-        return dataclasses.replace(result, message=f"phase {len(books) - 1}: {result.message}")
+        return _unwritable(result, f"phase {len(books) - 1}: ")
     result = _checked(problem, _wrapped(result, event, books[1:], first=books[0]), settings, spans, callback)
     spent = time.perf_counter() - started  # every phase's solve and check
     result.codebook.report["wall_time"] = spent
     return dataclasses.replace(result, wall_time=spent)
+
+
+def _unwritable(result, where: str):
+    """A failed phase: its codebook is one phase's, which would be read past its event, so it is not written
+    (status FAILED, accuracy not claimed, whatever --keep-inaccurate says)."""
+    message = f"{where}{result.message} (a codebook whose event acts is written only whole and within its tolerance)"
+    return dataclasses.replace(result, converged=False, status=Status.FAILED, accurate=None, message=message)
 
 
 def _count_phases(problem) -> int:
@@ -197,8 +204,6 @@ def _next_phase(problem, choice, settings, books: list, callback):
 
 def _wrapped(result, event, phases: list, first=None):
     cb = first if first is not None else result.codebook
-    if not result.converged:
-        return result
     phased = PhasedCodebook(cb.coordinates, cb.fields, name=cb.name, spec_text=cb.spec_text, report=cb.report,
                             description=cb.description, created=cb.created, events=cb.events, acting=event.name,
                             action="terminal" if event.terminal else "reset",
