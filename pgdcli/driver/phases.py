@@ -107,7 +107,7 @@ def _count_phases(problem) -> int:
         params = {n: v[i:i + 1] for n, v in points.items()}
         motion = reference_motion(problem, params, most=MAX_PHASES)
         count = sum(1 for e in motion.events if e <= t1) + 1
-        if count > MAX_PHASES - 1:
+        if count > MAX_PHASES:
             where = ", ".join(f"{n}={v[0]:.6g}" for n, v in params.items()) or "the start"
             raise SolverError(f"event {event.name!r} happens more than {MAX_PHASES - 1} times before "
                               f"{problem.time}={t1:g} at {where}: the events pile up (a Zeno motion); shorten the "
@@ -138,7 +138,7 @@ def _earliest(problem, books: list) -> float:
 def _reset_state(problem, books: list):
     """params (flat arrays) -> the state after the latest event, per unknown (cached for the unknowns)."""
     event = acting_event(problem.events)
-    time, last = problem.time, books[-1]
+    tname, last = problem.time, books[-1]
     cache = {}
 
     def state(params: dict) -> dict:
@@ -146,8 +146,8 @@ def _reset_state(problem, books: list):
         if key not in cache:
             cache.clear()
             local = np.asarray(last.event_times(params, [event.name])[event.name], dtype=float)
-            before = last.evaluate({**params, time: local})
-            cache[key] = reset_values(event, before, {**params, time: _event_times(books, params)})
+            before = last.evaluate({**params, tname: local})
+            cache[key] = reset_values(event, before, {**params, tname: _event_times(books, params)})
         return cache[key]
 
     return state
