@@ -233,7 +233,7 @@ def test_a_terminal_event_ends_the_motion(tmp_path):
     assert pgdcli.verify(path, samples=8, times=8).passed()
 
 
-def test_a_zeno_motion_is_refused_with_the_point(write_spec, tmp_path):
+def test_a_zeno_motion_is_refused_with_the_point(tmp_path):
     text = THROW.replace("terminal: true", 'then: {v: "-0.3*v"}').replace("[0, 1.5]", "[0, 3]")
     path = tmp_path / "zeno.yaml"
     path.write_text(text)
