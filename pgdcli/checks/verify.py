@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 import os
 import time as _time
+from types import SimpleNamespace
 from typing import Callable, Mapping
 
 import numpy as np
@@ -51,6 +52,7 @@ from .. import executors
 from ..codebook.codebook import Codebook
 from ..errors import CodebookError, VerifyError
 from .events import check_events
+from .phases import phase_values
 from .compare import UnknownErrors, codebook_at_samples, codebook_on_space_grid, error_statistics
 from .reference import DEFAULT_SPACE_NODES, METHODS, PDE_METHODS, solve_reference, solve_reference_pde
 from .reference_base import TIME_UP, chunk_executor, time_budget
@@ -206,7 +208,8 @@ def verify(
     all_times, time_counts = check_times(cb, time, opts["seed"], opts["times"])
     stiffness = None
     if not space and time is not None and opts["method"] is None:  # the error gate's choice of method
-        stiffness = decide_stiffness(problem, cb, sample_points, S, all_times,
+        # with phases: along phase 0 (its motion continued past the event), for the stiffness alone
+        stiffness = decide_stiffness(problem, getattr(cb, "zero", cb), sample_points, S, all_times,
                                      1e-12 if opts["rtol"] is None else opts["rtol"])
     method, rtol, atol = _reference_tolerances(bool(space), opts["method"], opts["rtol"], opts["atol"],
                                                stiff=stiffness is not None and stiffness.stiff)
@@ -230,16 +233,17 @@ def verify(
     report = _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,
                      _time.perf_counter() - started)
     if cb.events and problem.events and report.tolerance is not None:  # the event times, at the same points
-        _check_events(report, cb, problem, method, sample_points)
+        _check_events(report, cb, problem, method, sample_points, getattr(result, "events", ()))
         report.wall_time = _time.perf_counter() - started
     return report
 
 
-def _check_events(report, cb, problem, method: str, sample_points) -> None:
-    """The codebook's event times against scipy's event location at the report's points, into ``report.events``."""
+def _check_events(report, cb, problem, method: str, sample_points, later=()) -> None:
+    """The codebook's event times against scipy's event location at the report's points, into ``report.events``
+    (with ``later``: a reset's later event times, measured with the phases)."""
     checks = check_events(problem, cb, tolerance=report.tolerance, relative_tolerance=report.relative_tolerance,
                           stiff=method in ("Radau", "BDF", "LSODA"), points=sample_points)
-    report.events = {c.name: c for c in checks}
+    report.events = {c.name: c for c in [*checks, *later]}
 
 
 def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, settings, method, rtol, atol,
@@ -267,12 +271,32 @@ def _reference_and_codebook(cb, problem, sample_points, S, all_times, opts, sett
         approx = codebook_on_space_grid(cb, sample_points, S, time, all_times, space_grid, unknowns)
         settings.update(space_points={n: int(space_grid[n].size) for n in space},
                         random_space_points=opts["space_points"], space_nodes=dict(result.nodes))
+    elif getattr(cb, "phases", None) is not None:  # an event that acts: scipy stopped at it and restarted
+        space_grid = {}
+        result, approx = _phased(cb, problem, sample_points, all_times, method)
+        report_progress(S)
     else:
         space_grid = {}
         result = solve_reference(problem, sample_points, all_times, method=method, rtol=rtol, atol=atol,
                                  executor=executor, progress=report_progress)
         approx = codebook_at_samples(cb, sample_points, time, all_times, unknowns)
     return result, approx, space_grid
+
+
+def _phased(cb, problem, sample_points, all_times, method: str):
+    """The reference and the codebook of a codebook with phases; where neither has a value (after a
+    terminal event) both are 0, where one alone has, the codebook's is infinite (an error)."""
+    tolerance, relative = _codebook_tolerance(cb)
+    got = phase_values(problem, cb, sample_points, all_times, tolerance=tolerance or 1.0, relative_tolerance=relative,
+                       stiff=method in ("Radau", "BDF", "LSODA"))
+    approx = {}
+    for u, ref in got.reference.items():
+        mine = got.codebook[u].copy()
+        none = np.isnan(ref) & np.isnan(mine)
+        mine[np.isnan(ref) != np.isnan(mine)] = np.inf
+        mine[none] = ref[none] = 0.0
+        approx[u] = mine
+    return SimpleNamespace(values=got.reference, success=got.success, messages=got.messages, events=got.events), approx
 
 
 def _report(cb, path, problem, opts, settings, sample_points, all_times, result, approx, space_grid,

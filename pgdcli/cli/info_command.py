@@ -52,6 +52,12 @@ def _print_contents(console, summary: dict) -> None:
     for name, event in summary.get("events", {}).items():  # pgd query --event NAME
         error = "" if event["error"] is None else f", time within {event['error']:.2e} of scipy's event location"
         console.print(f"event {name}: {event['when']} ({event['direction']}){error}")
+    phases = summary.get("phases")
+    if phases is not None:
+        what = "ends the motion" if phases["action"] == "terminal" else f"resets the motion: {phases['count']} phases"
+        error = "" if phases["error"] is None else (f", within {phases['error']:.2e} of solve_ivp restarted at each "
+                                                    f"event")
+        console.print(f"event {phases['event']} {what}{error}")
     if summary.get("method_reason"):  # escaped for rich by _shown, as every string of the summary
         name = "tensor-train solver (amen)" if summary["method"] == "amen" else "enrichment (pgd)"
         console.print(f"method: {name}: {summary['method_reason']}")

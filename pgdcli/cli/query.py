@@ -314,6 +314,8 @@ def run(argv: list[str]) -> int | None:
         selected = list(fields) if fields else cb.unknown_names
         if any(f not in cb.fields for f in selected) or (points is not None and rest):
             return None
+        if getattr(cb, "action", None) == "terminal":  # points after its event: click's path tells
+            return None
         if points == "-":
             recorder = _Recorder(getattr(sys.stdin, "buffer", None) or sys.stdin, sys.stdin)
         chunks, handle = point_chunks(cb, points, rest, stdin=recorder)

@@ -10,8 +10,9 @@ import click
 from . import query as _query
 from . import stream  # registers the query's output formats
 from .cluster_options import cluster_options, open_executor, scheduler_given
+from ..errors import QueryError
 from .formats import QUERY
-from .group import cli, format_option, stderr_console
+from .group import cli, format_option, stderr_console, warn
 from .outputs import prepare_output
 
 
@@ -65,14 +66,49 @@ def query(ctx, codebook, fmt, fields, points, output, events, scheduler, workers
         raise click.UsageError("--scheduler and --workers evaluate into --output FILE.h5; add --output")
     if output is not None and ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT:
         raise click.UsageError(f"--format {fmt} prints to stdout; --output writes HDF5: give one of them")
+    ended = _Ended(cb) if getattr(cb, "action", None) == "terminal" else None
+    if ended is not None and points is None:
+        ended.refuse_one(_usage(_query.grid_axes, ctx.args, cb))
     if output is not None:
         return _to_file(ctx, cb, points, output, selected, scheduler, workers)
     chunks, handle = _usage(_query.point_chunks, cb, points, ctx.args)
     try:
-        stream.Writer(sys.stdout, fmt, cb, selected).run(chunks)
+        stream.Writer(sys.stdout, fmt, cb if ended is None else ended, selected).run(chunks)
     finally:
         if handle is not None:
             handle.close()
+    if ended is not None and ended.count:
+        warn(f"{ended.count} of {ended.total} points are at or after the terminal event {cb.acting!r}: the motion "
+             f"has ended there and their values are NaN")
+
+
+class _Ended:
+    """A codebook with a terminal event, counting the points evaluated after it (the rest as the codebook)."""
+
+    def __init__(self, cb):
+        self.cb, self.count, self.total = cb, 0, 0
+
+    def __getattr__(self, name):
+        return getattr(self.cb, name)
+
+    def evaluate(self, coordinates, fields=None):
+        self.total += 1
+        self.count += bool(self.cb.ended(coordinates))
+        return self.cb.evaluate(coordinates, fields)
+
+    def refuse_one(self, axes: list) -> None:
+        """One point after the event: an error naming the event's time (a grid of several gets NaN rows)."""
+        if any(len(a) != 1 for a in axes):
+            return
+        point = {c.name: float(a[0]) for c, a in zip(self.cb.coordinates, axes)}
+        if not self.cb.ended(point):
+            return
+        time = next(c.name for c in self.cb.coordinates if c.role == "time")
+        params = {n: v for n, v in point.items() if n != time}
+        at = float(self.cb.event_times(params, [self.cb.acting])[self.cb.acting])
+        where = ", ".join(f"{n}={v:g}" for n, v in params.items())
+        raise QueryError(f"{time}={point[time]:g} is at or after the terminal event {self.cb.acting!r} at "
+                               f"{time}={at:.10g}{' (' + where + ')' if where else ''}: the motion has ended there")
 
 
 def _events(ctx, cb, fmt, fields, points, output, events: list[str]) -> None:

@@ -104,6 +104,8 @@ class Codebook(CodebookAnalysis):
     array([0., 20.])
     """
 
+    phased_class = None  # the codebook of an event that acts, pgdcli.codebook.phases.PhasedCodebook
+
     def __init__(self, coordinates: Sequence[CoordinateInfo], fields: Mapping[str, CPTensor | TT], *,
                  name: str = "codebook", spec_text: str = "", report: Mapping | None = None,
                  description: str = "", created: str | None = None, partial: bool = False,
@@ -404,10 +406,7 @@ class Codebook(CodebookAnalysis):
         path : path-like
             The HDF5 file to write (its folder must exist).
 
-        Returns
-        -------
-        path-like
-            The path written.
+        Returns the path written.
         """
         return codebook_io.save(self, path)
 
@@ -427,17 +426,17 @@ class Codebook(CodebookAnalysis):
         evaluation_only : bool
             Skip what evaluation does not need (the stored spec, the report's arrays).
 
-        Returns
-        -------
-        Codebook
+        Returns a :class:`Codebook` (a :class:`~pgdcli.codebook.phases.PhasedCodebook` with phases).
 
         Raises
         ------
         CodebookError
-            The file is missing, not a regular file, not HDF5, truncated, not a codebook, of an
-            unknown major version, not self-contained, too large, inconsistent or corrupted.
+            The file is missing, not a regular file, not HDF5, truncated, not a codebook, of an unknown
+            major version, not self-contained, too large, inconsistent or corrupted (phases included).
         """
-        cb = cls(**codebook_io.load_parts(path, shared_basis, evaluation_only=evaluation_only))
+        parts = codebook_io.load_parts(path, shared_basis, evaluation_only=evaluation_only)
+        # an event that acts: phase 0 and its phases (the class registers itself: pgdcli.codebook.phases)
+        cb = Codebook.phased_class.from_parts(parts, path) if "phases" in parts else cls(**parts)
         if cb.accurate is False:
             warnings.warn(f"{path}: this codebook misses its tolerance ({cb.report.get('message', '')}); it was "
                           f"written with --keep-inaccurate", InaccurateCodebookWarning, stacklevel=2)

@@ -42,6 +42,7 @@ from ..errors import PgdError
 from ..names import identifier_problem, printable, problem_name_problem
 from .export_c import FLOAT32_MAX, c_header, glsl_source
 from .fields import TT
+from .phases import refuse_phases
 
 __all__ = ["ExportError", "TARGETS", "DEFAULT_LIMIT", "layout", "export", "size_of"]
 
@@ -131,7 +132,10 @@ def export(cb, target: str, *, force: bool = False, limit: int = DEFAULT_LIMIT) 
     ------
     ExportError
         Unknown target; numbers beyond ``limit`` bytes without ``force``.
+    QueryError
+        A codebook with phases (an event that acts): its fields are one phase's.
     """
+    refuse_phases(cb, f"export to {target}")
     if target not in TARGETS:
         raise ExportError(f"unknown export target {target!r}; expected one of {', '.join(TARGETS)}")
     _check_names(cb)

@@ -20,6 +20,7 @@ from ..limits import MAX_COORDINATES, MAX_UNKNOWNS, limit
 from ..names import identifier_problem, printable, problem_name_problem
 from .event_io import read_events, write_events
 from .fields import TT, cp_field, tt_field
+from .phase_io import PHASED, read_phases, write_phases
 from .file_checks import (ARRAY_DIGESTS, CONTENT_DIGEST, Survey, array_digest, metadata_digest, open_codebook,
                           read_array, read_text, survey)
 
@@ -28,8 +29,9 @@ __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "SUPPORTED_MAJOR", "save", "to_bytes
 
 FORMAT_NAME = "pgdcli-codebook"
 #: 1.1: Fletcher-32 and a SHA-256 on every array, a SHA-256 of the metadata (1.0: neither);
-#: 1.2: events (a 1.1 reader reads a 1.2 file without them)
-FORMAT_VERSION = "1.2"
+#: 1.2: events (a 1.1 reader reads a 1.2 file without them); 1.3: phases of an event that acts (phase 0's
+#: representations marked, so that an older reader refuses them)
+FORMAT_VERSION = "1.3"
 SUPPORTED_MAJOR = 1
 #: HDF5 file format features of 1.10: checksummed superblock, object headers and chunk indexes
 LIBVER = ("v110", "v110")
@@ -135,17 +137,20 @@ def write_contents(cb, f) -> None:
             g.attrs["breakpoints"] = np.array(c.breakpoints, dtype=float)
         _array(g, "nodes", c.basis().nodes, digests)
     gu = f.create_group("unknowns")
+    phased = PHASED if getattr(cb, "phases", None) is not None else ""
     for u, fm in cb.fields.items():
         g = gu.create_group(u)
         if isinstance(fm, TT):
             _write_train(g, cb.coordinates, fm, digests)
+            g.attrs["representation"] = phased + "tensor-train"
             continue
-        g.attrs["representation"] = "cp"
+        g.attrs["representation"] = phased + "cp"
         _array(g, "alphas", fm.weights, digests)
         gm = g.create_group("modes")
         for c, m in zip(cb.coordinates, fm.factors):
             _array(gm, c.name, m, digests)
     write_events(f, cb.events, lambda g, coordinates, train: _write_train(g, coordinates, train, digests))
+    write_phases(f, cb, to_bytes, lambda g, name, values: _array(g, name, values, digests))
     gr = f.create_group("report")
     for key, value in cb.report.items():
         if isinstance(value, np.ndarray):
@@ -211,8 +216,9 @@ def read_contents(f, p: str, basis, *, evaluation_only: bool = False) -> dict:
     coords = [_coordinate(found, c, basis, digests) for c in coord_names]
     declared = 0
     fields = {}
+    phased = "phases" in found.attrs
     for u in unknown_names:
-        fields[u], size = _field(found, u, coords, digests)
+        fields[u], size = _field(found, u, coords, digests, phased)
         declared += size
         if declared > limit("codebook_bytes"):
             raise CodebookError(f"{p}: corrupt codebook: its arrays declare more than "
@@ -223,6 +229,8 @@ def read_contents(f, p: str, basis, *, evaluation_only: bool = False) -> dict:
     if declared > limit("codebook_bytes"):
         raise CodebookError(f"{p}: corrupt codebook: its arrays declare more than "
                             f"{limit('codebook_bytes')} bytes (PGD_MAX_CODEBOOK_BYTES)")
+    phases = read_phases(found, lambda where, shape: read_array(found, where, shape, digests=digests, finite=False),
+                         lambda nested, name: read_contents(nested, name, basis, evaluation_only=True))
     spec = ""
     if not evaluation_only and "spec" in found.datasets:
         spec = read_text(found, "spec", digests=digests)
@@ -232,6 +240,7 @@ def read_contents(f, p: str, basis, *, evaluation_only: bool = False) -> dict:
         description=attr_str(found.attr("", "description", "")),
         created=attr_str(found.attr("", "created", "")) or None,
         partial=evaluation_only, format_version=version, events={e: ev for e, (ev, _) in events.items()},
+        **phases,
     )
 
 
@@ -318,7 +327,7 @@ def _floats(value, what: str, p: str) -> tuple:
     return tuple(float(v) for v in arr)
 
 
-def _field(found: Survey, u: str, coords: list, digests: dict | None):
+def _field(found: Survey, u: str, coords: list, digests: dict | None, phased: bool = False):
     """One unknown's field, every array's shape checked against the coordinates before it is read."""
     p = found.source
     where = f"unknowns/{u}"
@@ -326,6 +335,10 @@ def _field(found: Survey, u: str, coords: list, digests: dict | None):
         raise CodebookError(f"{p}: corrupt codebook: no unknown {u!r}")
     names = [c.name for c in coords]
     representation = attr_str(found.attr(where, "representation", "cp"))
+    if phased != representation.startswith(PHASED):
+        raise CodebookError(f"{p}: corrupt codebook: unknown {u!r}: representation {printable_name(representation)} "
+                            f"{'without' if phased else 'with'} the mark of phase 0 of a codebook with phases")
+    representation = representation.removeprefix(PHASED)
     if representation == "tensor-train":
         return _tensor_train(found, u, coords, digests)
     if representation != "cp":

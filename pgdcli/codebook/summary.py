@@ -108,9 +108,19 @@ def summary(cb, path: str | os.PathLike | None = None) -> dict:
                              for u, row in zip(cb.fields, table)}
     if cb.events:
         out["events"] = event_summary(cb)
+    if getattr(cb, "phases", None) is not None:  # an event that acts (pgdcli.codebook.phases)
+        out["phases"] = phase_summary(cb)
     if path is not None:
         out["size_bytes"] = os.path.getsize(path)
     return out
+
+
+def phase_summary(cb) -> dict:
+    """The acting event of a codebook with phases: its name, action, phases and their measured error."""
+    rep = cb.report
+    error, ratio = rep.get("phase_error"), rep.get("phase_ratio")
+    return {"event": cb.acting, "action": cb.action, "count": len(cb.phases) + 1,
+            "error": float(error) if error is not None else None, "ratio": float(ratio) if ratio is not None else None}
 
 
 def event_summary(cb) -> dict:

@@ -29,6 +29,7 @@ from ..progress import PhaseStarted, ProgressEvent, emit
 from .events import record_events
 from .method import Settings
 from .methods import choose_method
+from .phases import solve_phased
 from .refinement import solve_rounds
 
 __all__ = ["solve", "check_solvable", "SolveResult", "Status"]
@@ -76,8 +77,10 @@ def solve(problem, *, tolerance: float | None = None, relative_tolerance: float 
     choice = choose_method(problem)
     emit(callback, PhaseStarted("solve", f"method {choice.methods[0].name} ({choice.reason})", 1))
     with one_blas_thread(), executors.using(executor):  # small dense products: faster on one BLAS thread
-        result, _ = solve_rounds(problem, choice, settings, callback)
-        result = record_events(problem, result, settings, callback)
+        result = solve_phased(problem, choice, settings, callback)  # an event that acts: None without
+        if result is None:
+            result, _ = solve_rounds(problem, choice, settings, callback)
+            result = record_events(problem, result, settings, callback)
     rates = [(u.name, u.rate_of) for u in problem.unknowns if u.rate_of]
     if rates:  # the rate unknowns of der(x, t, 2) (pgdcli.problem.second_order), named in pgd info
         result.codebook.report["rates"] = ",".join(f"{rate}={x}" for rate, x in rates)

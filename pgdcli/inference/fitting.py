@@ -30,6 +30,7 @@ import numpy as np
 
 from ..checks.reference import solve_reference
 from ..codebook.codebook import Codebook
+from ..codebook.phases import refuse_phases
 from ..codebook.gradient import TrajectoryModel
 from ..errors import PgdError
 from .data import FitError, check_finite, fixed_values, read_data, split_columns
@@ -273,6 +274,7 @@ def fit(codebook, data, *, fix: Mapping[str, float] | None = None, sigma: Mappin
 
 
     cb = codebook if isinstance(codebook, Codebook) else Codebook.load(codebook)
+    refuse_phases(cb, "fit")
     if not isinstance(data, Mapping):
         data = read_data(data, label)
     if int(starts) > 1:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from ..codebook.codebook import Codebook
+from ..codebook.phases import refuse_phases
 from ..errors import PgdError, QueryError
 from .draw import draw_convergence, draw_error, draw_modes, draw_solution
 from .modes import convergence_data, modes_data
@@ -126,6 +127,7 @@ def render(codebook_path: str | os.PathLike, kind: str = DEFAULT_KIND, output: s
             note = " (error plots always compare with the reference)" if opt == "--reference" else ""
             raise QueryError(f"{opt} does not apply to --kind {kind}; it is for --kind {' and '.join(applies)}{note}")
     cb = Codebook.load(codebook_path)
+    refuse_phases(cb, "pgd plot")
     if kind == "modes":
         data = modes_data(cb, DEFAULT_COUNT if count is None else count, field, points=points)
         fig = draw_modes(data, figsize=figsize)

@@ -18,6 +18,7 @@ import tempfile
 from functools import lru_cache
 from pathlib import Path
 
+from ..codebook.phases import refuse_phases
 from ..errors import PgdError
 from .payload import PAGE_LIMIT, payload
 
@@ -55,7 +56,7 @@ def _hash(text: str) -> str:
 
 def page_html(cb, *, source: str | None = None, data: dict | None = None, limit: int = PAGE_LIMIT,
               force: bool = False) -> str:
-    """The page of ``cb`` as text.
+    """The page of ``cb`` as text (QueryError for a codebook with phases: the page reads the fields).
 
     Parameters
     ----------
@@ -72,6 +73,7 @@ def page_html(cb, *, source: str | None = None, data: dict | None = None, limit:
     ViewError
         A codebook too large for a page.
     """
+    refuse_phases(cb, "pgd view")
     content = payload(cb, data=data, limit=limit, force=force)
     if source is not None:
         content["meta"]["source"] = str(source)

@@ -35,9 +35,9 @@ PROBLEMS = ROOT / "problems"
 #: and tests/solve/test_reaction_diffusion.py), the 10-D rigid body (~40 s, tests/algorithms/test_cross_march.py),
 #: the 15-coordinate chain (a cluster's build, tests/test_cluster.py) and the linear problems of the tensor-train
 #: solver (minutes, tests/solve/test_moving_loads.py and tests/solve/test_hotplate.py), and the ball with events
-#: (tests/solve/test_event_problems.py).
+#: (tests/solve/test_event_problems.py) and the bouncing ball (tests/solve/test_event_actions.py).
 SLOW = {"fisher", "burgers", "brusselator_pde", "allen_cahn2d", "rigid_body10", "chain15", "moving_source",
-        "suspension", "moving_heater", "hotplate", "landing"}
+        "suspension", "moving_heater", "hotplate", "landing", "bounce"}
 ALL_SHIPPED = sorted(p.stem for p in PROBLEMS.glob("*.yaml") if p.stem not in SLOW)
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pgdcli.errors import SpecError
-from pgdcli.problem.events import condition_values
+from pgdcli.problem.events import condition_values, reset_values
 from pgdcli.problem.spec import parse_spec
 
 BALL = """
@@ -51,14 +51,38 @@ def test_condition_values_are_lhs_minus_rhs_at_points():
     ('  landing: "der(y) = 0"\n', "events.landing: the condition 'der(y) = 0' uses der()"),
     ('  landing: "y = q"\n', "events.landing"),
     ("  []\n", "events"),
-    ('  bounce: {when: "y = 0", then: {v: "-0.8*v"}}\n', "events.bounce.then: acting on an event"),
-    ('  landing: {when: "y = 0", terminal: true}\n', "events.landing.terminal: acting on an event"),
+    ('  bounce: {when: "y = 0", direction: falling, then: {v: "-0.8*v"}, terminal: true}\n',
+     "events.bounce.terminal: give then"),
+    ('  bounce: {when: "y = 0", then: {v: "-0.8*v"}}\n', "events.bounce.direction: a reset needs direction"),
+    ('  bounce: {when: "y = 0", direction: falling, then: {w: "-0.8*v"}}\n',
+     "events.bounce.then.w: 'w' is not an unknown"),
+    ('  bounce: {when: "y = 0", direction: falling, then: {v: "-0.8*der(v)"}}\n',
+     "events.bounce.then.v: the reset '-0.8*der(v)' uses der()"),
+    ('  bounce: {when: "y = 0", direction: falling, then: {v: "-0.8*q"}}\n', "events.bounce.then.v: unknown name 'q'"),
+    ('  bounce: {when: "y = 0", direction: falling, then: {v: [1]}}\n', "events.bounce.then.v: expected an expression"),
+    ('  bounce: {when: "y = 0", direction: falling, then: {}}\n', "events.bounce.then"),
+    ('  bounce: {when: "y = 0", direction: falling, then: {v: "-v"}}\n  apex: "v = 0"\n',
+     "events.bounce.then: an event with a reset must be the spec's only event"),
+    ('  landing: {when: "y = 0", terminal: true}\n  top: {when: "v = 0", terminal: true}\n',
+     "events.top: only one event may act on the motion"),
+    ('  landing: {when: "y = 0", terminal: 1}\n', "events.landing.terminal: expected true or false"),
+    ('  landing: {when: "y = 0", stop: true}\n', "events.landing.stop: to act on an event write then:"),
 ])
 def test_bad_events_name_the_key(events, message):
     with pytest.raises(SpecError) as info:
         _parse(events)
     text = str(info.value)
     assert text.startswith("ball.yaml: ") and message in text and "\n" not in text
+
+
+def test_resets_and_terminal_events_parse():
+    (bounce,) = _parse('  bounce: {when: "y = 0", direction: falling, then: {v: "-0.5*v + 0*t"}}\n').events
+    assert bounce.acts and not bounce.terminal and [(u, text) for u, text, _ in bounce.reset] == [("v", "-0.5*v + 0*t")]
+    after = reset_values(bounce, {"y": np.array([0.0]), "v": np.array([-4.0])}, {"t": np.array([1.0]),
+                                                                                  "v0": np.array([2.0])})
+    assert after["y"][0] == 0.0 and after["v"][0] == 2.0
+    landing, apex = _parse('  landing: {when: "y = 0", terminal: true}\n  apex: "v = 0"\n').events
+    assert landing.terminal and not landing.reset and not apex.acts
 
 
 def test_events_need_an_ode_problem():

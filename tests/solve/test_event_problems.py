@@ -129,7 +129,7 @@ def test_events_survive_save_and_load(drop, tmp_path):
     path = tmp_path / "drop.h5"
     result.codebook.save(path)
     back = pgdcli.Codebook.load(path)
-    assert back.format_version == "1.2" and list(back.events) == ["landing", "apex"]
+    assert back.format_version == "1.3" and list(back.events) == ["landing", "apex"]
     p = {"h": np.array([0.3, 1.7]), "v0": np.array([1.5, 4.5])}
     for name in ("landing", "apex"):
         np.testing.assert_array_equal(back.event_times(p)[name], result.codebook.event_times(p)[name])
