@@ -34,6 +34,8 @@ def _print_contents(console, summary: dict) -> None:
     """Name, coordinates, modes, rate unknowns and separated coefficients."""
     from rich.table import Table
 
+    from ..codebook.summary import phase_text
+
     console.print(f"[bold]{summary['name']}[/]  {summary['description']}".rstrip())
     coords = Table(title="coordinates", title_justify="left")
     for col in ("name", "role", "domain", "nodes", "discretization"):
@@ -54,10 +56,7 @@ def _print_contents(console, summary: dict) -> None:
         console.print(f"event {name}: {event['when']} ({event['direction']}){error}")
     phases = summary.get("phases")
     if phases is not None:
-        what = "ends the motion" if phases["action"] == "terminal" else f"resets the motion: {phases['count']} phases"
-        error = "" if phases["error"] is None else (f", within {phases['error']:.2e} of solve_ivp restarted at each "
-                                                    f"event")
-        console.print(f"event {phases['event']} {what}{error}")
+        console.print(f"event {phases['event']} {phase_text(phases)}")
     if summary.get("method_reason"):  # escaped for rich by _shown, as every string of the summary
         name = "tensor-train solver (amen)" if summary["method"] == "amen" else "enrichment (pgd)"
         console.print(f"method: {name}: {summary['method_reason']}")

@@ -126,7 +126,7 @@ def _solve_with_progress(console, problem, solve_problem, overrides):
 
 def _solve_summary(problem, result, target: Path | None) -> dict:
     from ..algorithms.outcome import Status
-    from ..codebook.summary import coordinate_ratios, event_summary
+    from ..codebook.summary import coordinate_ratios, event_summary, phase_summary
     from ..tensors.tt import TT
     cb = result.codebook
     rep = cb.report
@@ -168,6 +168,7 @@ def _solve_summary(problem, result, target: Path | None) -> dict:
         "output": None if target is None else str(target),
         **({"separated_coefficients": cb.info()["separated_coefficients"]} if "separated_coefficients" in rep else {}),
         **({"events": event_summary(cb)} if cb.events else {}),
+        **({"phases": phase_summary(cb)} if getattr(cb, "phases", None) is not None else {}),
     }
 
 
@@ -195,6 +196,7 @@ def _summary_table(summary: dict):
     from rich.table import Table
 
     from ..checks.check import points_text
+    from ..codebook.summary import phase_text
 
     table = Table(title=f"pgd solve: {summary['problem']}", show_header=False, title_justify="left")
     table.add_column(style="bold")
@@ -243,6 +245,8 @@ def _summary_table(summary: dict):
     for name, event in summary.get("events", {}).items():
         error = "" if event["error"] is None else f": time within {event['error']:.2e} of scipy's event location"
         table.add_row(f"event {escape(name)}", escape(f"{event['when']} ({event['direction']})") + error)
+    if "phases" in summary:
+        table.add_row("phases", escape(f"event {summary['phases']['event']} {phase_text(summary['phases'])}"))
     table.add_row("time", _time_text(summary))
     if summary.get("output"):
         size = summary.get("size_bytes")

@@ -123,6 +123,13 @@ def phase_summary(cb) -> dict:
             "error": float(error) if error is not None else None, "ratio": float(ratio) if ratio is not None else None}
 
 
+def phase_text(phases: dict) -> str:
+    """What a :func:`phase_summary` says, in one clause: ``"resets the motion: 5 phases, within ..."``."""
+    what = "ends the motion" if phases["action"] == "terminal" else f"resets the motion: {phases['count']} phases"
+    error = "" if phases["error"] is None else f", within {phases['error']:.2e} of solve_ivp restarted at each event"
+    return what + error
+
+
 def event_summary(cb) -> dict:
     """Event name -> its condition, direction, and the error of its time measured at the solve (if any)."""
     rep = cb.report
