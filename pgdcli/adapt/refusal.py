@@ -132,15 +132,23 @@ def _lacking(problem, check, names: list, history: dict, decay: dict) -> str:
     # the larger of the two says it: the error measured off the coordinate's nodes, or the estimate
     # from its Chebyshev tail (the tail can exceed what was measured many times over)
     seen = "error between its nodes" if measured else "its Chebyshev tail estimates an error between its nodes of"
+    estimate = error_estimates(check, [worst]).get(worst, ratio)  # what the refinements went by
     if c.auto and total_nodes(c) >= problem.solver.max_nodes:
-        # the rate is measured on the estimates the refinements went by
-        estimate = error_estimates(check, [worst]).get(worst, ratio)
         need = cap_advice(problem, worst, estimate, history.get(worst, []), decay.get(worst))
     elif c.auto:
         need = f"it has {total_nodes(c)} nodes"
     else:
-        need = f"it has nodes: {c.nodes}; add nodes or write 'nodes: auto'"
+        need = _nodes_advice(c, estimate, decay.get(worst))
     if ratio > REFINE_AT:
         return f"coordinate {worst!r} lacks resolution ({seen} {ratio:.2g} x the tolerance; {need})"
     return (f"the error at the nodes did not fall with the residual: coordinate {worst!r} may lack resolution "
             f"({need})")
+
+
+def _nodes_advice(c, ratio: float, decay: float | None) -> str:
+    """What a coordinate with explicit ``nodes:`` needs: the count its Chebyshev spectrum predicts, where it
+    has one (one piece, a geometric decay), or the solver's choice."""
+    predicted = None if len(c.breakpoints) > 2 else predicted_cap(c.nodes, ratio, [], decay)
+    if predicted is None or not c.nodes < predicted[0] <= MAX_NODES:
+        return f"it has nodes: {c.nodes}; add nodes or write 'nodes: auto'"
+    return f"it has nodes: {c.nodes}; nodes: {predicted[0]} is predicted to meet it, or write 'nodes: auto'"
