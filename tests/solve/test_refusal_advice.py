@@ -11,6 +11,7 @@ import re
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
 
 import pgdcli
 from conftest import spec_text
@@ -152,3 +153,27 @@ def test_a_looser_tolerance_is_never_slower_to_refuse():
     counts = [solves(RUNGE, tolerance=tol, max_nodes=65) for tol in ("1e-4", "1e-5", "1e-6", "1e-8")]
     assert not any(accurate for _, accurate in counts)
     assert [n for n, _ in counts] == sorted(n for n, _ in counts), counts
+
+
+DAMPED = spec_text(
+    name=" damped",
+    coordinates={"t": "{domain: [0, 5]}", "k": "{domain: [1, 4]}", "c": "{domain: [0.1, 0.5]}"},
+    unknowns={"x": "{initial: 1}", "v": "{initial: 0}"},
+    equations=['"der(x) = v"', '"der(v) = -k*x - c*v"'],
+    solver=" {tolerance: 1e-6, method: march, max_rank: 3}",
+)
+
+
+def test_a_march_at_max_rank_is_told_to_raise_it():
+    failed = solve(DAMPED)
+    assert not failed.converged and "rank reached solver.max_rank=3 (raise it)" in failed.message
+    result = solve(DAMPED, max_rank=400)
+    assert result.accurate is True, result.message
+    cb, rng = result.codebook, np.random.default_rng(2)
+    k, c = rng.uniform(1, 4, 12), rng.uniform(0.1, 0.5, 12)
+    for kk, cc in zip([*k, 1, 1, 4, 4], [*c, 0.1, 0.5, 0.1, 0.5]):
+        times = np.linspace(0, 5, 41)
+        ref = solve_ivp(lambda s, y: [y[1], -kk * y[0] - cc * y[1]], (0, 5), [1.0, 0.0], t_eval=times,
+                        rtol=1e-12, atol=1e-14)
+        got = cb(t=times, k=kk, c=cc)
+        assert max(np.max(np.abs(got["x"] - ref.y[0])), np.max(np.abs(got["v"] - ref.y[1]))) <= 1e-6
