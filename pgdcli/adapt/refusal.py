@@ -15,7 +15,7 @@ import numpy as np
 
 from ..checks.resolution import error_estimates
 from ..problem.spec_coordinates import MAX_NODES
-from .resolution import MIN_DECAY, P_GAIN, REFINE_AT, doublings, lacks_nodes, to_refine, total_nodes
+from .resolution import MIN_DECAY, P_GAIN, REFINE_AT, doublings, has_room, lacks_nodes, to_refine, total_nodes
 
 __all__ = ["refusal", "cap_advice", "predicted_cap", "FALLING"]
 
@@ -133,7 +133,7 @@ def _lacking(problem, check, names: list, history: dict, decay: dict) -> str:
     # from its Chebyshev tail (the tail can exceed what was measured many times over)
     seen = "error between its nodes" if measured else "its Chebyshev tail estimates an error between its nodes of"
     estimate = error_estimates(check, [worst]).get(worst, ratio)  # what the refinements went by
-    if c.auto and total_nodes(c) >= problem.solver.max_nodes:
+    if c.auto and not has_room(c, problem.solver.max_nodes):
         need = cap_advice(problem, worst, estimate, history.get(worst, []), decay.get(worst))
     elif c.auto:
         need = f"it has {total_nodes(c)} nodes"

@@ -15,7 +15,8 @@ from ..algorithms.outcome import Status
 from ..checks.resolution import error_estimates, nodes_for_decay
 
 __all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "TARGET", "ROOM", "P_GAIN", "MIN_DECAY", "refined_nodes",
-           "initial_nodes", "total_nodes", "split_elements", "next_nodes", "lacks_nodes", "to_refine", "doublings"]
+           "initial_nodes", "total_nodes", "has_room", "split_elements", "next_nodes", "lacks_nodes", "to_refine",
+           "doublings"]
 
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
 INACCURATE = Status.INACCURATE
@@ -59,6 +60,13 @@ def total_nodes(c) -> int:
     """Nodes of a spec coordinate in all (``nodes`` is per element when it has elements)."""
     elements = max(1, len(c.breakpoints) - 1)
     return elements * (c.nodes - 1) + 1
+
+
+def has_room(c, cap: int) -> bool:
+    """More nodes fit within ``cap`` on coordinate ``c``: a node more per element, or (a parameter that may
+    be split) one element more."""
+    elements = max(1, len(c.breakpoints) - 1)
+    return (cap - 1) // elements + 1 > c.nodes or (_h_able(c) and total_nodes(c) + c.nodes - 1 <= cap)
 
 
 def refined_nodes(problem, names, to: int = 0):
@@ -176,8 +184,10 @@ def _refine(problem, check, names, history, decay=None, estimates=None):
                 problem = candidate
                 past.append(("h", ratio, c.nodes, total_nodes(c)))
                 continue
-        if total_nodes(c) < cap and not (h_able and slow and c.nodes >= MAX_ELEMENT_NODES):
-            problem = refined_nodes(problem, [name], predicted)
+        refined = refined_nodes(problem, [name], predicted)  # nothing more within the cap: stuck
+        grows = total_nodes(refined.coordinate(name)) > total_nodes(c)
+        if grows and not (h_able and slow and c.nodes >= MAX_ELEMENT_NODES):
+            problem = refined
             past.append(("p", ratio, c.nodes, total_nodes(c)))
             continue
         stuck.append(name)
@@ -227,7 +237,7 @@ def to_refine(problem, check, march: bool, discretization_limited=False) -> tupl
     for c in candidates:
         if c.name not in chosen:
             continue
-        if c.auto and total_nodes(c) < problem.solver.max_nodes:
+        if c.auto and has_room(c, problem.solver.max_nodes):
             refine.append(c.name)
         else:
             stuck.append(c.name)
@@ -251,7 +261,7 @@ def _largest_off_node(problem, check, march: bool) -> list[str]:
     with at least half the largest off-node ratio are refined.
     """
     ratios = {c.name: check.coordinate_ratio.get(c.name, 0.0) for c in problem.coordinates
-              if c.auto and total_nodes(c) < problem.solver.max_nodes and not (march and c.role == "time")}
+              if c.auto and has_room(c, problem.solver.max_nodes) and not (march and c.role == "time")}
     if not ratios:
         return []
     top = max(ratios.values())
@@ -288,7 +298,7 @@ def next_nodes(problem, check, decay: dict, history: dict, *, march: bool = Fals
     """
     chosen, stuck = to_refine(problem, check, march, limited)
     if not chosen and not stuck and not stopping:
-        automatic = [c for c in problem.coordinates if c.auto and total_nodes(c) < problem.solver.max_nodes
+        automatic = [c for c in problem.coordinates if c.auto and has_room(c, problem.solver.max_nodes)
                      and not (march and c.role == "time")]
         chosen = _largest_off_node(problem, check, march) or _largest_tails(check, automatic)
     if not chosen:
