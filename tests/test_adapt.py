@@ -114,7 +114,7 @@ def test_measured_off_node_errors_decide_and_a_slow_spectrum_doubles():
     assert nodes(refined)["k"] == predicted(9, 40.0, 0.9, TARGET)  # the measured ratio, not the tail
     history = {}
     refined, _, _ = next_nodes(problem, check, {"k": 0.1}, history)  # slower than MIN_DECAY: not trusted
-    assert nodes(refined)["k"] == 17 and history["k"] == [("p", 40.0, 9, 9)]
+    assert nodes(refined)["k"] == 17 and history["k"] == [("p", 40.0, 9, 9, 0)]
 
 
 def test_a_later_refinement_goes_by_the_decay_measured_over_the_last():

@@ -49,7 +49,7 @@ def predicted_cap(nodes: int, ratio: float, past: list, decay: float | None) -> 
     """
     factor = max(ratio / REFINE_AT, 1.0)
     if past:
-        kind, before, _, total_before = past[-1]
+        kind, before, _, total_before = past[-1][:4]
         gain = before / ratio if ratio > 0 else np.inf
         per_doubling = gain ** (1.0 / doublings(total_before, nodes))
         if not per_doubling >= FALLING or nodes <= total_before:

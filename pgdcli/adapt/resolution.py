@@ -8,15 +8,17 @@ p-refinement by the measured or spectral decay of a coordinate's error, hp-refin
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 
 from ..algorithms.outcome import Status
 from ..checks.resolution import error_estimates, nodes_for_decay
+from .grading import error_end, graded_elements
 
 __all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "TARGET", "ROOM", "P_GAIN", "MIN_DECAY", "refined_nodes",
            "initial_nodes", "total_nodes", "has_room", "split_elements", "next_nodes", "lacks_nodes", "to_refine",
-           "doublings"]
+           "doublings", "Refinement"]
 
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
 INACCURATE = Status.INACCURATE
@@ -43,6 +45,18 @@ LIMITED_TAIL = 0.05
 #: enrichment's time coordinate is one polynomial over the whole interval; space coordinates carry
 #: boundary layers. The march's time nodes are per step (9 >= 8 reproduces its dense output).
 FIRST_NODES = {"time": 33, "space": 17}
+
+
+class Refinement(NamedTuple):
+    """One refinement of a coordinate, as it stood before: how (``"p"`` nodes, ``"h"`` elements cut in two,
+    ``"g"`` an end element graded), its error ratio, its nodes per element and in all, and the end of the box
+    its worst off-node error lay near (-1 low, 1 high, 0 neither: :func:`pgdcli.adapt.grading.error_end`)."""
+
+    kind: str
+    ratio: float
+    nodes: int
+    total: int
+    end: int = 0
 
 
 def initial_nodes(problem, march: bool):
@@ -176,22 +190,33 @@ def _refine(problem, check, names, history, decay=None, estimates=None):
         predicted = (_predicted_nodes(c, ratio, past, target)
                      or (0 if past else _spectral_nodes(c, ratio, decay.get(name), target)))
         h_able = _h_able(c) and name in check.line_points
+        end = error_end(c, *check.line_points[name]) if h_able else 0
         if h_able and (slow or max(c.nodes, predicted) > MAX_ELEMENT_NODES):
-            x, r = check.line_points[name]
-            # the elements where the error is; at least the worst one (a coordinate flagged by its tail)
-            candidate = split_elements(problem, name, x[r >= min(REFINE_AT, r.max(initial=0.0))])
+            candidate, kind = _cut(problem, name, check.line_points[name], end if past and past[-1].end == end else 0)
             if total_nodes(candidate.coordinate(name)) <= cap:
                 problem = candidate
-                past.append(("h", ratio, c.nodes, total_nodes(c)))
+                past.append(Refinement(kind, ratio, c.nodes, total_nodes(c), end))
                 continue
         refined = refined_nodes(problem, [name], predicted)  # nothing more within the cap: stuck
         grows = total_nodes(refined.coordinate(name)) > total_nodes(c)
         if grows and not (h_able and slow and c.nodes >= MAX_ELEMENT_NODES):
             problem = refined
-            past.append(("p", ratio, c.nodes, total_nodes(c)))
+            past.append(Refinement("p", ratio, c.nodes, total_nodes(c), end))
             continue
         stuck.append(name)
     return problem, stuck
+
+
+def _cut(problem, name: str, line: tuple, end: int):
+    """The elements of ``name`` cut where the error is (``"h"``), or its element at ``end`` graded toward it
+    (``"g"``: the error peaked near that end of the box this round and the last), if that fits the cap."""
+    x, r = line
+    if end:
+        graded = graded_elements(problem, name, end, x, r)
+        if total_nodes(graded.coordinate(name)) <= problem.solver.max_nodes:
+            return graded, "g"
+    # the elements where the error is; at least the worst one (a coordinate flagged by its tail)
+    return split_elements(problem, name, x[r >= min(REFINE_AT, r.max(initial=0.0))]), "h"
 
 
 def lacks_nodes(check, name: str) -> bool:
