@@ -34,9 +34,8 @@ def predicted_cap(nodes: int, ratio: float, past: list, decay: float | None) -> 
         The coordinate's nodes in all (every element).
     ratio : float
         Its measured error ratio at ``nodes`` (to the tolerance).
-    past : list of tuple
-        Its refinements, ``(kind, ratio, nodes per element, nodes in all)`` before each
-        (:func:`pgdcli.adapt.resolution.next_nodes`).
+    past : list of pgdcli.adapt.resolution.Refinement
+        Its refinements: ``(kind, ratio, nodes per element, nodes in all, ...)`` before each.
     decay : float or None
         The decay per node of its Chebyshev coefficients (used when nothing was measured).
 

@@ -305,7 +305,7 @@ def next_nodes(problem, check, decay: dict, history: dict, *, march: bool = Fals
     decay : dict of str to float
         Per coordinate, its :func:`~pgdcli.checks.resolution.chebyshev_decay`.
     history : dict
-        Per coordinate, its refinements so far (updated here): ``("p" or "h", ratio, nodes before)``.
+        Per coordinate, its refinements so far (updated here): a list of :class:`Refinement`.
     march, limited, stopping : bool
         The time nodes follow the method's steps (not refined here); the solver's error at the nodes did
         not fall with its target (the time and space discretization); the solver stopped short of its

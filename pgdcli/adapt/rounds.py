@@ -41,7 +41,7 @@ class Resolution:
         self.marches = marches  # the method's time nodes follow its steps: they are not refined here
         self.auto = [c.name for c in self.problem.coordinates if c.auto]
         self.rounds: list[list[float]] = []  # per round: the nodes of each coordinate, then the measured ratio
-        self.history: dict = {}  # per coordinate: its refinements, ("p" or "h", ratio, nodes before, in all)
+        self.history: dict = {}  # per coordinate: its refinements (Refinement)
 
     def _record(self, ratio: float) -> None:
         self.rounds.append([total_nodes(c) for c in self.problem.coordinates] + [ratio])
