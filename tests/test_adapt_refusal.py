@@ -51,7 +51,15 @@ def test_one_slow_refinement_is_too_few_to_extrapolate():
     # a sharp feature falls slowly until its scale is resolved: one 2.5-fold step predicts nothing
     assert predicted_cap(17, 40.0, [("p", 100.0, 9, 9)], None)[0] == -1
     advice = cap_advice(capped(17, 17), "p", 40.0, [("p", 100.0, 9, 9)], None)
-    assert "too few to predict" in advice and "solver.max_nodes:" not in advice
+    assert "over one refinement: too few refinements to predict" in advice and "solver.max_nodes:" not in advice
+
+
+def test_a_grading_leaves_no_rate_to_predict_by():
+    # a graded mesh starts again at fewer nodes per element: fewer nodes in all need not mean a rising error
+    past = [("p", 1e3, 9, 9, -1), ("g", 500.0, 17, 17, -1)]
+    assert predicted_cap(41, 90.0, past, None)[0] == -1
+    advice = cap_advice(capped(41, 41), "p", 90.0, past, None)
+    assert "graded at its last refinement" in advice and "solver.max_nodes:" not in advice
 
 
 def test_without_a_refinement_the_spectrum_gives_the_rate():

@@ -44,11 +44,14 @@ def predicted_cap(nodes: int, ratio: float, past: list, decay: float | None) -> 
     (int, str) or None
         The nodes, and the measured fall in words ("its error fell ..."); 0 nodes when the
         error was not falling, -1 when one refinement measured a fall too slow to extrapolate
-        (a sharp feature not yet resolved falls slowly at first); None when no rate is known.
+        (a sharp feature not yet resolved falls slowly at first) or the last one graded its
+        elements; None when no rate is known.
     """
     factor = max(ratio / REFINE_AT, 1.0)
     if past:
         kind, before, _, total_before = past[-1][:4]
+        if kind == "g":  # a new mesh, with fewer nodes per element: its error is no rate of the last
+            return -1, "its elements were graded at its last refinement"
         gain = before / ratio if ratio > 0 else np.inf
         per_doubling = gain ** (1.0 / doublings(total_before, nodes))
         if not per_doubling >= FALLING or nodes <= total_before:
@@ -59,7 +62,7 @@ def predicted_cap(nodes: int, ratio: float, past: list, decay: float | None) -> 
             rate = np.log(gain) / (nodes - total_before)
             return int(np.ceil(nodes + np.log(factor) / rate)), words
         if len(past) < 2:  # one slow step may be the start of a sharp feature's resolution, not its rate
-            return -1, words
+            return -1, words + " over one refinement"
         order = np.log(gain) / np.log((nodes - 1) / (total_before - 1))  # algebraic: n**-order
         return int(np.ceil((nodes - 1) * factor ** (1.0 / order))) + 1, words
     if decay is not None and decay >= MIN_DECAY:
@@ -83,7 +86,7 @@ def cap_advice(problem, name: str, ratio: float, past: list, decay: float | None
         return f"{reached} before its error could be seen to fall"
     need, words = predicted
     if need < 0:
-        return f"{reached}, and {words} over one refinement: too few to predict a solver.max_nodes that meets it"
+        return f"{reached}, and {words}: too few refinements to predict a solver.max_nodes that meets it"
     if need == 0:
         return f"{reached}, and {words}: a larger solver.max_nodes is not predicted to meet it"
     if need > MAX_NODES:

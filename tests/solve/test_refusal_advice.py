@@ -95,7 +95,7 @@ def test_elements_at_max_nodes_are_told_a_cap_that_meets_the_tolerance():
 def test_one_slow_refinement_suggests_no_cap():
     # Runge's function falls 2-fold from 9 to 17 nodes, before its scale is resolved: no rate to go by
     refused = solve(RUNGE, max_nodes=17)
-    assert refused.status == INACCURATE and "too few to predict" in refused.message
+    assert refused.status == INACCURATE and "too few refinements to predict" in refused.message
     assert "solver.max_nodes:" not in refused.message
 
 
