@@ -14,8 +14,11 @@ With ``--baseline REV`` every problem is also built by the source tree of git re
 of a few seconds are repeated (interleaved) and the median one is shown.
 
     python benchmarks/refinement.py [--problems hotplate docs/examples/enzyme.yaml ...] [--baseline main]
+                                    [--variant NAME]
 
-The table is printed and written to benchmarks/results/refinement.md.
+The table is printed and written to benchmarks/results/refinement.md (refinement-NAME.md with
+``--variant``: a table of other problems, such as the graded elements' docs/examples/vdp_start.yaml
+and slow_decay.yaml).
 """
 
 from __future__ import annotations
@@ -143,10 +146,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--problems", nargs="+", default=list(PROBLEMS))
     parser.add_argument("--baseline", metavar="REV", help="also build with the pgdcli of this git revision")
+    parser.add_argument("--variant", metavar="NAME", help="write the table to results/refinement-NAME.md")
     options = parser.parse_args()
     header = ["problem", "build", "rounds", "nodes per round", "seconds per round (gate)", "build time",
               "final round", "build / final round", "tails / tolerance", "error / tolerance"]
-    with tempfile.TemporaryDirectory() as tmp, published(__file__, "The automatic resolution's rounds"):
+    with tempfile.TemporaryDirectory() as tmp, published(__file__, "The automatic resolution's rounds", options.variant):
         builds = [("this tree", ROOT)]
         if options.baseline:
             builds.append((options.baseline, baseline_tree(options.baseline, Path(tmp))))

@@ -114,14 +114,14 @@ def test_measured_off_node_errors_decide_and_a_slow_spectrum_doubles():
     assert nodes(refined)["k"] == predicted(9, 40.0, 0.9, TARGET)  # the measured ratio, not the tail
     history = {}
     refined, _, _ = next_nodes(problem, check, {"k": 0.1}, history)  # slower than MIN_DECAY: not trusted
-    assert nodes(refined)["k"] == 17 and history["k"] == [("p", 40.0, 9)]
+    assert nodes(refined)["k"] == 17 and history["k"] == [("p", 40.0, 9, 9, 0)]
 
 
 def test_a_later_refinement_goes_by_the_decay_measured_over_the_last():
     problem = heat(x=17, t=33, g=9, k=17)
     check = CheckResult(1e-4, 1e-7, 1e-4, 100, 0, ratio=10.0, node_ratio=0.01, between_ratio=10.0,
                         coordinate_ratio={"k": 10.0}, tolerance=1e-5)
-    history = {"k": [("p", 1e4, 9)]}  # 9 -> 17 nodes cut the error 1000-fold: log(1000) / 8 per node
+    history = {"k": [("p", 1e4, 9, 9)]}  # 9 -> 17 nodes cut the error 1000-fold: log(1000) / 8 per node
     refined, _, _ = next_nodes(problem, check, {"k": 5.0}, history)  # the spectrum's rate is not used
     assert nodes(refined)["k"] == predicted(17, 10.0, math.log(1e3) / 8, TARGET)
 

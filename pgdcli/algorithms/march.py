@@ -285,8 +285,8 @@ def _solve_on_grid(run: _Run) -> SolverOutcome:
     trains = result.trains
     cap = run.problem.solver.max_rank
     if max(max(train.ranks[1:], default=0) for train in trains) >= cap:  # the train march's cap, on the codebook
-        failure = GridMarchFailure(f"a tensor-train rank reached solver.max_rank={cap} (raise it, or loosen the "
-                                   f"tolerance)", float(result.times[-1]), np.zeros((len(trains), 0)))
+        failure = GridMarchFailure(f"a tensor-train rank reached solver.max_rank={cap} (raise it)",
+                                   float(result.times[-1]), np.zeros((len(trains), 0)))
         return run.failed(failure, "", result.steps)
     # no state trains at the nodes: each node's ranks are at most the parameter bonds of the codebook's train
     bonds = [list(train.ranks[1:]) for train in trains]

@@ -33,6 +33,9 @@ MIN_STEP = 1e-7
 STIFF_MIN_STEP = 1e-14
 # Below this order an explicit pair's small steps may be its accuracy, not its stability (step_refusal).
 LOW_ORDER = 5
+# Steps per time domain below which an explicit pair out of steps is not called stiff (step_refusal): a cap
+# this low is the user's solver.max_steps, and only raising it helps.
+FEW_STEPS = 1000
 MAX_GROWTH_OF_NORM = 1e6
 # Stiff problems: a rounding error dY of a stage value reaches the error estimate as J dY, which
 # no step size reduces; each time that is detected the stage rounding is made 10x tighter, at
@@ -122,6 +125,9 @@ def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: floa
     if steps + rejected >= max_steps:
         # an explicit method on a stiff problem steps at its stability limit, whatever the tolerance:
         # say so when the steps are that small, so the user knows what raising max_steps buys
+        if h * max_steps < span and span / h < FEW_STEPS:
+            return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain: "
+                    "raise solver.max_steps)")
         if h * max_steps < span and order < LOW_ORDER:
             return (f"max_steps={max_steps} reached (steps of {h:.2g}: {span / h:.2g} of them per time domain; "
                     f"the {method} pair of order {order} needs steps this small for this tolerance, or on a "
@@ -132,7 +138,7 @@ def step_refusal(steps: int, rejected: int, max_steps: int, h: float, span: floa
                     f"steps this small on a smooth solution are the stability limit of the explicit {method} "
                     "on a stiff problem: use solver.integrator: rodas4 or auto, raise solver.max_steps or shorten "
                     "the time domain)")
-        return f"max_steps={max_steps} reached"
+        return f"max_steps={max_steps} reached (raise solver.max_steps)"
     if h < (MIN_STEP if explicit else STIFF_MIN_STEP) * span:
         return "step size underflow (the solution blows up or is stiff" + hint() + ")"
     return None

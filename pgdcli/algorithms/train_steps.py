@@ -160,8 +160,7 @@ class TrainSpace:
         """Refuse an accepted step whose ranks reached the cap."""
         if max(max(u.ranks, default=0) for u in trial.y_new) >= self.max_rank:
             # a capped rounding breaks the error bound: say so rather than report a wrong estimate
-            raise MarchFailure(f"a tensor-train rank reached solver.max_rank={self.max_rank} (raise it, or loosen "
-                               f"the tolerance)", t, y)
+            raise MarchFailure(f"a tensor-train rank reached solver.max_rank={self.max_rank} (raise it)", t, y)
 
     def ranks(self, y: list[TT]) -> list:
         return [u.ranks for u in y]

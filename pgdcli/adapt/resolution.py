@@ -1,41 +1,24 @@
-"""The automatic resolution: which coordinates get more nodes after a measured error, and why a refusal.
+"""Which coordinates get more nodes after a measured error, and how many (the decision of one round).
 
-A tolerance is a promise about the codebook, not about the solver: every solve is
-followed by a measurement of its error against an independent reference
-(:mod:`pgdcli.checks.check`). The driver's refinement loop (:mod:`pgdcli.driver.refinement`)
-first lowers the solver's own error at the nodes (a tighter march, a smaller residual);
-:class:`Resolution` then turns the measurement of the codebook it kept into a decision:
-
-* the error within the tolerance (``ratio <= 1``): done;
-* too large along a coordinate whose nodes the solver chooses (``nodes: auto`` or no
-  ``nodes:``), by the error measured off its nodes or, where the check measures the
-  error as a whole (space coordinates), by its Chebyshev tail: that coordinate, and
-  only it, gets the nodes at which the geometric decay of its error (measured over
-  its last refinement, or read from its Chebyshev spectrum) brings the error to its
-  share of the tolerance (n -> 2n - 1 without a rate to go by) or, for a parameter
-  whose error does not fall geometrically with its nodes, more elements where the
-  error is (hp-refinement), and the problem is solved again, up to
-  ``solver.max_nodes`` nodes in all per coordinate;
-* otherwise a refusal (:func:`refusal`): one clause saying how large the error is, where,
-  and which coordinate lacks resolution; the driver marks the result inaccurate
-  (status :data:`INACCURATE`), and the CLI writes nothing then (exit 1) unless asked to keep it.
-
-The report records the nodes tried per coordinate, the measured ratio of each
-round, and why the last round ended (:meth:`Resolution.report_entries`).
+:func:`next_nodes` turns the measurement of a round's codebook into the nodes of the next:
+p-refinement by the measured or spectral decay of a coordinate's error, hp-refinement
+(elements cut where the error is) for a parameter whose error does not fall geometrically.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from .algorithms.outcome import Status
-from .checks.resolution import chebyshev_decay, error_estimates, nodes_for_decay
+from ..algorithms.outcome import Status
+from ..checks.resolution import error_estimates, nodes_for_decay
+from .grading import error_end, graded_elements
 
-__all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "Resolution", "Verdict", "refusal", "refined_nodes",
-           "initial_nodes", "total_nodes", "split_elements", "next_nodes"]
+__all__ = ["INACCURATE", "MAX_ROUNDS", "REFINE_AT", "TARGET", "ROOM", "P_GAIN", "MIN_DECAY", "refined_nodes",
+           "initial_nodes", "total_nodes", "has_room", "split_elements", "next_nodes", "lacks_nodes", "to_refine",
+           "doublings", "Refinement"]
 
 #: SolveResult.status of a codebook whose measured error exceeds its tolerance.
 INACCURATE = Status.INACCURATE
@@ -64,6 +47,18 @@ LIMITED_TAIL = 0.05
 FIRST_NODES = {"time": 33, "space": 17}
 
 
+class Refinement(NamedTuple):
+    """One refinement of a coordinate, as it stood before: how (``"p"`` nodes, ``"h"`` elements cut in two,
+    ``"g"`` an end element graded), its error ratio, its nodes per element and in all, and the end of the box
+    its worst off-node error lay near (-1 low, 1 high, 0 neither: :func:`pgdcli.adapt.grading.error_end`)."""
+
+    kind: str
+    ratio: float
+    nodes: int
+    total: int
+    end: int = 0
+
+
 def initial_nodes(problem, march: bool):
     """The problem with its automatic coordinates at their first node counts."""
     coords = []
@@ -79,6 +74,13 @@ def total_nodes(c) -> int:
     """Nodes of a spec coordinate in all (``nodes`` is per element when it has elements)."""
     elements = max(1, len(c.breakpoints) - 1)
     return elements * (c.nodes - 1) + 1
+
+
+def has_room(c, cap: int) -> bool:
+    """More nodes fit within ``cap`` on coordinate ``c``: a node more per element, or (a parameter that may
+    be split) one element more."""
+    elements = max(1, len(c.breakpoints) - 1)
+    return (cap - 1) // elements + 1 > c.nodes or (_h_able(c) and total_nodes(c) + c.nodes - 1 <= cap)
 
 
 def refined_nodes(problem, names, to: int = 0):
@@ -104,7 +106,7 @@ def _predicted_nodes(c, ratio: float, past: list, target: float = TARGET) -> int
     """
     if not past or past[-1][0] != "p" or not ratio > target:
         return 0
-    _, before, n_before = past[-1]
+    before, n_before = past[-1][1], past[-1][2]
     if not before > ratio or c.nodes <= n_before:
         return 0
     # at most two doublings at once: a rate measured over a pre-asymptotic step can be far too slow
@@ -116,7 +118,7 @@ def _predicted_nodes(c, ratio: float, past: list, target: float = TARGET) -> int
 MIN_DECAY = np.log(1.2)
 
 
-def _doublings(before: int, after: int) -> float:
+def doublings(before: int, after: int) -> float:
     """How many doublings of the node intervals lead from ``before`` to ``after`` nodes (a fraction for a
     smaller step, at least a half)."""
     return max(0.5, float(np.log2(max(after - 1, 1) / max(before - 1, 1))))
@@ -184,27 +186,40 @@ def _refine(problem, check, names, history, decay=None, estimates=None):
         ratio = estimates.get(name, 0.0)
         past = history.setdefault(name, [])
         # P_GAIN per doubling of the nodes (a predicted step can span more or fewer)
-        slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN ** _doublings(past[-1][2], c.nodes) * ratio
+        slow = bool(past) and past[-1][0] == "p" and past[-1][1] < P_GAIN ** doublings(past[-1][2], c.nodes) * ratio
         predicted = (_predicted_nodes(c, ratio, past, target)
                      or (0 if past else _spectral_nodes(c, ratio, decay.get(name), target)))
         h_able = _h_able(c) and name in check.line_points
+        end = error_end(c, *check.line_points[name]) if h_able else 0
         if h_able and (slow or max(c.nodes, predicted) > MAX_ELEMENT_NODES):
-            x, r = check.line_points[name]
-            # the elements where the error is; at least the worst one (a coordinate flagged by its tail)
-            candidate = split_elements(problem, name, x[r >= min(REFINE_AT, r.max(initial=0.0))])
+            candidate, kind = _cut(problem, name, check.line_points[name], end if past and past[-1].end == end else 0)
             if total_nodes(candidate.coordinate(name)) <= cap:
                 problem = candidate
-                past.append(("h", ratio, c.nodes))
+                past.append(Refinement(kind, ratio, c.nodes, total_nodes(c), end))
                 continue
-        if total_nodes(c) < cap and not (h_able and slow and c.nodes >= MAX_ELEMENT_NODES):
-            problem = refined_nodes(problem, [name], predicted)
-            past.append(("p", ratio, c.nodes))
+        refined = refined_nodes(problem, [name], predicted)  # nothing more within the cap: stuck
+        grows = total_nodes(refined.coordinate(name)) > total_nodes(c)
+        if grows and not (h_able and slow and c.nodes >= MAX_ELEMENT_NODES):
+            problem = refined
+            past.append(Refinement("p", ratio, c.nodes, total_nodes(c), end))
             continue
         stuck.append(name)
     return problem, stuck
 
 
-def _lacks_nodes(check, name: str) -> bool:
+def _cut(problem, name: str, line: tuple, end: int):
+    """The elements of ``name`` cut where the error is (``"h"``), or its element at ``end`` graded toward it
+    (``"g"``: the error peaked near that end of the box this round and the last), if that fits the cap."""
+    x, r = line
+    if end:
+        graded = graded_elements(problem, name, end, x, r)
+        if total_nodes(graded.coordinate(name)) <= problem.solver.max_nodes:
+            return graded, "g"
+    # the elements where the error is; at least the worst one (a coordinate flagged by its tail)
+    return split_elements(problem, name, x[r >= min(REFINE_AT, r.max(initial=0.0))]), "h"
+
+
+def lacks_nodes(check, name: str) -> bool:
     """The coordinate's interpolation error is a large part of the tolerance.
 
     Measured off its nodes, that error counts when it is not just the solver's
@@ -224,7 +239,7 @@ def _has_tail(c) -> bool:
     return c.nodes >= (4 if c.discretization == "chebyshev" else 3)
 
 
-def _to_refine(problem, check, march: bool, discretization_limited=False) -> tuple[list[str], list[str]]:
+def to_refine(problem, check, march: bool, discretization_limited=False) -> tuple[list[str], list[str]]:
     """Coordinates that lack nodes: (automatic ones below the cap, the others).
 
     An error at the nodes that did not fall with the solver's residual
@@ -238,7 +253,7 @@ def _to_refine(problem, check, march: bool, discretization_limited=False) -> tup
     limited = bool(discretization_limited) and check.node_ratio > 1.0
     candidates = [c for c in problem.coordinates if not (march and c.role == "time")]  # the march's follow its steps
     discretization = [c for c in candidates if limited and c.role in ("time", "space")]
-    chosen = {c.name for c in candidates if _lacks_nodes(check, c.name)}
+    chosen = {c.name for c in candidates if lacks_nodes(check, c.name)}
     chosen |= {c.name for c in discretization if not _has_tail(c) or check.tail_ratio.get(c.name, 0.0) > LIMITED_TAIL}
     if not chosen and limited:
         # the tails say where the error between the nodes is, if anywhere (a parameter's, off its nodes)
@@ -247,7 +262,7 @@ def _to_refine(problem, check, march: bool, discretization_limited=False) -> tup
     for c in candidates:
         if c.name not in chosen:
             continue
-        if c.auto and total_nodes(c) < problem.solver.max_nodes:
+        if c.auto and has_room(c, problem.solver.max_nodes):
             refine.append(c.name)
         else:
             stuck.append(c.name)
@@ -271,7 +286,7 @@ def _largest_off_node(problem, check, march: bool) -> list[str]:
     with at least half the largest off-node ratio are refined.
     """
     ratios = {c.name: check.coordinate_ratio.get(c.name, 0.0) for c in problem.coordinates
-              if c.auto and total_nodes(c) < problem.solver.max_nodes and not (march and c.role == "time")}
+              if c.auto and has_room(c, problem.solver.max_nodes) and not (march and c.role == "time")}
     if not ratios:
         return []
     top = max(ratios.values())
@@ -290,7 +305,7 @@ def next_nodes(problem, check, decay: dict, history: dict, *, march: bool = Fals
     decay : dict of str to float
         Per coordinate, its :func:`~pgdcli.checks.resolution.chebyshev_decay`.
     history : dict
-        Per coordinate, its refinements so far (updated here): ``("p" or "h", ratio, nodes before)``.
+        Per coordinate, its refinements so far (updated here): a list of :class:`Refinement`.
     march, limited, stopping : bool
         The time nodes follow the method's steps (not refined here); the solver's error at the nodes did
         not fall with its target (the time and space discretization); the solver stopped short of its
@@ -306,141 +321,12 @@ def next_nodes(problem, check, decay: dict, history: dict, *, march: bool = Fals
     stuck : list of str
         Those of ``chosen`` that could not be refined (at ``solver.max_nodes``).
     """
-    chosen, stuck = _to_refine(problem, check, march, limited)
+    chosen, stuck = to_refine(problem, check, march, limited)
     if not chosen and not stuck and not stopping:
-        automatic = [c for c in problem.coordinates if c.auto and total_nodes(c) < problem.solver.max_nodes
+        automatic = [c for c in problem.coordinates if c.auto and has_room(c, problem.solver.max_nodes)
                      and not (march and c.role == "time")]
         chosen = _largest_off_node(problem, check, march) or _largest_tails(check, automatic)
     if not chosen:
         return problem, [], []
     refined, stuck = _refine(problem, check, chosen, history, decay, error_estimates(check, chosen))
     return refined, chosen, stuck
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """The end of the automatic resolution: the measured error meets the tolerance (``accurate`` True), misses it
-    (False, ``reason`` says where and what would reduce it) or could not be measured (None)."""
-
-    accurate: bool | None
-    reason: str
-
-
-class Resolution:
-    """The automatic resolution of one problem: its current nodes and the rounds so far.
-
-    One round is the solves at one set of nodes; after each, :meth:`judge` either refines
-    the automatic coordinates (the problem at the new nodes is :attr:`problem`) or ends
-    with a :class:`Verdict`. It writes its own report entries (:meth:`report_entries`).
-    """
-
-    def __init__(self, problem, marches: bool):
-        self.problem = initial_nodes(problem, marches)
-        self.marches = marches  # the method's time nodes follow its steps: they are not refined here
-        self.auto = [c.name for c in self.problem.coordinates if c.auto]
-        self.rounds: list[list[float]] = []  # per round: the nodes of each coordinate, then the measured ratio
-        self.history: dict = {}  # per coordinate: its refinements, ("p" or "h", ratio, nodes before)
-
-    def _record(self, ratio: float) -> None:
-        self.rounds.append([total_nodes(c) for c in self.problem.coordinates] + [ratio])
-
-    def more_nodes_for(self, lacking: str | None) -> bool:
-        """A solve stopped early for lack of nodes along ``lacking``: refine it, if the rounds and the cap allow."""
-        if not lacking or len(self.rounds) >= MAX_ROUNDS - 1:
-            return False
-        refined = refined_nodes(self.problem, [lacking])
-        if total_nodes(refined.coordinate(lacking)) <= total_nodes(self.problem.coordinate(lacking)):
-            return False
-        self._record(float("inf"))  # stopped early
-        self.problem = refined
-        return True
-
-    def at_most(self, name: str, nodes: int) -> None:
-        """At most ``nodes`` nodes on coordinate ``name`` from now on (no fewer than it had)."""
-        coords = tuple(dataclasses.replace(c, nodes=min(c.nodes, nodes)) if c.name == name else c
-                       for c in self.problem.coordinates)
-        self.problem = dataclasses.replace(self.problem, coordinates=coords)
-
-    def judge(self, check, codebook, stopped: str | None = None, limited: bool = False,
-              solver: str = "enrichment") -> Verdict | None:
-        """The verdict on a round's codebook, or None when automatic coordinates were refined (solve again).
-
-        ``stopped``: the solver could not lower its own error at the nodes further (why); ``limited``:
-        that error did not fall with the solver's target (the time and space discretization);
-        ``solver``: what the refusal calls the method ("enrichment", "tensor-train solver").
-        """
-        this_round = len(self.rounds)
-        self._record(check.ratio)
-        if not check.checked:
-            return Verdict(None, "not checked")
-        if check.passed:
-            return Verdict(True, "the measured error meets the tolerance")
-        # a solver stopped short of the target the nodes ask for: its error at the nodes is not the
-        # discretization's, and only the coordinates that lack nodes between them are refined
-        stopping = bool(stopped) and check.node_ratio > 1.0
-        refined, refine, stuck = next_nodes(self.problem, check, chebyshev_decay(codebook), self.history,
-                                            march=self.marches, limited=limited, stopping=stopping)
-        pending = False
-        if refine:
-            if stuck != refine and this_round < MAX_ROUNDS - 1:
-                self.problem = refined
-                return None
-            pending = stuck != refine  # a refinement was chosen that the rounds left no solve for
-        reason = refusal(self.problem, check, self.marches, stopped, limited, solver)
-        return Verdict(False, f"still refining after {MAX_ROUNDS} solves: {reason}" if pending else reason)
-
-    def report_entries(self, reason: str) -> dict:
-        """The codebook report's ``resolution_*`` entries: rounds, automatic coordinates, elements, reason."""
-        coords = self.problem.coordinates
-        return {
-            "resolution_rounds": np.array(self.rounds, dtype=float),  # (rounds, coordinates + 1): nodes, ratio
-            "resolution_auto": ",".join(c.name for c in coords if c.auto),
-            "resolution_elements": ",".join(f"{c.name}:{len(c.breakpoints) - 1}" for c in coords
-                                            if len(c.breakpoints) > 2),
-            "resolution_reason": reason,
-        }
-
-
-def refusal(problem, check, marches: bool, stopped: str | None = None, limited: bool = False,
-            solver: str = "enrichment") -> str:
-    """Why the error is too large and what would reduce it, in one clause.
-
-    ``stopped`` and ``limited`` as :meth:`Resolution.judge`'s.
-    """
-    stopped = stopped if check.node_ratio > 1.0 else None
-    refine, stuck = _to_refine(problem, check, marches, limited)
-    names = refine + stuck
-    if stopped and not any(_lacks_nodes(check, n) for n in names):
-        return (f"the error at the nodes is {check.node_ratio:.2g} x the tolerance and the {solver} could not "
-                f"lower its residual further: {stopped}")
-    if names:
-        def share(n):
-            return max(check.coordinate_ratio.get(n, 0.0), check.tail_ratio.get(n, 0.0))
-
-        worst = max(names, key=share)
-        c = problem.coordinate(worst)
-        ratio = share(worst)
-        measured = check.coordinate_ratio.get(worst, 0.0) >= check.tail_ratio.get(worst, 0.0)
-        # the larger of the two says it: the error measured off the coordinate's nodes, or the estimate
-        # from its Chebyshev tail (the tail can exceed what was measured many times over)
-        seen = "error between its nodes" if measured else "its Chebyshev tail estimates an error between its nodes of"
-        if c.auto and total_nodes(c) >= problem.solver.max_nodes:
-            need = f"it reached solver.max_nodes = {problem.solver.max_nodes}"
-        elif c.auto:
-            need = f"it has {total_nodes(c)} nodes"
-        else:
-            need = f"it has nodes: {c.nodes}; add nodes or write 'nodes: auto'"
-        if ratio > REFINE_AT:
-            return (f"coordinate {worst!r} lacks resolution ({seen} {ratio:.2g} x the tolerance; "
-                    f"{need})")
-        return (f"the error at the nodes did not fall with the residual: coordinate {worst!r} may lack resolution "
-                f"({need})")
-    if check.method.startswith("method of lines"):
-        # the method-of-lines reference's own error, not the codebook's, can be what is measured
-        return ("the error did not fall with the residual nor with nodes; note that the method-of-lines "
-                "reference of problems with space coordinates is itself accurate to about 1e-9, so a tighter "
-                "tolerance cannot be checked (--keep-inaccurate keeps the codebook)")
-    if check.node_ratio > 1.0:
-        what = "march" if marches else solver
-        return f"the {what} did not reach the tolerance at the nodes ({check.node_ratio:.2g} x the tolerance)"
-    return "the error between the nodes exceeds the tolerance, in no one coordinate alone"
