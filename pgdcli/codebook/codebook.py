@@ -65,17 +65,13 @@ class Codebook(CodebookAnalysis):
         Unknown name -> :class:`~pgdcli.tensors.cp.CPTensor` (weights and one mode matrix of
         nodal values per coordinate) or :class:`~pgdcli.tensors.tt.TT` (cores with their
         ``mode_order``), in output order.
-    name : str
-        The problem's name.
-    spec_text : str
-        The YAML spec the codebook was solved from (``pgd info --spec`` prints it).
+    name, spec_text : str
+        The problem's name; the YAML spec the codebook was solved from (``pgd info --spec`` prints it).
     report : dict
         Solver report: convergence, the measured error, tolerance, nodes chosen (see the
         codebook file format in the user guide).
-    description : str
-        The spec's description.
-    created : str, optional
-        ISO 8601 time of the solve (default: now).
+    description, created : str
+        The spec's description; the ISO 8601 time of the solve (default: now).
     partial : bool
         Loaded for evaluation only (``Codebook.load(path, evaluation_only=True)``): the spec and
         the report's arrays were not read, and :meth:`save` refuses it.
@@ -406,7 +402,10 @@ class Codebook(CodebookAnalysis):
         path : path-like
             The HDF5 file to write (its folder must exist).
 
-        Returns the path written.
+        Returns
+        -------
+        os.PathLike
+            The path written.
         """
         return codebook_io.save(self, path)
 
@@ -426,7 +425,10 @@ class Codebook(CodebookAnalysis):
         evaluation_only : bool
             Skip what evaluation does not need (the stored spec, the report's arrays).
 
-        Returns a :class:`Codebook` (a :class:`~pgdcli.codebook.phases.PhasedCodebook` with phases).
+        Returns
+        -------
+        Codebook
+            A :class:`~pgdcli.codebook.phases.PhasedCodebook` when the file has phases.
 
         Raises
         ------
