@@ -14,9 +14,8 @@ satisfy ``|u - u_ref| <= atol + rtol * |u_ref|`` (``solver.tolerance`` is atol,
 The reference is scipy's DOP853 (one vectorized ``solve_ivp`` call,
 :mod:`pgdcli.checks.reference`, which shares no code with the solvers) at rtol = atol =
 1e-13, or on a stiff problem (:mod:`pgdcli.checks.stiffness`) Radau at rtol 1e-12, atol 1e-14
-(space coordinates: :func:`pgdcli.checks.verify.verify`'s method of lines).
-The sample of the parameter box has parts that fail for different reasons and
-are reported apart, so that the gate can name what is missing:
+(space coordinates: :func:`pgdcli.checks.verify.verify`'s method of lines). The sample of the parameter
+box has parts that fail for different reasons and are reported apart, so that the gate can name what is missing:
 
 * corners of the box (all of them up to :data:`~pgdcli.checks.sampling.CORNERS`, a seeded subset beyond)
   and grid nodes on edges and faces, at the time nodes: the solver's own error,
@@ -397,6 +396,9 @@ def _pde_reference(problem, codebook, seed: int, progress=None):
     key = (problem.source_text, tuple((c.name, c.nodes, c.breakpoints) for c in codebook.coordinates), seed)
     report = _PDE_REFERENCES.get(key)
     if report is not None:
+        if progress is not None:  # the same reference again: its every point is done at once
+            total = next(iter(report.reference.values())).shape[0]
+            progress(ReferenceProgress(total, total))
         return report, on_report_grid(codebook, report)
     points = None if progress is None else (lambda done, total: progress(ReferenceProgress(done, total)))
     report = verify(codebook, samples=PDE_SAMPLES, seed=seed, times=PDE_TIMES, max_corners=PDE_CORNERS, jobs=1,

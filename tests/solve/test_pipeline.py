@@ -55,6 +55,9 @@ def test_an_enrichment_with_space_reports_the_method_of_lines_per_parameter_poin
     assert [e.mode for e in terms][:3] == [1, 2, 3] and terms[0].target == 1e-8
     points = [e for e in seen if isinstance(e, ReferenceProgress)]
     assert points and points[-1].done == points[-1].total > 1 and {e.unit for e in points} == {"points"}
+    # the same solve again reuses the reference, and its check still reports every point done
+    again = [e for e in _events("heat1d")[0] if isinstance(e, ReferenceProgress)]
+    assert again and again[-1].done == again[-1].total == points[-1].total
 
 
 def test_the_method_is_chosen_from_the_equations_and_says_why():
