@@ -27,8 +27,6 @@ box has parts that fail for different reasons and are reported apart, so that th
 * the node points at the midpoints between time nodes: the time interpolation
   error (``coordinate_ratio[time]``);
 * points uniform in the box (``between_ratio``): all of it at once.
-
-numpy and :mod:`pgdcli.checks.reference` only.
 """
 
 from __future__ import annotations
@@ -149,7 +147,7 @@ def unchecked(reason: str = "", tolerance: float = float("nan"), relative_tolera
 
 def points_text(n: int) -> str:
     """``"1 check point"``, ``"183 check points"``."""
-    return f"{n} check point" + ("s" if n != 1 else "")
+    return f"{n} check point{'s' if n != 1 else ''}"
 
 
 def ordinal(n: int) -> str:
@@ -163,9 +161,8 @@ STIFF_METHOD, STIFF_RTOL, STIFF_ATOL = "Radau", 1e-12, 1e-14
 
 
 def reference_stiffness(problem, codebook, seed: int = 0, rtol: float = 1e-13) -> Stiffness:
-    """Whether :func:`check_codebook`'s reference at its sample should be :data:`STIFF_METHOD`: the
-    estimate of :func:`pgdcli.checks.stiffness.estimate_stiffness`, along the codebook's states at
-    the sample's times.
+    """Whether :func:`check_codebook`'s reference at its sample should be :data:`STIFF_METHOD`: the estimate of
+    :func:`pgdcli.checks.stiffness.estimate_stiffness`, along the codebook's states at the sample's times.
 
     A codebook whose report says a stiff stepper marched it (``stiff``) is stiff whatever the estimate.
     """
@@ -193,7 +190,8 @@ def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: fl
     if that call fails (a sample blows up), the node-to-node integration of
     :func:`pgdcli.checks.reference.solve_reference`, which isolates the failing samples.
     A ``stiff`` problem (an explicit method would crawl at its stability limit) is integrated
-    by :data:`STIFF_METHOD` instead, the same two ways. ``progress`` receives :class:`~pgdcli.progress.ReferenceProgress` events.
+    by :data:`STIFF_METHOD` instead, the same two ways. ``progress`` receives
+    :class:`~pgdcli.progress.ReferenceProgress` events (one, done, when the reference is reused).
     """
     if not problem.source_text:  # a problem built in code: nothing names it
         return _integrate_reference(problem, points, S, times, rtol, atol, progress, stiff)
@@ -202,13 +200,15 @@ def _reference(problem, points, S: int, times: np.ndarray, rtol: float, atol: fl
     if key not in _ODE_REFERENCES:
         _ODE_REFERENCES.clear()
         _ODE_REFERENCES[key] = _integrate_reference(problem, points, S, times, rtol, atol, progress, stiff)
+    elif progress is not None:  # the same reference again: it is done at once
+        span = float(times[-1] - times[0])
+        progress(ReferenceProgress(span, span, "time"))
     values, ok = _ODE_REFERENCES[key]
     return {u: v.copy() for u, v in values.items()}, ok.copy()
 
 
-#: The last ODE reference, by problem, sample, times and method: a solve retried at the same nodes with a
-#: tighter target (a smaller residual, a tighter march) is checked at the same sample, and the reference
-#: is most of a check's time.
+#: The last ODE reference, by problem, sample, times and method: a solve retried at the same nodes with a tighter
+#: target (a smaller residual, a tighter march) is checked at the same sample; the reference is most of its time.
 _ODE_REFERENCES: dict = {}
 
 
@@ -386,8 +386,7 @@ def check_codebook_pde(problem, codebook, *, tolerance: float | None = None, rel
                        method=method)
 
 
-#: The last method-of-lines reference, by problem, codebook nodes and seed: an enrichment retried with a
-#: smaller residual keeps its nodes, and so its sample, and the reference is most of a check's time.
+#: The last method-of-lines reference by problem, nodes and seed: a retry with a smaller residual keeps its nodes.
 _PDE_REFERENCES: dict = {}
 
 

@@ -249,8 +249,10 @@ def test_a_second_check_at_the_same_sample_reuses_the_reference(solved, monkeypa
     fm = cb.fields["u"]
     wrong = Codebook(cb.coordinates, {"u": TT((*fm.cores[:-1], fm.cores[-1] * (1.0 + 1e-4)), fm.mode_order)})
     second = check.check_codebook(problem, wrong)
-    again = check.check_codebook(problem, cb)
+    seen = []
+    again = check.check_codebook(problem, cb, progress=seen.append)
     assert len(calls) == 1
+    assert len(seen) == 1 and seen[0].fraction() == 1.0 and seen[0].unit == "time"  # a progress bar still ends
     assert again.error == first.error and again.ratio == first.ratio
     assert second.error > 1e3 * first.error
     check.check_codebook(problem, cb, seed=1)  # another sample: integrated
