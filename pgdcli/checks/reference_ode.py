@@ -219,7 +219,9 @@ def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int
 
     The fast path of :func:`solve_reference`: no failure isolation, so None when any
     sample fails (a blow-up, a singular ``der()`` coefficient, the evaluation budget);
-    the caller then falls back to :func:`solve_reference`. ``progress(t)`` is told the
+    the caller then falls back to :func:`solve_reference`. A switch of time alone
+    (``step(t - 1.7)``) ends a call, as in :func:`solve_reference`: no step straddles its jump,
+    which an implicit method at a tight tolerance cannot cross. ``progress(t)`` is told the
     time the integration reached, every hundredth of the time domain.
 
     Returns
@@ -236,14 +238,39 @@ def solve_reference_vectorized(problem, params: Mapping[str, np.ndarray], S: int
             if system.bad.any() or not np.isfinite(y0).all():
                 return None
             fun = system if progress is None else _reporting(system, float(times[0]), float(times[-1]), progress)
-            sol = solve_ivp(fun, (float(times[0]), float(times[-1])), y0.reshape(-1), method=method,
-                            rtol=rtol, atol=atol, t_eval=times, **implicit_options(method, system.q, S))
+            y = _across_switches(problem, fun, y0.reshape(-1), times, dict(
+                method=method, rtol=rtol, atol=atol, **implicit_options(method, system.q, S)))
     except (ReferenceBudgetExceeded, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError):
         return None
-    if sol.status != 0 or sol.y.shape[1] != times.size or not np.isfinite(sol.y).all():
+    if y is None or not np.isfinite(y).all():
         return None
-    values = sol.y.reshape(S, len(names), times.size)
+    values = y.reshape(S, len(names), times.size)
     return {u: values[:, i, :] for i, u in enumerate(names)}
+
+
+def _across_switches(problem, fun, y0: np.ndarray, times: np.ndarray, options: dict) -> np.ndarray | None:
+    """``y0`` integrated with output at the sorted ``times``, one ``solve_ivp`` call per segment between
+    switches of time alone; across a switch one Euler step (a time inside its gap takes the value before
+    it, as :func:`_integrate` does). Returns shape ``(y0.size, T)``, or None when a call fails."""
+    from scipy.integrate import solve_ivp
+
+    out = np.empty((y0.size, times.size))
+    y, start = y0, float(times[0])
+    for left, right in _switch_gaps(problem, start, float(times[-1])) + [(float(times[-1]), None)]:
+        inside = (times >= start) & (times <= left)
+        if left > start:
+            stops = np.union1d(times[inside], [start, left])
+            sol = solve_ivp(fun, (start, left), y, t_eval=stops, **options)
+            if sol.status != 0 or sol.y.shape[1] != stops.size:
+                return None
+            out[:, inside] = sol.y[:, np.searchsorted(stops, times[inside])]
+            y = sol.y[:, -1]
+        else:  # a switch within a few units in the last place of the start
+            out[:, inside] = y[:, None]
+        if right is not None:
+            out[:, (times > left) & (times < right)] = y[:, None]
+            y, start = y + (right - left) * fun(right, y), right
+    return out
 
 
 def implicit_options(method: str, q: int, S: int) -> dict:

@@ -71,7 +71,7 @@ def test_road_ramp_is_within_its_tolerance_with_slabs_at_the_kinks():
 
 @pytest.mark.slow
 def test_the_gate_refuses_a_codebook_that_interpolates_across_the_kinks():
-    text = (PROBLEMS / "road_ramp.yaml").read_text() + "  time_slabs: 1\n  max_nodes: 33\n"
+    text = (PROBLEMS / "road_ramp.yaml").read_text() + "  time_slabs: 1\n  max_nodes: 17\n"
     result = pgdcli.solve(pgdcli.parse_spec(text, source="road_ramp.yaml"))
     assert result.status == INACCURATE and result.message.startswith("tolerance not met"), result.message
     rep = result.codebook.report
