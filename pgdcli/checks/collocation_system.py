@@ -142,6 +142,23 @@ class PdeSystem:
             M = term if M is None else M + term
         return M
 
+    @property
+    def invariant_operator(self) -> bool:
+        """The operator is constant in time (a static mass, no time factor on any operator, no
+        non-separable term of time and an unknown); the sources may depend on time."""
+        return bool(self.static and not self.timed_ops
+                    and all(self.A[k].count_nonzero() == 0 for k in self.keys if k is not None))
+
+    def forcing(self, t: float) -> np.ndarray:
+        """``b(t)`` of ``y' = -(A y + b(t))`` when :attr:`invariant_operator`: shape (S m,)."""
+        out = np.zeros(self.S * self.model.m)
+        for k in self.keys:
+            out += self._weight(k, t) * self.b[k]
+        if self.timed_joints:
+            b = self.model.joint_source(self.timed_joints, self.params, self.S, t)
+            out += b if self.mass_solve is None else self.mass_solve(b)
+        return out
+
     def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
         count_evaluation(self, y)
         out = np.zeros_like(y, dtype=float)

@@ -1,4 +1,4 @@
-"""The exact solution of a linear, time-invariant method-of-lines system, shared by every sample.
+"""The solution of a linear method-of-lines system with a time-invariant operator, shared by every sample.
 
 When a problem's collocation system (:class:`~pgdcli.checks.collocation_system.PdeSystem`) is
 linear with coefficients and sources constant in time, each sample ``s`` of the parameters obeys
@@ -18,6 +18,9 @@ costs about ``1/S`` of the integrations'. The decomposition is used only when it
 its residual ``|B V - V Lambda|`` is at rounding level and ``cond(V)`` (which multiplies the rounding
 errors of the change of basis) is below :data:`MAX_CONDITION`; otherwise, and for systems that are
 not time-invariant or whose samples do not share one matrix, the caller integrates as before.
+
+When only the sources vary in time, the same decomposition leaves one scalar equation per mode,
+solved by exponential quadrature in steps (:func:`forced_modal_states`).
 """
 
 from __future__ import annotations
@@ -26,12 +29,15 @@ from typing import Mapping
 
 import numpy as np
 import scipy.linalg as sla
+from numpy.polynomial import chebyshev as C
 
 from ..blas import one_blas_thread
+from ..problem.switches import switch_points
 from .collocation import PdeModel
 from .collocation_system import PdeSystem
 
-__all__ = ["modal_states", "MAX_CONDITION", "MIN_SAMPLES", "METHOD_NAME"]
+__all__ = ["modal_states", "forced_modal_states", "forcing_weights", "MAX_CONDITION", "MIN_SAMPLES", "METHOD_NAME",
+           "FORCED_METHOD_NAME"]
 
 #: The largest condition number of the eigenvector matrix accepted: the values then carry relative
 #: errors of about ``MAX_CONDITION * eps`` (2e-12), below the integrators' 1e-10 to 1e-12.
@@ -43,6 +49,15 @@ MIN_SAMPLES = 4
 
 #: How the reference settings name this solution.
 METHOD_NAME = "eigendecomposition, exact in time"
+#: ... and the one with sources that vary in time (:func:`forced_modal_states`).
+FORCED_METHOD_NAME = "eigendecomposition, exponential quadrature in time (steps halved until two agree)"
+
+#: Nodes of the sources' interpolation in time per step (Chebyshev-Lobatto: a polynomial of degree 8).
+FORCING_NODES = 9
+#: Steps over the time domain of the first try of :func:`forced_modal_states`, and the most it tries.
+FIRST_STEPS, MAX_STEPS = 8, 512
+#: ``|mu h|`` up to which the weights are integrated by Gauss-Legendre (beyond: by parts, exactly).
+_GAUSS_LIMIT = 60.0
 
 #: Samples' matrices are taken as multiples of one when they differ from it by at most this (relative,
 #: Frobenius): the rounding of the products of a few coefficients.
@@ -69,23 +84,11 @@ def modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: 
     ndarray, shape (S, q, T, n), or None
         The unknowns on the collocation grid (boundary values included), as the integration returns them.
     """
-    if model.time is None or S < MIN_SAMPLES:
+    decomposed = _decomposed(model, params, S, lambda system: system.constant)
+    if decomposed is None:
         return None
-    with np.errstate(all="ignore"):
-        system = PdeSystem(model, params, S, 0)
-        u0 = model.initial_grid(params, S)
-    if not system.constant or system.bad.any() or not np.isfinite(u0).all():
-        return None
+    system, u0, scales, (lam, V, lu) = decomposed
     m = model.m
-    common = _common_matrix(_sample_blocks(system, S, m))
-    if common is None:
-        return None
-    base, scales = common
-    with one_blas_thread():  # as the integrations' LU factorizations (see pgdcli.blas)
-        decomposition = _trusted_eig(base)
-    if decomposition is None:
-        return None
-    lam, V, lu = decomposition
     y0 = model.interior_values(u0).reshape(S, m)
     b = np.asarray(system.b.get(None, np.zeros(S * m)), dtype=float).reshape(S, m)
     dt = np.asarray(times, dtype=float) - t0
@@ -102,6 +105,140 @@ def modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: 
     out = full.reshape(S, dt.size, q, n).transpose(0, 2, 1, 3)
     out[:, :, dt <= 0.0, :] = u0[:, :, None, :]  # the initial value as given, as the integration returns it
     return out
+
+
+def forced_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: float, times: np.ndarray,
+                        rtol: float, atol: float) -> np.ndarray | None:
+    """As :func:`modal_states` for a time-invariant operator whose sources vary in time, or None.
+
+    With ``y' = -(c_s B y + b_s(t))`` and ``B = V diag(lambda) V^-1``, each mode ``z = V^-1 y`` obeys
+    ``z' = -mu z - g(t)``, ``mu = c_s lambda``, ``g = V^-1 b_s``; over a step ``[a, a + h]``
+
+        z(a + h) = exp(-mu h) z(a) - h sum_j W_j(-mu h) g(a + theta_j h),
+
+    exact for sources polynomial of degree ``FORCING_NODES - 1`` in time over each step
+    (:func:`forcing_weights`). Steps of at most ``span / N`` end at every time asked and every switch of
+    time alone; ``N`` doubles from :data:`FIRST_STEPS` until two tries agree within ``atol + rtol |y|``
+    (the last is returned: its error is far below that difference). None after :data:`MAX_STEPS`, when
+    the differences stop falling fast (sources not smooth in time), or on a mode that grows.
+    """
+    decomposed = _decomposed(model, params, S, lambda system: system.invariant_operator and not system.constant)
+    if decomposed is None:
+        return None
+    system, u0, scales, (lam, V, lu) = decomposed
+    m = model.m
+    mu = scales[:, None] * lam[None, :]  # (S, m)
+    span = float(times[-1]) - t0
+    if span <= 0.0 or (-mu.real * span).max() > 50.0:  # a mode that grows: left to the integration
+        return None
+    z0 = sla.lu_solve(lu, model.interior_values(u0).reshape(S, m).T.astype(complex)).T  # (S, m)
+    inverse = sla.lu_solve(lu, np.eye(m, dtype=complex)).T  # (V^-1)^T: the sources of all nodes in two products
+
+    def modal_forcing(ts: np.ndarray) -> np.ndarray:
+        g = np.stack([system.forcing(t).reshape(S, m) for t in ts], axis=1)  # (S, p, m), real
+        return g @ inverse.real + 1j * (g @ inverse.imag)
+
+    switches = switch_points(model.problem.equations, model.time, (t0, float(times[-1])))
+    previous, change, steps = None, np.inf, FIRST_STEPS
+    while True:
+        with np.errstate(all="ignore"), one_blas_thread():
+            y = (_march_modes(z0, mu, modal_forcing, t0, times, steps, switches) @ V.T).real  # (S, T, m)
+        if not np.isfinite(y).all():
+            return None
+        if previous is not None:
+            if (np.abs(y - previous) <= atol + rtol * np.abs(y)).all():
+                break
+            last, change = change, float(np.abs(y - previous).max())
+            if steps >= 4 * FIRST_STEPS and change > last / 4:  # not smooth in time: left to the integration
+                return None
+        if steps >= MAX_STEPS:
+            return None
+        previous, steps = y, 2 * steps
+    q, n = model.q, model.grid.n
+    full = (model.Z @ y.reshape(-1, m).T).T.reshape(S, times.size, q * n) + system.h[:, None, :]
+    out = full.reshape(S, times.size, q, n).transpose(0, 2, 1, 3)
+    out[:, :, times <= t0, :] = u0[:, :, None, :]
+    return out
+
+
+def _decomposed(model: PdeModel, params, S: int, applies):
+    """``(system, u0, scales, (lambda, V, lu of V))`` of samples whose system ``applies`` and shares one
+    matrix up to a factor with a trusted eigendecomposition, else None."""
+    if model.time is None or S < MIN_SAMPLES:
+        return None
+    with np.errstate(all="ignore"):
+        system = PdeSystem(model, params, S, 0)
+        u0 = model.initial_grid(params, S)
+    if not applies(system) or system.bad.any() or not np.isfinite(u0).all():
+        return None
+    common = _common_matrix(_sample_blocks(system, S, model.m))
+    if common is None:
+        return None
+    with one_blas_thread():  # as the integrations' LU factorizations (see pgdcli.blas)
+        decomposition = _trusted_eig(common[0])
+    return None if decomposition is None else (system, u0, common[1], decomposition)
+
+
+def _march_modes(z0: np.ndarray, mu: np.ndarray, forcing, t0: float, times: np.ndarray, steps: int,
+                 switches: list[float]) -> np.ndarray:
+    """The modes ``(S, m)`` at ``times`` (S, T, m), in steps of at most ``(times[-1] - t0) / steps`` that end at
+    every time asked and every switch of time alone (sources evaluated a few units in the last place inside
+    each step: on one side of a switch)."""
+    theta = _lobatto(FORCING_NODES)
+    grid = np.union1d(np.linspace(t0, float(times[-1]), steps + 1), np.r_[times[times > t0], switches])
+    out = np.empty((z0.shape[0], times.size, z0.shape[1]), dtype=complex)
+    out[:, times <= t0] = z0[:, None, :]
+    z, weights = z0, {}
+    for a, b in zip(grid[:-1], grid[1:]):
+        h = b - a
+        key = f"{h:.13e}"
+        if key not in weights:
+            weights[key] = (np.exp(-mu * h), forcing_weights(-mu * h))  # (S, m), (S, m, p)
+        decay, W = weights[key]
+        at = np.clip(a + theta * h, a + 8 * np.spacing(b), b - 8 * np.spacing(b))
+        g = forcing(at)  # (S, p, m)
+        z = decay * z - h * np.einsum("smp,spm->sm", W, g)
+        out[:, times == b] = z[:, None, :]
+    return out
+
+
+def _lobatto(p: int) -> np.ndarray:
+    """Chebyshev-Lobatto points on [0, 1], increasing."""
+    return 0.5 * (1.0 - np.cos(np.pi * np.arange(p) / (p - 1)))
+
+
+def _lagrange_chebyshev(p: int) -> np.ndarray:
+    """Chebyshev coefficients (in ``2 theta - 1``) of the Lagrange basis at :func:`_lobatto` points: (p, p)."""
+    return np.linalg.inv(C.chebvander(2.0 * _lobatto(p) - 1.0, p - 1))  # column j: the coefficients of l_j
+
+
+def forcing_weights(zeta: np.ndarray, p: int = FORCING_NODES) -> np.ndarray:
+    """``W_j(zeta) = int_0^1 exp(zeta (1 - theta)) l_j(theta) d theta`` for the Lagrange basis ``l_j`` at
+    ``p`` Chebyshev-Lobatto points: shape ``zeta.shape + (p,)``.
+
+    Gauss-Legendre (64 points: exact to rounding for ``|zeta| <= 60``) where ``|zeta|`` is small; beyond,
+    integration by parts, exact for a polynomial,
+    ``W_j = sum_r (exp(zeta) l_j^(r)(0) - l_j^(r)(1)) / zeta^(r + 1)``, whose terms then fall.
+    """
+    coef = _lagrange_chebyshev(p)
+    zeta = np.asarray(zeta, dtype=complex)
+    flat = zeta.reshape(-1)
+    out = np.empty((flat.size, p), dtype=complex)
+    small = np.abs(flat) <= _GAUSS_LIMIT
+    if small.any():
+        x, w = np.polynomial.legendre.leggauss(64)
+        theta = 0.5 * (x + 1.0)
+        basis = C.chebval(2.0 * theta - 1.0, coef).T  # (Q, p): l_j(theta_q)
+        out[small] = (0.5 * w * np.exp(np.outer(flat[small], 1.0 - theta))) @ basis
+    if (~small).any():
+        ends = np.empty((2, p, p))  # [end, r, j]: l_j^(r) at theta = 0 and 1
+        for r in range(p):
+            d = C.chebder(coef, r, scl=2.0) if r else coef
+            ends[:, r] = C.chebval(np.array([-1.0, 1.0]), d).T
+        big = flat[~small]
+        inverse_powers = big[:, None] ** -np.arange(1, p + 1)  # (N, r)
+        out[~small] = np.exp(big)[:, None] * (inverse_powers @ ends[0]) - inverse_powers @ ends[1]
+    return out.reshape(zeta.shape + (p,))
 
 
 def _sample_blocks(system: PdeSystem, S: int, m: int) -> list[np.ndarray]:
