@@ -191,11 +191,23 @@ def _time_text(summary: dict) -> str:
     return f"{wall:.2f} s, of which the error gate {check:.2f} s ({100 * check / wall:.0f}%)"
 
 
+def _error_text(summary: dict) -> str:
+    """The measured error; with phases, the whole motion's first (the first phase's is its start only)."""
+    from ..checks.check import points_text
+
+    error = (f"{summary['check_error']:.3e} at {points_text(summary['check_points'])} vs scipy (tolerance "
+             f"{summary['tolerance']:.1e}), at {summary['check_where']}")
+    phases = summary.get("phases") or {}
+    if phases.get("error") is None or phases["action"] == "terminal":
+        return error
+    return (f"{phases['error']:.3e} over the {phases['count']} phases vs solve_ivp restarted at each event "
+            f"(tolerance {summary['tolerance']:.1e}); the first phase: {error}")
+
+
 def _summary_table(summary: dict):
     from rich.markup import escape
     from rich.table import Table
 
-    from ..checks.check import points_text
     from ..codebook.summary import phase_text
 
     table = Table(title=f"pgd solve: {summary['problem']}", show_header=False, title_justify="left")
@@ -206,8 +218,7 @@ def _summary_table(summary: dict):
     if summary.get("accurate") is False:
         table.add_row("status", "[red]tolerance not met[/]")
     if summary.get("check_error") is not None:
-        table.add_row("max error", f"{summary['check_error']:.3e} at {points_text(summary['check_points'])} "
-                                   f"vs scipy (tolerance {summary['tolerance']:.1e}), at {summary['check_where']}")
+        table.add_row("max error", _error_text(summary))
     if summary.get("resolution"):
         table.add_row("nodes chosen", nodes_chosen_text(summary["resolution"]))
     if summary.get("method") == "march":

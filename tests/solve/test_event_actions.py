@@ -242,3 +242,21 @@ def test_a_zeno_motion_is_refused_with_the_point(tmp_path):
     lines = [line for line in run.stderr.splitlines() if line.startswith("Error: ")]
     assert len(lines) == 1 and "event 'landing' happens more than" in lines[0] and "Zeno" in lines[0]
     assert "at h=" in lines[0]
+
+
+def test_the_solve_summary_states_the_error_over_every_phase(tmp_path):
+    """The error a user reads first is the whole motion's, not the first flight's (exact, a parabola)."""
+    path = tmp_path / "bounce.h5"
+    run = CliRunner().invoke(cli, ["solve", str(PROBLEMS / "bounce.yaml"), "-o", str(path)])
+    assert run.exit_code == 0, run.output
+    rep = pgdcli.Codebook.load(path).report
+    rows: dict = {}
+    label = None
+    for line in run.stderr.splitlines():
+        if line.count("│") == 3:  # a row of the summary table, or the continuation of one
+            label = line.split("│")[1].strip() or label
+            rows[label] = (rows.get(label, "") + " " + line.split("│")[2].strip()).strip()
+    row = rows["max error"]
+    phases = int(rep["phases"])
+    assert row.startswith(f"{float(rep['phase_error']):.3e} over the {phases} phases vs solve_ivp restarted"), row
+    assert f"the first phase: {float(rep['check_error']):.3e}" in row
