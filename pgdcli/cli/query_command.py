@@ -146,7 +146,23 @@ def _to_file(ctx, cb, points, output, selected, scheduler, workers) -> None:
     chunks, handle = _usage(point_partitions, cb, points, ctx.args)
     try:
         with open_executor(ctx, scheduler, workers) as executor:
-            write_query(cb, chunks, output, selected, executor, stderr_console())
+            written = write_query(cb, chunks, output, selected, executor, stderr_console())
     finally:
         if handle is not None:
             handle.close()
+    if getattr(cb, "action", None) == "terminal" and selected:
+        ended = _nan_rows(output, selected[0])
+        if ended:
+            warn(f"{ended} of {written} points are at or after the terminal event {cb.acting!r}: the motion has "
+                 f"ended there and their values in {output} are NaN")
+
+
+def _nan_rows(path, field: str) -> int:
+    """Rows of ``values/field`` in a query's HDF5 output that are NaN, read a block at a time."""
+    import h5py
+    import numpy as np
+
+    block = 1 << 20
+    with h5py.File(path, "r") as f:
+        values = f["values"][field]
+        return sum(int(np.isnan(values[i:i + block]).sum()) for i in range(0, values.shape[0], block))

@@ -230,6 +230,11 @@ def test_a_terminal_event_ends_the_motion(tmp_path):
     rows = run.stdout.splitlines()
     assert rows[2].endswith("nan,nan") and "nan" not in rows[1]
     assert run.stderr.count("Warning: 1 of 2 points are at or after the terminal event 'landing'") == 1
+    out = tmp_path / "out.h5"
+    run = runner.invoke(cli, ["query", str(path), "--points", str(points), "--output", str(out)])
+    assert run.exit_code == 0 and "Warning: 1 of 2 points are at or after the terminal event 'landing'" in run.stderr
+    with h5py.File(out) as f:
+        assert np.isnan(f["values/y"][1]) and abs(f["values/y"][0] - (0.5 + 0.6 - 0.5 * G * 0.04)) <= 1e-6
     assert pgdcli.verify(path, samples=8, times=8).passed()
 
 
