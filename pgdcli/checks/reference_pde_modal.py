@@ -14,10 +14,10 @@ eigendecomposition ``B = V diag(lambda) V^-1`` then gives every sample exactly:
 
 at any times, with no time steps and no tolerance. One eigendecomposition costs about one
 sample's stiff integration at a tight tolerance (BDF at 1e-12), so the reference of ``S`` samples
-costs about ``1/S`` of the integrations'. The decomposition is used only when it is trustworthy:
-its residual ``|B V - V Lambda|`` is at rounding level and ``cond(V)`` (which multiplies the rounding
-errors of the change of basis) is below :data:`MAX_CONDITION`; otherwise, and for systems that are
-not time-invariant or whose samples do not share one matrix, the caller integrates as before.
+costs about ``1/S`` of the integrations'. The decomposition is used only when it is trustworthy
+(:mod:`.modal_basis`, which also splits the operator of a 2-D tensor grid into its two directions);
+otherwise, and for systems that are not time-invariant or whose samples do not share one matrix,
+the caller integrates as before.
 
 When only the sources vary in time, the same decomposition leaves one scalar equation per mode,
 solved by exponential quadrature in steps (:func:`forced_modal_states`).
@@ -28,20 +28,17 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
-import scipy.linalg as sla
+import scipy.sparse as sp
 from numpy.polynomial import chebyshev as C
 
 from ..blas import one_blas_thread
 from ..problem.switches import switch_points
 from .collocation import PdeModel
 from .collocation_system import PdeSystem
+from .modal_basis import MAX_CONDITION, decompose
 
 __all__ = ["modal_states", "forced_modal_states", "forcing_weights", "MAX_CONDITION", "MIN_SAMPLES", "METHOD_NAME",
            "FORCED_METHOD_NAME"]
-
-#: The largest condition number of the eigenvector matrix accepted: the values then carry relative
-#: errors of about ``MAX_CONDITION * eps`` (2e-12), below the integrators' 1e-10 to 1e-12.
-MAX_CONDITION = 1e4
 
 #: The fewest samples for which one decomposition is worth it: it costs about one or two samples'
 #: integrations (benchmarks/gate_cost.py).
@@ -87,17 +84,15 @@ def modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: 
     decomposed = _decomposed(model, params, S, lambda system: system.constant)
     if decomposed is None:
         return None
-    system, u0, scales, (lam, V, lu) = decomposed
+    system, u0, scales, modes = decomposed
     m = model.m
-    y0 = model.interior_values(u0).reshape(S, m)
-    b = np.asarray(system.b.get(None, np.zeros(S * m)), dtype=float).reshape(S, m)
+    c0 = modes.to_modes(model.interior_values(u0).reshape(S, m))
+    beta = modes.to_modes(np.asarray(system.b.get(None, np.zeros(S * m)), dtype=float).reshape(S, m))
     dt = np.asarray(times, dtype=float) - t0
     y = np.empty((S, dt.size, m))
     for i in range(S):
-        c0 = sla.lu_solve(lu, y0[i].astype(complex))
-        beta = sla.lu_solve(lu, b[i].astype(complex))
-        mu = scales[i] * lam
-        y[i] = ((np.exp(-np.outer(dt, mu)) * c0 - _phi(mu, dt) * beta) @ V.T).real
+        mu = scales[i] * modes.lam
+        y[i] = modes.from_modes(np.exp(-np.outer(dt, mu)) * c0[i] - _phi(mu, dt) * beta[i]).real
     if not np.isfinite(y).all():
         return None
     q, n = model.q, model.grid.n
@@ -125,24 +120,22 @@ def forced_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: in
     decomposed = _decomposed(model, params, S, lambda system: system.invariant_operator and not system.constant)
     if decomposed is None:
         return None
-    system, u0, scales, (lam, V, lu) = decomposed
+    system, u0, scales, modes = decomposed
     m = model.m
-    mu = scales[:, None] * lam[None, :]  # (S, m)
+    mu = scales[:, None] * modes.lam[None, :]  # (S, m)
     span = float(times[-1]) - t0
     if span <= 0.0 or (-mu.real * span).max() > 50.0:  # a mode that grows: left to the integration
         return None
-    z0 = sla.lu_solve(lu, model.interior_values(u0).reshape(S, m).T.astype(complex)).T  # (S, m)
-    inverse = sla.lu_solve(lu, np.eye(m, dtype=complex)).T  # (V^-1)^T: the sources of all nodes in two products
+    z0 = modes.to_modes(model.interior_values(u0).reshape(S, m))  # (S, m)
 
-    def modal_forcing(ts: np.ndarray) -> np.ndarray:
-        g = np.stack([system.forcing(t).reshape(S, m) for t in ts], axis=1)  # (S, p, m), real
-        return g @ inverse.real + 1j * (g @ inverse.imag)
+    def modal_forcing(ts: np.ndarray) -> np.ndarray:  # the sources at the step's nodes, (S, p, m)
+        return modes.to_modes(np.stack([system.forcing(t).reshape(S, m) for t in ts], axis=1))
 
     switches = switch_points(model.problem.equations, model.time, (t0, float(times[-1])))
     previous, change, steps = None, np.inf, FIRST_STEPS
     while True:
         with np.errstate(all="ignore"), one_blas_thread():
-            y = (_march_modes(z0, mu, modal_forcing, t0, times, steps, switches) @ V.T).real  # (S, T, m)
+            y = modes.from_modes(_march_modes(z0, mu, modal_forcing, t0, times, steps, switches)).real  # (S, T, m)
         if not np.isfinite(y).all():
             return None
         if previous is not None:
@@ -162,8 +155,8 @@ def forced_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: in
 
 
 def _decomposed(model: PdeModel, params, S: int, applies):
-    """``(system, u0, scales, (lambda, V, lu of V))`` of samples whose system ``applies`` and shares one
-    matrix up to a factor with a trusted eigendecomposition, else None."""
+    """``(system, u0, scales, modes)`` of samples whose system ``applies`` and shares one matrix up to a
+    factor with a trusted eigenbasis (:func:`pgdcli.checks.modal_basis.decompose`), else None."""
     if model.time is None or S < MIN_SAMPLES:
         return None
     with np.errstate(all="ignore"):
@@ -175,8 +168,8 @@ def _decomposed(model: PdeModel, params, S: int, applies):
     if common is None:
         return None
     with one_blas_thread():  # as the integrations' LU factorizations (see pgdcli.blas)
-        decomposition = _trusted_eig(common[0])
-    return None if decomposition is None else (system, u0, common[1], decomposition)
+        modes = decompose(model, common[0])
+    return None if modes is None else (system, u0, common[1], modes)
 
 
 def _march_modes(z0: np.ndarray, mu: np.ndarray, forcing, t0: float, times: np.ndarray, steps: int,
@@ -241,47 +234,32 @@ def forcing_weights(zeta: np.ndarray, p: int = FORCING_NODES) -> np.ndarray:
     return out.reshape(zeta.shape + (p,))
 
 
-def _sample_blocks(system: PdeSystem, S: int, m: int) -> list[np.ndarray]:
-    """Each sample's matrix ``B_s`` (m, m), dense, from the block-diagonal operator."""
+def _sample_blocks(system: PdeSystem, S: int, m: int) -> list:
+    """Each sample's matrix ``B_s`` (m, m), sparse (CSR), from the block-diagonal operator."""
     A = system.A.get(None)
     if A is None:
-        return [np.zeros((m, m)) for _ in range(S)]
+        return [sp.csr_matrix((m, m)) for _ in range(S)]
     A = A.tocsr()
-    return [A[i * m:(i + 1) * m, i * m:(i + 1) * m].toarray() for i in range(S)]
+    return [A[i * m:(i + 1) * m, i * m:(i + 1) * m] for i in range(S)]
 
 
-def _common_matrix(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(B, c)`` with ``B_s = c_s B`` for every sample (``B`` the largest block), or None."""
-    norms = np.array([np.linalg.norm(B) for B in blocks])
+def _common_matrix(blocks: list) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(B, c)`` with ``B_s = c_s B`` for every sample (``B`` the largest block, dense), or None.
+
+    Compared sparse: only the one matrix decomposed is made dense."""
+    def norm(B) -> float:
+        return float(np.sqrt(np.sum(np.abs(B.data) ** 2)))
+
+    norms = np.array([norm(B) for B in blocks])
     if not np.isfinite(norms).all() or norms.max() == 0.0:
         return None
     ref = blocks[int(np.argmax(norms))]
-    ref_norm2 = float(np.vdot(ref, ref))
-    scales = np.array([float(np.vdot(ref, B)) / ref_norm2 for B in blocks])
+    ref_norm2 = norms.max() ** 2
+    scales = np.array([float(ref.multiply(B).sum()) / ref_norm2 for B in blocks])
     for B, c, nb in zip(blocks, scales, norms):
-        if np.linalg.norm(B - c * ref) > _PROPORTIONAL * max(nb, 1e-300):
+        if norm((B - c * ref).tocsr()) > _PROPORTIONAL * max(nb, 1e-300):
             return None
-    return ref, scales
-
-
-def _trusted_eig(B: np.ndarray):
-    """``(eigenvalues, V, lu of V)`` when the eigendecomposition of ``B`` can be trusted, else None.
-
-    LAPACK's ``geev`` is backward stable (``B V - V Lambda`` is at rounding level relative to
-    ``|B| |V|``); what can spoil the values is the change of basis, whose rounding errors the
-    condition number of ``V`` multiplies. It is estimated from the LU factors (LAPACK ``gecon``,
-    O(m^2)) rather than computed by an SVD (as costly as the decomposition itself).
-    """
-    try:
-        lam, V = sla.eig(B, overwrite_a=False, check_finite=True)
-        lu, piv = sla.lu_factor(V, check_finite=False)
-    except (np.linalg.LinAlgError, ValueError):
-        return None
-    gecon = sla.get_lapack_funcs("gecon", (lu,))
-    rcond, info = gecon(lu, np.linalg.norm(V, 1), norm="1")
-    if info != 0 or not rcond * MAX_CONDITION >= 1.0:
-        return None
-    return lam, V, (lu, piv)
+    return ref.toarray(), scales
 
 
 def _phi(mu: np.ndarray, dt: np.ndarray) -> np.ndarray:

@@ -7,7 +7,7 @@ import pytest
 from conftest import spec_text
 
 import pgdcli
-from pgdcli.checks import reference_pde_modal
+from pgdcli.checks import modal_basis, reference_pde_modal
 from pgdcli.checks.collocation import PdeModel
 from pgdcli.checks.reference import solve_reference_pde
 from pgdcli.checks.reference_pde_modal import (FORCED_METHOD_NAME, METHOD_NAME, MIN_SAMPLES, forced_modal_states,
@@ -79,7 +79,7 @@ def test_it_declines_what_it_cannot_solve_exactly(monkeypatch):
     two = pgdcli.parse_spec(TWO_RATES)
     assert modal_states(PdeModel(two, {"x": 16}), P, MIN_SAMPLES, 0.0, times) is None
     # an eigenvector basis too ill-conditioned to trust
-    monkeypatch.setattr(reference_pde_modal, "MAX_CONDITION", 1.0)
+    monkeypatch.setattr(modal_basis, "MAX_CONDITION", 1.0)
     assert modal_states(model, P, MIN_SAMPLES, 0.0, times) is None
 
 
