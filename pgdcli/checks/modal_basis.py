@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse as sp
 
-__all__ = ["Modes", "decompose", "MAX_CONDITION"]
+__all__ = ["Modes", "KroneckerModes", "decompose", "decompose_samples", "MAX_CONDITION"]
 
 #: The largest condition number of the eigenvector matrix accepted: the values then carry relative
 #: errors of about ``MAX_CONDITION * eps`` (2e-12), below the integrators' 1e-10 to 1e-12.
@@ -24,6 +25,9 @@ MAX_CONDITION = 1e4
 #: A matrix is taken as a Kronecker sum when it differs from the one read off it by at most this
 #: (relative, Frobenius): the rounding of its assembly.
 _KRONECKER = 1e-12
+#: Samples' matrices are taken as multiples of one when they differ from it by at most this (relative,
+#: Frobenius): the rounding of the products of a few coefficients.
+_PROPORTIONAL = 1e-13
 
 
 class Modes:
@@ -59,6 +63,70 @@ class KroneckerModes(Modes):
     def from_modes(self, z: np.ndarray) -> np.ndarray:
         grid = np.asarray(z).reshape(np.shape(z)[:-1] + self.shape)
         return (self.Va @ grid @ self.Vc.T).reshape(np.shape(z))
+
+
+def decompose_samples(model, blocks: list) -> tuple[Modes, np.ndarray] | None:
+    """One trusted eigenbasis of every sample's operator ``B_s`` (sparse, m x m) and their eigenvalues
+    ``(S, m)``, or None.
+
+    On a 2-D tensor grid, ``B_s = A_s (x) I + I (x) C_s`` with ``A_s = alpha_s A + sigma I`` and
+    ``C_s = gamma_s C + tau I`` (a diffusivity per direction, ``u_xx + a u_yy``; a rate): eigenvalues
+    ``alpha_s a_i + gamma_s c_j + sigma_s + tau_s``. Otherwise ``B_s = c_s B`` (one factor):
+    ``c_s lambda``.
+    """
+    shape = _tensor_interior(model)
+    split = None if shape is None else _split_samples(blocks, shape)
+    if split is not None:
+        (A, alpha), (C, gamma), shift = split
+        first, second = _eig(A), _eig(C)
+        if first is not None and second is not None and first[3] * second[3] * MAX_CONDITION >= 1.0:
+            lam = (alpha[:, None, None] * first[0][None, :, None] + gamma[:, None, None] * second[0][None, None, :]
+                   + shift[:, None, None])
+            return KroneckerModes(first[:3], second[:3]), lam.reshape(len(blocks), -1)
+    common = _common_matrix(blocks)
+    if common is None:
+        return None
+    modes = decompose(model, common[0])
+    return None if modes is None else (modes, common[1][:, None] * modes.lam[None, :])
+
+
+def _split_samples(blocks: list, shape: tuple[int, int]):
+    """``((A, alpha), (C, gamma), shift)``: every block a Kronecker sum of multiples of two traceless
+    matrices plus a multiple of the identity, or None."""
+    firsts, seconds, shift = [], [], np.empty(len(blocks))
+    for s, block in enumerate(blocks):
+        parts = _kronecker_parts(block.toarray(), shape)
+        if parts is None:
+            return None
+        A, C = parts
+        shift[s] = np.trace(A) / shape[0] + np.trace(C) / shape[1]
+        firsts.append(A - np.trace(A) / shape[0] * np.eye(shape[0]))
+        seconds.append(C - np.trace(C) / shape[1] * np.eye(shape[1]))
+    first, second = _common_matrix(firsts, allow_zero=True), _common_matrix(seconds, allow_zero=True)
+    return None if first is None or second is None else (first, second, shift)
+
+
+def _common_matrix(blocks: list, allow_zero: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(B, c)`` with ``B_s = c_s B`` for every sample (``B`` the largest block, dense), or None. Sparse
+    blocks are compared sparse: only the one returned is made dense. All zero: ``c = 0`` if allowed."""
+    norms = np.array([_norm(B) for B in blocks])
+    if not np.isfinite(norms).all() or (norms.max() == 0.0 and not allow_zero):
+        return None
+    ref = blocks[int(np.argmax(norms))]
+    dense = ref.toarray() if sp.issparse(ref) else ref
+    if norms.max() == 0.0:
+        return dense, np.zeros(len(blocks))
+    scales = np.array([float(ref.multiply(B).sum()) if sp.issparse(ref) else float(np.vdot(ref, B))
+                       for B in blocks]) / norms.max() ** 2
+    for B, c, nb in zip(blocks, scales, norms):
+        if _norm(B - c * ref) > _PROPORTIONAL * max(nb, 1e-300):
+            return None
+    return dense, scales
+
+
+def _norm(B) -> float:
+    """The Frobenius norm of a dense or sparse matrix."""
+    return float(np.linalg.norm(B.data if sp.issparse(B) else B))
 
 
 def decompose(model, B: np.ndarray) -> Modes | None:

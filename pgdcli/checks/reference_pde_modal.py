@@ -35,9 +35,10 @@ from ..blas import one_blas_thread
 from ..problem.switches import switch_points
 from .collocation import PdeModel
 from .collocation_system import PdeSystem
-from .modal_basis import MAX_CONDITION, decompose
+from .modal_basis import MAX_CONDITION, decompose_samples
 
-__all__ = ["modal_states", "forced_modal_states", "forcing_weights", "MAX_CONDITION", "MIN_SAMPLES", "METHOD_NAME",
+__all__ = ["modal_states", "forced_modal_states", "steady_modal_states",
+           "forcing_weights", "MAX_CONDITION", "MIN_SAMPLES", "METHOD_NAME",
            "FORCED_METHOD_NAME"]
 
 #: The fewest samples for which one decomposition is worth it: it costs about one or two samples'
@@ -56,9 +57,6 @@ FIRST_STEPS, MAX_STEPS = 8, 512
 #: ``|mu h|`` up to which the weights are integrated by Gauss-Legendre (beyond: by parts, exactly).
 _GAUSS_LIMIT = 60.0
 
-#: Samples' matrices are taken as multiples of one when they differ from it by at most this (relative,
-#: Frobenius): the rounding of the products of a few coefficients.
-_PROPORTIONAL = 1e-13
 
 
 def modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: float,
@@ -84,14 +82,14 @@ def modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: 
     decomposed = _decomposed(model, params, S, lambda system: system.constant)
     if decomposed is None:
         return None
-    system, u0, scales, modes = decomposed
+    system, u0, modes, lam = decomposed
     m = model.m
     c0 = modes.to_modes(model.interior_values(u0).reshape(S, m))
     beta = modes.to_modes(np.asarray(system.b.get(None, np.zeros(S * m)), dtype=float).reshape(S, m))
     dt = np.asarray(times, dtype=float) - t0
     y = np.empty((S, dt.size, m))
     for i in range(S):
-        mu = scales[i] * modes.lam
+        mu = lam[i]
         y[i] = modes.from_modes(np.exp(-np.outer(dt, mu)) * c0[i] - _phi(mu, dt) * beta[i]).real
     if not np.isfinite(y).all():
         return None
@@ -120,9 +118,8 @@ def forced_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: in
     decomposed = _decomposed(model, params, S, lambda system: system.invariant_operator and not system.constant)
     if decomposed is None:
         return None
-    system, u0, scales, modes = decomposed
+    system, u0, modes, mu = decomposed  # mu: (S, m)
     m = model.m
-    mu = scales[:, None] * modes.lam[None, :]  # (S, m)
     span = float(times[-1]) - t0
     if span <= 0.0 or (-mu.real * span).max() > 50.0:  # a mode that grows: left to the integration
         return None
@@ -154,9 +151,35 @@ def forced_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: in
     return out
 
 
+def steady_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int,
+                        times: np.ndarray) -> np.ndarray | None:
+    """The steady system ``A_s y + b_s = 0`` of ``S`` samples solved in their operators' shared eigenbasis (one
+    division per mode), shaped as :func:`modal_states` over ``times``; None without a shared basis or with an
+    eigenvalue near zero (the sparse LU then says whether the system is singular)."""
+    if model.time is not None or S < MIN_SAMPLES:
+        return None
+    with np.errstate(all="ignore"):
+        system = PdeSystem(model, params, S, 0)
+    with one_blas_thread():
+        decomposed = decompose_samples(model, _sample_blocks(system, S, model.m))
+    if decomposed is None:
+        return None
+    modes, lam = decomposed
+    size = np.abs(lam)
+    if not (size.min(axis=1) > 1e-12 * size.max(axis=1)).all():
+        return None
+    m, q, n = model.m, model.q, model.grid.n
+    b = np.asarray(sum(system.b.values()) if system.b else np.zeros(S * m), dtype=float).reshape(S, m)
+    y = -modes.from_modes(modes.to_modes(b) / lam).real
+    if not np.isfinite(y).all():
+        return None
+    full = (model.Z @ y.T).T + system.h  # (S, q n)
+    return np.broadcast_to(full.reshape(S, q, 1, n), (S, q, times.size, n)).copy()
+
+
 def _decomposed(model: PdeModel, params, S: int, applies):
-    """``(system, u0, scales, modes)`` of samples whose system ``applies`` and shares one matrix up to a
-    factor with a trusted eigenbasis (:func:`pgdcli.checks.modal_basis.decompose`), else None."""
+    """``(system, u0, modes, eigenvalues (S, m))`` of samples whose system ``applies`` and whose operators
+    share a trusted eigenbasis (:func:`pgdcli.checks.modal_basis.decompose_samples`), else None."""
     if model.time is None or S < MIN_SAMPLES:
         return None
     with np.errstate(all="ignore"):
@@ -164,12 +187,9 @@ def _decomposed(model: PdeModel, params, S: int, applies):
         u0 = model.initial_grid(params, S)
     if not applies(system) or system.bad.any() or not np.isfinite(u0).all():
         return None
-    common = _common_matrix(_sample_blocks(system, S, model.m))
-    if common is None:
-        return None
     with one_blas_thread():  # as the integrations' LU factorizations (see pgdcli.blas)
-        modes = decompose(model, common[0])
-    return None if modes is None else (system, u0, common[1], modes)
+        decomposed = decompose_samples(model, _sample_blocks(system, S, model.m))
+    return None if decomposed is None else (system, u0, *decomposed)
 
 
 def _march_modes(z0: np.ndarray, mu: np.ndarray, forcing, t0: float, times: np.ndarray, steps: int,
@@ -236,30 +256,8 @@ def forcing_weights(zeta: np.ndarray, p: int = FORCING_NODES) -> np.ndarray:
 
 def _sample_blocks(system: PdeSystem, S: int, m: int) -> list:
     """Each sample's matrix ``B_s`` (m, m), sparse (CSR), from the block-diagonal operator."""
-    A = system.A.get(None)
-    if A is None:
-        return [sp.csr_matrix((m, m)) for _ in range(S)]
-    A = A.tocsr()
+    A = system.matrix(0.0).tocsr()  # a time-invariant operator: the same at every time
     return [A[i * m:(i + 1) * m, i * m:(i + 1) * m] for i in range(S)]
-
-
-def _common_matrix(blocks: list) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(B, c)`` with ``B_s = c_s B`` for every sample (``B`` the largest block, dense), or None.
-
-    Compared sparse: only the one matrix decomposed is made dense."""
-    def norm(B) -> float:
-        return float(np.sqrt(np.sum(np.abs(B.data) ** 2)))
-
-    norms = np.array([norm(B) for B in blocks])
-    if not np.isfinite(norms).all() or norms.max() == 0.0:
-        return None
-    ref = blocks[int(np.argmax(norms))]
-    ref_norm2 = norms.max() ** 2
-    scales = np.array([float(ref.multiply(B).sum()) / ref_norm2 for B in blocks])
-    for B, c, nb in zip(blocks, scales, norms):
-        if norm((B - c * ref).tocsr()) > _PROPORTIONAL * max(nb, 1e-300):
-            return None
-    return ref.toarray(), scales
 
 
 def _phi(mu: np.ndarray, dt: np.ndarray) -> np.ndarray:
