@@ -29,7 +29,10 @@ class CompiledCoefficient:
     directly, at the samples and the time of each call: never from the solvers' separation.
     """
 
-    __slots__ = ("static", "timed", "is_static", "joints", "params", "time", "S")
+    __slots__ = ("static", "timed", "is_static", "joints", "params", "time", "S", "_recent")
+
+    #: Values kept by time: an implicit step's Newton iterations evaluate the same stage times again.
+    RECENT = 8
 
     def __init__(self, sep, time: str, params: Mapping[str, np.ndarray], S: int) -> None:
         self.params, self.time, self.S = params, time, S
@@ -59,10 +62,22 @@ class CompiledCoefficient:
         self.static = static
         self.timed = list(timed.values())
         self.is_static = not self.timed and not self.joints
+        self._recent: dict = {}
 
     def at(self, t: float) -> np.ndarray:
+        """The coefficient at time ``t``, shape (S,) (read-only: the value may be shared between calls)."""
         if self.is_static:
             return self.static
+        t = float(t)
+        out = self._recent.get(t)
+        if out is None:
+            if len(self._recent) >= self.RECENT:
+                self._recent.clear()
+            out = self._recent[t] = self._evaluate(t)
+            out.flags.writeable = False
+        return out
+
+    def _evaluate(self, t: float) -> np.ndarray:
         out = self.static
         for func, weight in self.timed:
             out = out + weight * float(func(t))
