@@ -47,11 +47,12 @@ class Modes:
 
 
 class KroneckerModes(Modes):
-    """The eigenbasis of ``A (x) I + I (x) C`` on an ``(nx, ny)`` grid (C order): ``V = V_A (x) V_C``."""
+    """The eigenbasis of ``A (x) I + I (x) C`` on an ``(nx, ny)`` grid (C order): ``V = V_A (x) V_C``, ``lam``
+    the sums of ``a`` (A's eigenvalues) and ``c`` (C's)."""
 
     def __init__(self, first: tuple, second: tuple) -> None:
         (a, self.Va, lua), (c, self.Vc, luc) = first, second
-        self.shape = (a.size, c.size)
+        self.a, self.c, self.shape = a, c, (a.size, c.size)
         self.lam = (a[:, None] + c[None, :]).reshape(-1)
         self.Va_inv = sla.lu_solve(lua, np.eye(a.size, dtype=complex))
         self.Vc_inv = sla.lu_solve(luc, np.eye(c.size, dtype=complex))
@@ -78,15 +79,13 @@ def decompose_samples(model, blocks: list) -> tuple[Modes, np.ndarray] | None:
     split = None if shape is None else _split_samples(blocks, shape)
     if split is not None:
         (A, alpha), (C, gamma), shift = split
-        first, second = _eig(A), _eig(C)
-        if first is not None and second is not None and first[3] * second[3] * MAX_CONDITION >= 1.0:
-            lam = (alpha[:, None, None] * first[0][None, :, None] + gamma[:, None, None] * second[0][None, None, :]
+        modes = _kronecker_modes(A, C)
+        if modes is not None:
+            lam = (alpha[:, None, None] * modes.a[None, :, None] + gamma[:, None, None] * modes.c[None, None, :]
                    + shift[:, None, None])
-            return KroneckerModes(first[:3], second[:3]), lam.reshape(len(blocks), -1)
+            return modes, lam.reshape(len(blocks), -1)
     common = _common_matrix(blocks)
-    if common is None:
-        return None
-    modes = decompose(model, common[0])
+    modes = None if common is None else _whole_modes(common[0])  # (its split, if any, was tried above)
     return None if modes is None else (modes, common[1][:, None] * modes.lam[None, :])
 
 
@@ -133,14 +132,22 @@ def decompose(model, B: np.ndarray) -> Modes | None:
     """The trusted eigenbasis of ``B`` (m, m), the operator of ``model`` on its interior values, or None."""
     shape = _tensor_interior(model)
     parts = None if shape is None else _kronecker_parts(B, shape)
-    if parts is not None:
-        first, second = _eig(parts[0]), _eig(parts[1])
-        if first is not None and second is not None and first[3] * second[3] * MAX_CONDITION >= 1.0:
-            return KroneckerModes(first[:3], second[:3])
-    whole = _eig(B)
-    if whole is None or not whole[3] * MAX_CONDITION >= 1.0:
+    modes = None if parts is None else _kronecker_modes(*parts)
+    return modes if modes is not None else _whole_modes(B)
+
+
+def _kronecker_modes(A: np.ndarray, C: np.ndarray) -> KroneckerModes | None:
+    """The trusted eigenbasis of ``A (x) I + I (x) C``, or None."""
+    first, second = _eig(A), _eig(C)
+    if first is None or second is None or not first[3] * second[3] * MAX_CONDITION >= 1.0:
         return None
-    return Modes(*whole[:3])
+    return KroneckerModes(first[:3], second[:3])
+
+
+def _whole_modes(B: np.ndarray) -> Modes | None:
+    """The trusted eigenbasis of ``B`` decomposed whole, or None."""
+    whole = _eig(B)
+    return None if whole is None or not whole[3] * MAX_CONDITION >= 1.0 else Modes(*whole[:3])
 
 
 def _tensor_interior(model) -> tuple[int, int] | None:

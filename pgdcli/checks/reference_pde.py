@@ -26,9 +26,7 @@ from .reference_base import (DEFAULT_MAX_EVALUATIONS, DEFAULT_SPACE_NODES, PDE_A
                              chunk_executor, reference_times, run_in_chunks, sample_subset, sampled_coordinates,
                              space_coordinates, start_time)
 from .reference_ode import parse_cached, scores
-from .reference_pde_modal import FORCED_METHOD_NAME as FORCED_METHOD
-from .reference_pde_modal import METHOD_NAME as MODAL_METHOD
-from .reference_pde_modal import forced_modal_states, modal_states, steady_modal_states
+from .reference_pde_modal import modal_reference
 from .reference_pde_points import (at_points, checked_space_points, clipped_to_domain, interpolation_matrices,
                                    values_at_space_points)
 
@@ -241,20 +239,12 @@ def _grid_states(problem, arrays, S, times, *, nodes, method, rtol, atol, jobs, 
     messages = [""] * S
     if chunk_size is None:  # whatever runs the chunks (samples sharing a call share its steps)
         chunk_size = max(1, min(_PDE_MAX_CHUNK, _PDE_CHUNK_STATES // max(model.m, 1), math.ceil(S / CHUNKS)))
-    if model.time is None and S:  # steady: one division per mode when the samples share an eigenbasis
-        exact = steady_modal_states(model, arrays, S, unique)
+    if S and (model.time is None or method == "BDF"):  # a shared eigenbasis (the default method): once for all
+        exact = modal_reference(model, arrays, S, t0, unique, rtol, atol)
         if exact is not None:
             if progress is not None:
                 progress(S)
-            return exact, np.ones(S, dtype=bool), messages, model, unique, inverse, method
-    if method == "BDF" and S:  # the default: a linear system with a time-invariant operator, once for all
-        for name, modal in ((MODAL_METHOD, lambda: modal_states(model, arrays, S, t0, unique)),
-                            (FORCED_METHOD, lambda: forced_modal_states(model, arrays, S, t0, unique, rtol, atol))):
-            exact = modal()
-            if exact is not None:
-                if progress is not None:
-                    progress(S)
-                return exact, np.ones(S, dtype=bool), messages, model, unique, inverse, name
+            return exact[0], np.ones(S, dtype=bool), messages, model, unique, inverse, exact[1] or method
     settings = (t0, unique, method, float(rtol), float(atol), int(max_evaluations))
     key = tuple(sorted(nodes.items()))
     # a problem without spec text cannot be rebuilt in a worker: solve it here

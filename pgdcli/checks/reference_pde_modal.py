@@ -37,7 +37,7 @@ from .collocation import PdeModel
 from .collocation_system import PdeSystem
 from .modal_basis import MAX_CONDITION, decompose_samples
 
-__all__ = ["modal_states", "forced_modal_states", "steady_modal_states",
+__all__ = ["modal_reference", "modal_states", "forced_modal_states", "steady_modal_states",
            "forcing_weights", "MAX_CONDITION", "MIN_SAMPLES", "METHOD_NAME",
            "FORCED_METHOD_NAME"]
 
@@ -79,11 +79,30 @@ def modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: 
     ndarray, shape (S, q, T, n), or None
         The unknowns on the collocation grid (boundary values included), as the integration returns them.
     """
-    decomposed = _decomposed(model, params, S, lambda system: system.constant)
+    decomposed = _decomposed(model, params, S, lambda system: model.time is not None and system.constant)
+    return None if decomposed is None else _exact(model, t0, times, *decomposed)
+
+
+def modal_reference(model: PdeModel, params: Mapping[str, np.ndarray], S: int, t0: float, times: np.ndarray,
+                    rtol: float, atol: float) -> tuple[np.ndarray, str | None] | None:
+    """The samples' values from their operators' shared eigenbasis, the system assembled and decomposed once:
+    :func:`steady_modal_states`, :func:`modal_states` or :func:`forced_modal_states`, whichever applies, and
+    the name of the method (None for a steady problem: a direct solve); None when none applies."""
+    decomposed = _decomposed(model, params, S, lambda system: model.time is None or system.invariant_operator)
     if decomposed is None:
         return None
-    system, u0, modes, lam = decomposed
-    m = model.m
+    if model.time is None:
+        states, name = _steady(model, times, *decomposed), None
+    elif decomposed[0].constant:
+        states, name = _exact(model, t0, times, *decomposed), METHOD_NAME
+    else:
+        states, name = _forced(model, t0, times, rtol, atol, *decomposed), FORCED_METHOD_NAME
+    return None if states is None else (states, name)
+
+
+def _exact(model: PdeModel, t0: float, times: np.ndarray, system, u0, modes, lam) -> np.ndarray | None:
+    """:func:`modal_states` of a decomposed system."""
+    S, m = lam.shape
     c0 = modes.to_modes(model.interior_values(u0).reshape(S, m))
     beta = modes.to_modes(np.asarray(system.b.get(None, np.zeros(S * m)), dtype=float).reshape(S, m))
     dt = np.asarray(times, dtype=float) - t0
@@ -115,11 +134,15 @@ def forced_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: in
     (the last is returned: its error is far below that difference). None after :data:`MAX_STEPS`, when
     the differences stop falling fast (sources not smooth in time), or on a mode that grows.
     """
-    decomposed = _decomposed(model, params, S, lambda system: system.invariant_operator and not system.constant)
-    if decomposed is None:
-        return None
-    system, u0, modes, mu = decomposed  # mu: (S, m)
-    m = model.m
+    decomposed = _decomposed(model, params, S, lambda system: model.time is not None and system.invariant_operator
+                             and not system.constant)
+    return None if decomposed is None else _forced(model, t0, times, rtol, atol, *decomposed)
+
+
+def _forced(model: PdeModel, t0: float, times: np.ndarray, rtol: float, atol: float, system, u0, modes,
+            mu) -> np.ndarray | None:
+    """:func:`forced_modal_states` of a decomposed system (``mu``: its eigenvalues, (S, m))."""
+    S, m = mu.shape
     span = float(times[-1]) - t0
     if span <= 0.0 or (-mu.real * span).max() > 50.0:  # a mode that grows: left to the integration
         return None
@@ -156,15 +179,13 @@ def steady_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: in
     """The steady system ``A_s y + b_s = 0`` of ``S`` samples solved in their operators' shared eigenbasis (one
     division per mode), shaped as :func:`modal_states` over ``times``; None without a shared basis or with an
     eigenvalue near zero (the sparse LU then says whether the system is singular)."""
-    if model.time is not None or S < MIN_SAMPLES:
-        return None
-    with np.errstate(all="ignore"):
-        system = PdeSystem(model, params, S, 0)
-    with one_blas_thread():
-        decomposed = decompose_samples(model, _sample_blocks(system, S, model.m))
-    if decomposed is None:
-        return None
-    modes, lam = decomposed
+    decomposed = _decomposed(model, params, S, lambda system: model.time is None)
+    return None if decomposed is None else _steady(model, times, *decomposed)
+
+
+def _steady(model: PdeModel, times: np.ndarray, system, u0, modes, lam) -> np.ndarray | None:
+    """:func:`steady_modal_states` of a decomposed system."""
+    S = lam.shape[0]
     size = np.abs(lam)
     if not (size.min(axis=1) > 1e-12 * size.max(axis=1)).all():
         return None
@@ -179,13 +200,14 @@ def steady_modal_states(model: PdeModel, params: Mapping[str, np.ndarray], S: in
 
 def _decomposed(model: PdeModel, params, S: int, applies):
     """``(system, u0, modes, eigenvalues (S, m))`` of samples whose system ``applies`` and whose operators
-    share a trusted eigenbasis (:func:`pgdcli.checks.modal_basis.decompose_samples`), else None."""
-    if model.time is None or S < MIN_SAMPLES:
+    share a trusted eigenbasis (:func:`pgdcli.checks.modal_basis.decompose_samples`), else None (``u0``:
+    None for a steady problem)."""
+    if S < MIN_SAMPLES:
         return None
     with np.errstate(all="ignore"):
         system = PdeSystem(model, params, S, 0)
-        u0 = model.initial_grid(params, S)
-    if not applies(system) or system.bad.any() or not np.isfinite(u0).all():
+        u0 = None if model.time is None else model.initial_grid(params, S)
+    if not applies(system) or system.bad.any() or (u0 is not None and not np.isfinite(u0).all()):
         return None
     with one_blas_thread():  # as the integrations' LU factorizations (see pgdcli.blas)
         decomposed = decompose_samples(model, _sample_blocks(system, S, model.m))

@@ -84,13 +84,14 @@ def test_a_diffusivity_per_direction_is_solved_in_one_basis_as_radau_integrates_
 def test_a_steady_problem_is_solved_in_one_basis_as_the_sparse_lu_solves_it(monkeypatch):
     from pgdcli.checks import reference_pde
     from pgdcli.checks.reference import solve_reference_pde
+    from pgdcli.checks.reference_pde_modal import steady_modal_states
 
     problem = pgdcli.parse_spec(STEADY)
     P = _samples(problem, 6, 3)
     model = PdeModel(problem, {"x": 16, "y": 20})
-    split = reference_pde.steady_modal_states(model, P, 6, np.zeros(1))
+    split = steady_modal_states(model, P, 6, np.zeros(1))
     assert split is not None and type(decompose(model, _operator_of(model, P)[0])) is KroneckerModes
-    monkeypatch.setattr(reference_pde, "steady_modal_states", lambda *a: None)  # the sparse LU path
+    monkeypatch.setattr(reference_pde, "modal_reference", lambda *a: None)  # the sparse LU path
     lu = solve_reference_pde(problem, P, None, None, space_nodes={"x": 16, "y": 20})
     got = split.reshape(6, 16, 20)  # (S, q = 1, T = 1, n): the grid of each sample
     assert np.max(np.abs(got - lu.values["u"])) <= 1e-11 * np.abs(lu.values["u"]).max()
