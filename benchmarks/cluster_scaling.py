@@ -24,8 +24,8 @@ seconds, D(1) the distributed seconds on one worker, rounds(N) the rounds of tas
 (the tasks of one call of the executor run N at a time; the calls, one core's fibres of a half sweep
 each, one after another: a build cannot use more workers than a call has batches) and e the
 efficiency measured from 1 to 2 workers; on this machine the client shares the 2 cores with the
-workers, so e is a lower bound. The bytes of the tasks' results (every trajectory travels back to
-the calling process) are counted too. ``--chain`` also builds problems/chain15.yaml on 2 workers
+workers, so e is a lower bound. The bytes of the tasks' results (the values of the trajectories
+the cross uses, sent back to the calling process) are counted too. ``--chain`` also builds problems/chain15.yaml on 2 workers
 and checks it with pgd verify and with solve_ivp at random points (the chain written from its
 physics). The table is printed and written to
 ``benchmarks/results/cluster_scaling.md``.

@@ -1,18 +1,13 @@
-"""Float arrays in memory pages of a chosen size: huge pages for tables read whole, small ones for memos.
+"""Float arrays in huge memory pages for tables read whole, and freed memory reused by a worker.
 
 The kernel maps anonymous memory in 4 KiB pages, or in 2 MiB ones where asked (``madvise``)
 and its transparent huge pages allow. numpy asks for huge pages for every array of 4 MiB and
-more. Two callers want otherwise, both measured side by side in one process:
+more; a one-point query reads every core of a tensor-train codebook once (megabytes of tables for
+a high-dimensional codebook), and smaller tables gain from huge pages too: their page walks go (a
+few per cent of a point: ``benchmarks/query_speed_tt.py``'s single-point rows). Where the platform
+has no ``madvise`` flags (not Linux) the table is a plain numpy array.
 
-- a one-point query reads every core of a tensor-train codebook once (megabytes of tables for
-  a high-dimensional codebook); in huge pages the tables' page walks go (a few per cent of a
-  point: ``benchmarks/query_speed_tt.py``'s single-point rows);
-- the vector cross's memo of trajectories (up to 1 GiB) is written a few columns at a time
-  across all its rows: in huge pages each first write waited on the kernel's compaction.
-
-Where the platform has no ``madvise`` flags (not Linux) both are plain numpy arrays.
-
-Freed memory is the third case: :func:`reuse_freed_memory` lets a worker process reuse the blocks
+Freed memory is the other case: :func:`reuse_freed_memory` lets a worker process reuse the blocks
 that numpy frees (a march's stages, a batch's results) instead of returning them to the kernel and
 faulting fresh zeroed pages in at every allocation.
 """
@@ -24,7 +19,7 @@ import mmap
 
 import numpy as np
 
-__all__ = ["HUGE_PAGE", "huge_page_array", "small_page_array", "reuse_freed_memory"]
+__all__ = ["HUGE_PAGE", "huge_page_array", "reuse_freed_memory"]
 
 HUGE_PAGE = 1 << 21  # bytes (x86-64 and arm64 with 4 KiB base pages)
 #: Blocks up to this size come from the heap, not from a mapping of their own (glibc's largest
@@ -53,18 +48,6 @@ def huge_page_array(values: int) -> np.ndarray:
     raw = np.frombuffer(mapping, dtype=np.uint8)
     start = -raw.ctypes.data % HUGE_PAGE
     return raw[start:start + values * 8].view(np.float64)
-
-
-def small_page_array(rows: int, columns: int) -> np.ndarray:
-    """An uninitialized float array (rows, columns) in an anonymous mapping advised against huge pages.
-
-    Pages are mapped as they are first written.
-    """
-    if not hasattr(mmap, "MADV_NOHUGEPAGE"):
-        return np.empty((rows, columns))
-    buffer = mmap.mmap(-1, rows * columns * 8)
-    buffer.madvise(mmap.MADV_NOHUGEPAGE)
-    return np.frombuffer(buffer, dtype=np.float64).reshape(rows, columns)
 
 
 def reuse_freed_memory() -> bool:

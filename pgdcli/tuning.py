@@ -97,5 +97,4 @@ CHUNK_VALUES = setting("CHUNK_VALUES", 1 << 22, "values of one coordinate's rows
 # of a few thousand trajectories march as fast per node as larger ones, and a half sweep's calls
 # then give every worker of a small cluster its share (benchmarks/cluster_scaling.py).
 BATCH_FLOATS = setting("BATCH_FLOATS", 2 ** 20, "values asked of a fibre cross's function in one call")
-MEMO_FLOATS = setting("MEMO_FLOATS", 2 ** 27, "values a fibre cross keeps to answer a point asked again")
-SMALL_PAGES_ABOVE = setting("SMALL_PAGES_ABOVE", 2 ** 24, "values of a fibre cross's memo above which it lies in small pages")
+MEMO_FLOATS = setting("MEMO_FLOATS", 2 ** 26, "values a fibre cross keeps (with their keys) to answer one asked again")

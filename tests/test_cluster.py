@@ -112,7 +112,7 @@ def test_a_cross_march_build_on_the_cluster_is_the_local_codebook_bit_for_bit(cl
     result = pgdcli.solve(parse_spec(CROSS, source="predator_prey4.yaml"), executor=executor)
     assert result.converged, result.message
     assert executor.finished >= 10  # the batches ran as tasks
-    assert "2 marches" in result.message and sent == ["_Trajectories"] * 2  # each march's steps sent once
+    assert "2 marches" in result.message and sent == ["_Picked"] * 2  # each march's steps sent once
     assert result.codebook.report["march"] == "cross"
     assert same_codebook(result.codebook, cross_here.codebook)
 

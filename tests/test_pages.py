@@ -1,4 +1,4 @@
-"""Float arrays in chosen memory pages (pgdcli.pages): shapes, alignment, lifetime, the fallback."""
+"""Float arrays in huge pages (pgdcli.pages): shapes, alignment, lifetime, the fallback."""
 
 from __future__ import annotations
 
@@ -24,16 +24,7 @@ def test_huge_page_array_is_aligned_writable_and_outlives_its_mapping_name(value
     assert view[0] == values // 2 and view[-1] == values - 1
 
 
-def test_small_page_array_shape_and_values():
-    a = pages.small_page_array(3, 5)
-    assert a.shape == (3, 5) and a.dtype == np.float64 and a.flags.writeable
-    a[...] = 7.0
-    assert a.sum() == 105.0
-
-
-def test_without_madvise_both_are_numpy_arrays(monkeypatch):
-    for flag in ("MADV_HUGEPAGE", "MADV_NOHUGEPAGE"):
-        monkeypatch.delattr(mmap, flag, raising=False)
-    a, b = pages.huge_page_array(10), pages.small_page_array(2, 3)
-    assert a.shape == (10,) and b.shape == (2, 3)
-    assert a.base is None and b.base is None  # plain numpy allocations
+def test_without_madvise_it_is_a_numpy_array(monkeypatch):
+    monkeypatch.delattr(mmap, "MADV_HUGEPAGE", raising=False)
+    a = pages.huge_page_array(10)
+    assert a.shape == (10,) and a.base is None  # a plain numpy allocation

@@ -17,16 +17,21 @@ The truncation drops at most a share of the tolerance from each fibre matrix; in
 amplifies it, so a half sweep that does not halve the error of the last one in its direction makes
 that share 2x smaller.
 
-The function is deterministic, so every vector it returned is kept (up to :data:`MEMO_FLOATS`
-values) and a multi-index asked again is answered from memory: the sweeps ask for the same fibres
-again once the index sets settle.
+A fibre of an interior core needs one value of each vector it evaluates (the output its left
+index names), so the function's values are picked where they are computed (:class:`_Picked`, the
+task an executor runs) and only those travel back: on a cluster, the whole vectors of a 10-D build
+are gigabytes, their picks a few hundred megabytes. Each point (prefix, node, column) is evaluated
+once per fibre matrix, in batches of whole prefixes. The function is deterministic, so each core's
+fibres are kept (up to :data:`MEMO_FLOATS` values) and its next visit evaluates only the rows and
+columns its index sets did not have: the sweeps ask for the same fibres again once the index sets
+settle. The batches do not depend on what runs the tasks, so neither does the train.
 
 Convergence is measured, not assumed: after every half sweep the train is compared with ``F`` at
 fresh random multi-indices (the whole vector each), and the cross stops when the largest
 difference is at most the tolerance. A rank that reaches ``max_rank`` or a sweep budget that
 runs out is reported (``converged`` False, ``message``), never hidden.
 
-This module imports numpy, scipy.linalg, :mod:`pgdcli.tensors` and :mod:`pgdcli.pages` only.
+This module imports numpy, scipy.linalg and :mod:`pgdcli.tensors` only.
 """
 
 from __future__ import annotations
@@ -38,8 +43,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.linalg import qr
 
-from ..pages import small_page_array
-from ..tuning import BATCH_FLOATS, MEMO_FLOATS, SMALL_PAGES_ABOVE
+from ..tuning import BATCH_FLOATS, MEMO_FLOATS
 from .cross import maxvol
 from .tt import TT
 from .tt_svd import truncation_rank
@@ -54,9 +58,8 @@ STALLED = 0.5
 #: Random columns added to every fibre matrix's basis (the kick), beside the growth of a full one.
 KICK = 4
 # BATCH_FLOATS: values (points x vector length) asked of the function in one call; MEMO_FLOATS:
-# values of evaluated vectors kept to answer a multi-index asked again (the sweeps ask for many
-# fibres again as the index sets settle, and a later half sweep's check points may have been
-# fibres); a memo of more than SMALL_PAGES_ABOVE values is kept in small pages (``_fresh_array``).
+# picked values kept to answer one asked again (the sweeps ask for many fibres again as the index
+# sets settle).
 
 
 @dataclass
@@ -73,8 +76,8 @@ class VectorCrossResult:
     largest : float
         Largest difference there.
     evaluations : int
-        Multi-indices evaluated (each a whole vector), check points included; one asked again and
-        answered from memory counts once.
+        Multi-indices evaluated (each a whole vector), check points included; a value asked again and
+        answered from memory costs none.
     sweeps : int
         Half sweeps done.
     message : str
@@ -162,6 +165,7 @@ class _VectorCross:
         self.function, self.outputs, self.shape = function, outputs, shape
         self.tolerance, self.rng, self.max_rank = tolerance, rng, max_rank
         self.d = len(shape)
+        self.index = np.min_scalar_type(max(shape) - 1)  # the smallest integer the tasks' points fit
         self.evaluations = 0
         self.capped = False
         self.share = TRUNCATION_SHARE
@@ -170,7 +174,8 @@ class _VectorCross:
         self.right.append(np.zeros((1, 0), dtype=int))
         self.left: list = [None] * (self.d + 1)  # left[k], k = 1..d: rows of (vector index, i_1, ..., i_{k-1})
         self.edge = None  # (mode, fibres) computed last, reused by the next half sweep's first core
-        self.memo = _Memo.of(shape, outputs)
+        self.memo = _Memo.of()
+        self.picker = _Picked(function)
         self.map = builtins.map  # of the function over batches (vector_cross's ``map``)
 
     def _random_indices(self, modes: tuple, count: int) -> np.ndarray:
@@ -259,25 +264,60 @@ class _VectorCross:
 
     # ------------------------------------------------------------------ evaluations
     def _fibres(self, k: int) -> np.ndarray:
-        """``F[L_k, i_k, R_{k+1}]`` of shape (r_k, n_k, r_{k+1}); mode 0: ``F[R_1]^T`` as (1, M, r_1)."""
+        """``F[L_k, i_k, R_{k+1}]`` of shape (r_k, n_k, r_{k+1}); mode 0: ``F[R_1]^T`` as (1, M, r_1).
+
+        The fibres of rows and columns the core's last visit had are taken from the memo: only new
+        rows (with every column) and new columns (with the other rows) are evaluated."""
         if self.edge is not None and self.edge[0] == k:
             fibres, self.edge = self.edge[1], None
             return fibres
         if k == 0:
             return self._evaluate(self.right[1])[None]
-        left, right, n = self.left[k], self.right[k + 1], self.shape[k - 1]
-        if k == 1:
-            prefixes, inverse = np.zeros((1, 0), dtype=int), np.zeros(len(left), dtype=int)
+        left, right = self.left[k], self.right[k + 1]
+        last = self.memo.last(k) if self.memo is not None else None
+        if last is None:
+            fibres = self._block(k, left, right)
         else:
-            prefixes, inverse = np.unique(left[:, 1:], axis=0, return_inverse=True)
-            inverse = inverse.reshape(-1)
-        u, c = len(prefixes), len(right)
-        points = np.hstack([np.repeat(prefixes, n * c, axis=0), np.tile(np.repeat(np.arange(n), c), u)[:, None],
-                            np.tile(right, (u * n, 1))])
-        # entry (a, i, b) is output left[a, 0] of point (inverse[a], i, b)
-        point_of = ((inverse[:, None, None] * n + np.arange(n)[None, :, None]) * c + np.arange(c)[None, None, :])
-        output_of = np.broadcast_to(left[:, 0][:, None, None], point_of.shape)
-        return self._pick(points, point_of.reshape(-1), output_of.reshape(-1)).reshape(len(left), n, c)
+            rows, columns = _matches(left, last[0]), _matches(right, last[1])
+            fibres = np.empty((len(left), self.shape[k - 1], len(right)))
+            old_rows, old_columns = rows >= 0, columns >= 0
+            fibres[np.ix_(old_rows, np.ones(fibres.shape[1], bool), old_columns)] = \
+                last[2][np.ix_(rows[old_rows], np.arange(fibres.shape[1]), columns[old_columns])]
+            if not old_rows.all():
+                fibres[~old_rows] = self._block(k, left[~old_rows], right)
+            if not old_columns.all() and old_rows.any():
+                fibres[np.ix_(old_rows, np.ones(fibres.shape[1], bool), ~old_columns)] = \
+                    self._block(k, left[old_rows], right[~old_columns])
+        if self.memo is not None:
+            self.memo.keep(k, left, right, fibres)
+        return fibres
+
+    def _block(self, k: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        """``F[left, i_k, right]`` (rows of L_k, all nodes of mode k, rows of R_{k+1}): (r, n_k, c).
+
+        Each distinct point (prefix of a row, node, column) is evaluated once, in batches of whole
+        prefixes (or of slices of one prefix's points where they exceed a batch), and each batch's
+        task sends back only the values its rows name."""
+        left, row = _distinct(left)
+        right, column = _distinct(right)
+        n, c = self.shape[k - 1], len(right)
+        prefixes, group = _distinct(left[:, 1:])
+        order = np.argsort(group, kind="stable")  # rows grouped by prefix
+        starts = np.searchsorted(group[order], np.arange(len(prefixes) + 1))
+        tail = np.hstack([np.repeat(np.arange(n), c)[:, None], np.tile(right, (n, 1))])  # (n c, d - k + 1)
+        step = max(1, self._batch // len(tail))  # prefixes a batch
+        width = len(tail) if step > 1 or len(tail) <= self._batch else self._batch
+        spans = [(u, min(u + step, len(prefixes)), j, min(j + width, len(tail)))
+                 for u in range(0, len(prefixes), step) for j in range(0, len(tail), width)]
+        prefixes, tail = prefixes.astype(self.index), tail.astype(self.index)
+        items = ((np.hstack([np.repeat(prefixes[u0:u1], j1 - j0, axis=0), np.tile(tail[j0:j1], (u1 - u0, 1))]),
+                  left[order[starts[u0]:starts[u1]], 0], group[order[starts[u0]:starts[u1]]] - u0, j1 - j0)
+                 for u0, u1, j0, j1 in spans)
+        out = np.empty((len(left), len(tail)))
+        for (u0, u1, j0, j1), values in zip(spans, self.map(self.picker, items)):
+            out[order[starts[u0]:starts[u1]], j0:j1] = values
+        self.evaluations += len(prefixes) * len(tail)
+        return out.reshape(len(left), n, c)[row][:, :, column]
 
     @property
     def _batch(self) -> int:
@@ -286,56 +326,9 @@ class _VectorCross:
 
     def _evaluate(self, points: np.ndarray) -> np.ndarray:
         """All M values at the points, shape (M, P), in calls of at most :data:`BATCH_FLOATS` values."""
-        slots = self._kept(points)
-        if slots is not None:
-            return self.memo.values[:, slots]
-        batch = self._batch
         self.evaluations += len(points)
-        return np.concatenate(list(self.map(self.function, _batches(points, batch))), axis=1)
-
-    def _pick(self, points: np.ndarray, point_of: np.ndarray, output_of: np.ndarray) -> np.ndarray:
-        """The values ``F(points[point_of[e]])[output_of[e]]``, evaluating the points by batches."""
-        slots = self._kept(points)
-        if slots is not None:  # only the values asked for are read, not whole vectors
-            return self.memo.values[output_of, slots[point_of]]
-        batch = self._batch
-        order = np.argsort(point_of, kind="stable")
-        sorted_points = point_of[order]
-        out = np.empty(point_of.size)
-        self.evaluations += len(points)
-        for s, values in zip(range(0, len(points), batch), self.map(self.function, _batches(points, batch))):
-            lo, hi = np.searchsorted(sorted_points, [s, s + batch])
-            entries = order[lo:hi]
-            out[entries] = values[output_of[entries], point_of[entries] - s]
-        return out
-
-    def _kept(self, points: np.ndarray) -> np.ndarray | None:
-        """The memo's columns of the points (P,), evaluating and keeping the ones not kept yet.
-
-        A full memo is cleared first (the sweeps after this one ask most for its points). None: no
-        memo, or more distinct points than it holds.
-        """
-        if self.memo is None:
-            return None
-        keys = self.memo.keys_of(points)
-        known, slots = self.memo.find(keys)
-        if known.all():
-            return slots
-        new, first, inverse = np.unique(keys[~known], return_index=True, return_inverse=True)
-        capacity = self.memo.values.shape[1]
-        if self.memo.count + len(new) > capacity:  # full: forget it, keep these points
-            known[:] = False
-            new, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-            if len(new) > capacity:
-                return None
-            self.memo.clear()
-        fresh, start, batch = points[~known][first], self.memo.count, self._batch
-        for s, values in zip(range(0, len(fresh), batch), self.map(self.function, _batches(fresh, batch))):
-            self.memo.values[:, start + s:start + s + values.shape[1]] = values
-        self.evaluations += len(new)
-        self.memo.insert(new, start)
-        slots[~known] = start + inverse.reshape(-1)
-        return slots
+        batches = ((batch, None, None, None) for batch in _batches(points.astype(self.index), self._batch))
+        return np.concatenate(list(self.map(self.picker, batches)), axis=1)
 
     def _check(self, train: TT, count: int) -> tuple[float, float]:
         """Root-mean-square and largest difference from ``F`` at fresh random multi-indices."""
@@ -344,67 +337,70 @@ class _VectorCross:
         return float(np.sqrt(np.mean(difference * difference))), float(np.max(np.abs(difference)))
 
 
+def _distinct(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of an index set (r, m) in their first order, and each row's place among them."""
+    if rows.shape[1] == 0:
+        return rows[:1], np.zeros(len(rows), dtype=int)
+    _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    keep = np.sort(first)
+    place = np.empty(len(first), dtype=int)
+    place[np.argsort(first)] = np.arange(len(first))
+    return rows[keep], place[inverse.reshape(-1)]
+
+
+def _matches(rows: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """For every row of an index set, its place in ``old`` (another index set), or -1."""
+    where = {row.tobytes(): i for i, row in enumerate(old)}
+    return np.array([where.get(row.tobytes(), -1) for row in rows], dtype=int)
+
+
 def _batches(points: np.ndarray, batch: int):
     """Consecutive slices of ``batch`` points (the last one shorter)."""
     return (points[s:s + batch] for s in range(0, len(points), batch))
 
 
+class _Picked:
+    """The task of a batch: ``F(points)`` whole (``outputs`` None), else its values (A, J) at outputs
+    ``outputs`` (A,) of the J points of prefix ``groups`` (A,), the batch's points being its prefixes'
+    J points each in turn. One per cross, so an executor sends ``F`` once."""
+
+    def __init__(self, function: Callable[[np.ndarray], np.ndarray]):
+        self.function = function
+
+    def __call__(self, item: tuple) -> np.ndarray:
+        points, outputs, groups, width = item
+        values = self.function(points.astype(np.intp))  # sent in the smallest integers that fit
+        if outputs is None:
+            return values
+        return values.reshape(values.shape[0], -1, width)[outputs, groups]
+
+
 class _Memo:
-    """The vectors of the multi-indices evaluated so far: column ``columns[j]`` of ``values`` is the
-    vector of the multi-index of linear index ``keys[j]`` (keys sorted).
+    """Each core's index sets and fibres at its last visit: the next visit of the core asks for most of
+    them again once the index sets settle. At most :data:`MEMO_FLOATS` values in all: the cores
+    visited longest ago are forgotten first."""
 
-    Vectors are columns, as the function returns them: stored without a transposed copy, which a
-    row layout would need at every sweep.
-    """
-
-    def __init__(self, shape: tuple, capacity: int, outputs: int):
-        self.shape = shape
-        self.keys = np.empty(0, dtype=np.int64)
-        self.columns = np.empty(0, dtype=np.int64)
-        self.values = _fresh_array(outputs, capacity)
-        self.count = 0
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self.cores: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # core -> left, right, fibres
 
     @classmethod
-    def of(cls, shape: tuple, outputs: int) -> "_Memo | None":
-        """A memo for the grid, or None where no vector fits or linear indices would not fit 63 bits."""
-        nodes = float(np.prod(shape, dtype=float))
-        capacity = min(nodes, MEMO_FLOATS // outputs)
-        if capacity < 1 or nodes >= 2.0 ** 62:
-            return None
-        return cls(shape, int(capacity), outputs)
+    def of(cls) -> "_Memo | None":
+        return cls(int(MEMO_FLOATS)) if MEMO_FLOATS >= 1 else None
 
-    def keys_of(self, points: np.ndarray) -> np.ndarray:
-        """Linear indices of multi-indices (P, d): shape (P,)."""
-        return np.ravel_multi_index(tuple(points.T), self.shape)
+    @property
+    def count(self) -> int:
+        return sum(fibres.size for _, _, fibres in self.cores.values())
 
-    def find(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Which keys are kept (P,) bool, and their columns of ``values`` (P,) (meaningful where kept)."""
-        if not len(self.keys):
-            return np.zeros(len(keys), dtype=bool), np.zeros(len(keys), dtype=np.int64)
-        at = np.minimum(np.searchsorted(self.keys, keys), len(self.keys) - 1)
-        return self.keys[at] == keys, self.columns[at]
+    def last(self, core: int):
+        """(left, right, fibres) of the core's last visit, or None."""
+        return self.cores.get(core)
 
-    def clear(self) -> None:
-        """Forget every vector (their columns are written again)."""
-        self.keys, self.columns, self.count = self.keys[:0], self.columns[:0], 0
-
-    def insert(self, keys: np.ndarray, start: int) -> None:
-        """Record new sorted, distinct ``keys`` whose vectors were written to columns ``start, start + 1, ...``."""
-        at = np.searchsorted(self.keys, keys)
-        self.keys = np.insert(self.keys, at, keys)
-        self.columns = np.insert(self.columns, at, np.arange(start, start + len(keys)))
-        self.count = start + len(keys)
-
-
-def _fresh_array(rows: int, columns: int) -> np.ndarray:
-    """An uninitialized float array (rows, columns) whose pages the kernel maps as they are written.
-
-    numpy asks the kernel for huge pages for any large array. For a memo of up to
-    :data:`SMALL_PAGES_ABOVE` values that is faster; above it, a memo whose every few thousand new
-    columns touch a page in each of its rows waits on the kernel's compaction for each of those huge
-    pages (the 7-D rigid body's cross, 525 MB: 2.0 s with small pages against 2.4-3.3 s), so a larger
-    one is in small pages.
-    """
-    if rows * columns <= SMALL_PAGES_ABOVE:
-        return np.empty((rows, columns))
-    return small_page_array(rows, columns)
+    def keep(self, core: int, left: np.ndarray, right: np.ndarray, fibres: np.ndarray) -> None:
+        """This visit of the core, in place of its last one."""
+        self.cores.pop(core, None)
+        if fibres.size > self.capacity:
+            return
+        while self.count + fibres.size > self.capacity:
+            del self.cores[next(iter(self.cores))]  # the core visited longest ago
+        self.cores[core] = (left, right, fibres)

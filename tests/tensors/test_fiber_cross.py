@@ -112,30 +112,80 @@ def crossed(monkeypatch, memo_floats: int):
     return result, function
 
 
-def test_no_multi_index_is_evaluated_twice_and_the_train_is_the_same(monkeypatch):
-    without, plain = crossed(monkeypatch, 0)
-    result, counted = crossed(monkeypatch, MEMO_FLOATS)
-    points = counted.points
-    assert len(np.unique(points, axis=0)) == len(points) == result.evaluations
-    # the sweeps ask for many fibres again: without the memo they are evaluated again
-    assert len(plain.points) == without.evaluations > 1.3 * result.evaluations
-    assert len(np.unique(plain.points, axis=0)) == result.evaluations
+class Picks:
+    """A map over batches that records the (multi-index, output) of every value picked."""
+
+    def __init__(self):
+        self.picked: list[tuple] = []
+
+    def __call__(self, fn, items):
+        for points, outputs, groups, width in items:
+            value = fn((points, outputs, groups, width))
+            if outputs is not None:
+                self.picked += [tuple(points[g * width + j]) + (o,) for g, o in zip(groups, outputs)
+                                for j in range(width)]
+                whole = columns(points.astype(int))  # the task's values are the function's, picked
+                assert np.array_equal(value, whole[outputs[:, None], groups[:, None] * width + np.arange(width)])
+            yield value
+
+
+def picked(monkeypatch, memo_floats: int):
+    monkeypatch.setattr(fiber_cross, "MEMO_FLOATS", memo_floats)
+    picks = Picks()
+    result = vector_cross(columns, TIMES.size, (NODES.size,) * 5, 1e-10, rng=np.random.default_rng(2), map=picks)
+    assert result.converged, result.message
+    return result, picks.picked
+
+
+def test_the_memo_saves_evaluations_and_leaves_the_train_as_it_is(monkeypatch):
+    without, plain = picked(monkeypatch, 0)
+    result, values = picked(monkeypatch, MEMO_FLOATS)
     assert all(np.array_equal(a, b) for a, b in zip(result.train.cores, without.train.cores))
+    # a core's next visit takes the values of its last one from the memo: fewer values and trajectories
+    assert set(values) == set(plain) and len(values) < 0.85 * len(plain)
+    assert result.evaluations < without.evaluations
 
 
 def test_a_full_memo_starts_again_with_the_same_train(monkeypatch):
     without, _ = crossed(monkeypatch, 0)
     everything, _ = crossed(monkeypatch, MEMO_FLOATS)
-    # room for 3000 vectors: less than the cross asks for, more than any one request
-    result, counted = crossed(monkeypatch, 3000 * TIMES.size)
+    # room for 3000 values: less than the cross asks for, more than most requests
+    result, counted = crossed(monkeypatch, 3000)
     assert everything.evaluations < result.evaluations < without.evaluations
     assert len(counted.points) == result.evaluations
     assert all(np.array_equal(a, b) for a, b in zip(result.train.cores, without.train.cores))
 
 
-def test_a_large_memo_is_kept_in_small_pages(monkeypatch):
-    monkeypatch.setattr(fiber_cross, "SMALL_PAGES_ABOVE", 100 * TIMES.size)
-    result, counted = crossed(monkeypatch, MEMO_FLOATS)
-    without, _ = crossed(monkeypatch, 0)
-    assert len(counted.points) == result.evaluations
-    assert all(np.array_equal(a, b) for a, b in zip(result.train.cores, without.train.cores))
+class Recorded:
+    """A map over batches that records what each task sends back."""
+
+    def __init__(self):
+        self.floats = 0
+
+    def __call__(self, fn, items):
+        for item in items:
+            value = fn(item)
+            self.floats += value.size
+            yield value
+
+
+def test_an_interior_fibre_sends_back_only_the_values_it_uses(monkeypatch):
+    monkeypatch.setattr(fiber_cross, "MEMO_FLOATS", 0)
+    mapped = Recorded()
+    function = Counting()
+    result = vector_cross(function, TIMES.size, (NODES.size,) * 5, 1e-8, rng=np.random.default_rng(2),
+                          map=mapped)
+    plain, _ = crossed(monkeypatch, 0)
+    assert all(np.array_equal(a, b) for a, b in zip(result.train.cores, plain.train.cores))
+    # whole vectors of every point would be evaluations x M values; the picks are a few per point
+    assert mapped.floats < 0.25 * result.evaluations * TIMES.size
+
+
+def test_batches_smaller_than_one_prefix_fibres_still_meet_the_tolerance(monkeypatch):
+    monkeypatch.setattr(fiber_cross, "BATCH_FLOATS", 7 * TIMES.size)  # 7 points a task: slices of a prefix
+    picks = Picks()
+    result = vector_cross(columns, TIMES.size, (NODES.size,) * 5, 1e-8, rng=np.random.default_rng(0), map=picks)
+    assert result.converged, result.message
+    points = held_out(1)
+    difference = tt_vectors_at(result.train, points) - trajectories(points)
+    assert np.sqrt(np.mean(difference ** 2)) <= 2e-8
