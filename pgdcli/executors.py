@@ -12,8 +12,9 @@ reference's chunks of samples, the specs of a family, the partitions of a large 
 - ``workers``: how many tasks run at once.
 
 :class:`SerialExecutor` runs each task here when its result is asked for (the default: a build in
-one process, as without any executor); :class:`ProcessExecutor` in a pool of local processes (``pgd
-verify --jobs``); :class:`DaskExecutor` on the workers of a Dask cluster (a ``distributed.Client``;
+one process, as without any executor); :class:`ThreadExecutor` on threads of this process (tasks
+whose time is in code that releases the GIL, such as LAPACK's factorizations, on cores left idle:
+:func:`free_cores`); :class:`ProcessExecutor` in a pool of local processes (``pgd verify --jobs``); :class:`DaskExecutor` on the workers of a Dask cluster (a ``distributed.Client``;
 :mod:`pgdcli.cluster` opens one). The work is cut into the same tasks whatever runs them, and a task
 computes the same floats wherever it runs (one BLAS thread in the workers, as in a build here), so
 results do not depend on the executor.
@@ -43,13 +44,14 @@ import sys
 import threading
 import time
 from collections import OrderedDict, deque
-from concurrent.futures import CancelledError, Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import CancelledError, Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from typing import Callable, Iterable, Iterator
 
 from .blas import one_blas_thread
 from .errors import ClusterError
 
-__all__ = ["Executor", "SerialExecutor", "ProcessExecutor", "DaskExecutor", "current", "using", "as_executor",
+__all__ = ["Executor", "SerialExecutor", "ThreadExecutor", "ProcessExecutor", "DaskExecutor", "current", "using",
+           "as_executor", "free_cores",
            "pool_context"]
 
 #: Times a cancelled task is submitted again.
@@ -173,6 +175,41 @@ def pool_context():
     if sys.platform.startswith("linux") and "fork" in methods and threading.active_count() == 1:
         return multiprocessing.get_context("fork")
     return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+
+
+class ThreadExecutor(Executor):
+    """``threads`` threads of this process, started at the first task, for tasks whose time is in code
+    that releases the GIL (one BLAS thread each). Each task computes what it would compute alone."""
+
+    def __init__(self, threads: int) -> None:
+        super().__init__()
+        self.workers = max(1, int(threads))
+        self.description = f"{self.workers} threads"
+        self._pool = None
+
+    def submit(self, fn: Callable, *args) -> Future:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="pgdcli")
+        return self._pool.submit(fn, *args)
+
+    def close(self, wait: bool = True) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=wait, cancel_futures=True)
+            self._pool = None
+
+
+def free_cores() -> int:
+    """Cores this process may use now: those it may run on, less the other work the load average shows
+    (this process's own run counted as one), at least 1."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    try:
+        others = max(0.0, os.getloadavg()[0] - 1.0)
+    except OSError:
+        others = 0.0
+    return max(1, min(cores, int(cores - others + 0.5)))
 
 
 class ProcessExecutor(Executor):

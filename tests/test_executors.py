@@ -128,3 +128,26 @@ def test_vector_cross_through_an_executor_is_the_same_train_bit_for_bit(monkeypa
     assert executor.finished > 3 * plain.sweeps  # several batches a half sweep
     assert plain.converged and mapped.converged
     assert all(np.array_equal(a, b) for a, b in zip(plain.train.cores, mapped.train.cores))
+
+
+def test_thread_executor_runs_every_task_and_hands_out_its_failure():
+    def task(item):
+        if item == 3:
+            raise ValueError("three")
+        return item * item
+
+    with executors.ThreadExecutor(2) as threads:
+        assert list(threads.map(task, [0, 1, 2])) == [0, 1, 4]
+        outcomes = dict(threads.as_completed(task, range(5)))
+        assert sorted(outcomes) == list(range(5))
+        assert [outcomes[i].result() for i in (0, 1, 2, 4)] == [0, 1, 4, 16]
+        with pytest.raises(ValueError, match="three"):
+            outcomes[3].result()
+    assert threads._pool is None  # closed with the block
+
+
+def test_free_cores_leaves_out_the_other_work_the_load_shows(monkeypatch):
+    monkeypatch.setattr(executors.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    for load, free in ((0.2, 4), (1.0, 4), (2.0, 3), (3.6, 1), (9.0, 1)):
+        monkeypatch.setattr(executors.os, "getloadavg", lambda load=load: (load, load, load))
+        assert executors.free_cores() == free

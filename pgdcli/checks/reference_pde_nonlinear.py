@@ -21,6 +21,8 @@ the exact Cole-Hopf solution of Burgers and exact solutions of systems and 2-D p
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from dataclasses import dataclass
 from functools import partial
 from typing import Mapping
@@ -100,6 +102,7 @@ def _grids(problem, start: int | None, max_nodes: int | None) -> list[int]:
 #: rounds of the automatic resolution at the same parameter samples, and the reference is most of its time.
 CACHE_SIZE = 64
 _SOLUTIONS: dict = {}
+_SOLUTIONS_LOCK = threading.Lock()  # samples may be solved on threads (solve_reference_nonlinear_grid)
 
 
 def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
@@ -107,8 +110,9 @@ def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
     from scipy.integrate import solve_ivp
 
     key = (problem.source_text, tuple(sorted((k, float(v)) for k, v in sample.items())), n, float(t_end), rtol, atol)
-    if key in _SOLUTIONS:
-        return _SOLUTIONS[key]
+    with _SOLUTIONS_LOCK:
+        if key in _SOLUTIONS:
+            return _SOLUTIONS[key]
     model = CollocatedModel(problem, n, sample)
     t0 = float(problem.time_coordinate.domain[0])
     size = model.q * model.m
@@ -126,9 +130,10 @@ def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
     if sol.status != 0 or not np.isfinite(sol.y).all():
         raise SolverError(f"{problem.source}: the nonlinear method-of-lines reference failed at {dict(sample)} "
                           f"on {n} nodes: {sol.message}")
-    if len(_SOLUTIONS) >= CACHE_SIZE:
-        _SOLUTIONS.pop(next(iter(_SOLUTIONS)))
-    _SOLUTIONS[key] = (model, sol.sol)
+    with _SOLUTIONS_LOCK:
+        while len(_SOLUTIONS) >= CACHE_SIZE:
+            _SOLUTIONS.pop(next(iter(_SOLUTIONS)))
+        _SOLUTIONS[key] = (model, sol.sol)
     return model, sol.sol
 
 
@@ -236,21 +241,24 @@ def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], sp
     runner = executors.as_executor(executor) if executor is not None else executors.current()
     if problem.source_text and not isinstance(runner, executors.SerialExecutor):
         task = under_deadline(partial(_sample_task, problem.source_text, problem.source, times, axes))
-    else:
-        runner, task = executors.SERIAL, partial(_one_sample, problem, times=times, points=axes)
-    for done, (i, outcome) in enumerate(runner.as_completed(task, samples), 1):
-        try:
-            found, message = outcome.result()
-        except ReferenceTimeUp:  # the samples after it stop at once too
-            found, message = None, TIME_UP
-        messages[i] = message
-        if found is not None:
-            success[i] = True
-            nodes = max(nodes, found.nodes)
-            for u in names:
-                values[u][i] = found.values[u][0]
-        if progress is not None:
-            progress(done)
+    else:  # here, on the cores left idle: Radau's time is in LAPACK, which releases the GIL
+        threads = min(S, executors.free_cores())
+        runner = executors.ThreadExecutor(threads) if threads > 1 else executors.SERIAL
+        task = partial(_one_sample, problem, times=times, points=axes)
+    with runner if isinstance(runner, executors.ThreadExecutor) else contextlib.nullcontext():  # threads started here
+        for done, (i, outcome) in enumerate(runner.as_completed(task, samples), 1):
+            try:
+                found, message = outcome.result()
+            except ReferenceTimeUp:  # the samples after it stop at once too
+                found, message = None, TIME_UP
+            messages[i] = message
+            if found is not None:
+                success[i] = True
+                nodes = max(nodes, found.nodes)
+                for u in names:
+                    values[u][i] = found.values[u][0]
+            if progress is not None:
+                progress(done)
     _, _, rtol = space_tolerances(problem)
     return PdeReferenceResult(values=values, success=success, messages=messages, space=space,
                               space_points=dict(zip(space, axes)), nodes={x: nodes for x in space}, method="Radau",

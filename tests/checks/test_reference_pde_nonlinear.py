@@ -124,3 +124,28 @@ def test_three_space_coordinates_are_refused():
     problem = parse_spec(text.replace("der(u, y, 2))", "der(u, y, 2) + der(u, z, 2))"), source="b3.yaml")
     with pytest.raises(SolverError, match="takes one or two space coordinates, got 3"):
         solve_reference_nonlinear_pde(problem, {}, np.array([0.5]), np.array([[0.5, 0.5, 0.5]]))
+
+
+def test_samples_on_threads_are_the_samples_one_after_another(monkeypatch):
+    from pgdcli import executors
+    from pgdcli.checks import reference_pde_nonlinear
+    from pgdcli.checks.reference_pde_nonlinear import solve_reference_nonlinear_grid
+
+    problem = parse_spec(FISHER_UNIFORM, source="uniform.yaml")
+    params, times = {"r": np.array([1.0, 5.0, 2.7]), "c": np.array([0.1, 0.9, 0.4])}, np.linspace(0, 2, 5)
+    points = {"x": np.linspace(0, 1, 9)}
+    started, submit = [], executors.ThreadExecutor.submit
+
+    def recorded(self, fn, *args):
+        started.append(self.workers)
+        return submit(self, fn, *args)
+
+    monkeypatch.setattr(executors.ThreadExecutor, "submit", recorded)
+    found = {}
+    for cores in (1, 2):
+        reference_pde_nonlinear._SOLUTIONS.clear()  # solved again, not read from the cache
+        monkeypatch.setattr(executors, "free_cores", lambda: cores)
+        found[cores] = solve_reference_nonlinear_grid(problem, params, points, times)
+        assert found[cores].success.all()
+    assert started == [2] * 3  # two cores: the three samples went to the threads
+    assert np.array_equal(found[1].values["u"], found[2].values["u"])
