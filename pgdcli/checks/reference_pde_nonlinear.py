@@ -241,8 +241,8 @@ def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], sp
     runner = executors.as_executor(executor) if executor is not None else executors.current()
     if problem.source_text and not isinstance(runner, executors.SerialExecutor):
         task = under_deadline(partial(_sample_task, problem.source_text, problem.source, times, axes))
-    else:  # here, on the cores left idle: Radau's time is in LAPACK, which releases the GIL
-        threads = min(S, executors.free_cores())
+    else:  # here; two space coordinates on the cores left idle: Radau's LU of their grids releases the GIL
+        threads = min(S, executors.free_cores()) if len(space) >= 2 else 1  # 1-D: its Python steps hold it
         runner = executors.ThreadExecutor(threads) if threads > 1 else executors.SERIAL
         task = partial(_one_sample, problem, times=times, points=axes)
     with runner if isinstance(runner, executors.ThreadExecutor) else contextlib.nullcontext():  # threads started here

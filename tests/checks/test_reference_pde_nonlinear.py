@@ -131,9 +131,9 @@ def test_samples_on_threads_are_the_samples_one_after_another(monkeypatch):
     from pgdcli.checks import reference_pde_nonlinear
     from pgdcli.checks.reference_pde_nonlinear import solve_reference_nonlinear_grid
 
-    problem = parse_spec(FISHER_UNIFORM, source="uniform.yaml")
-    params, times = {"r": np.array([1.0, 5.0, 2.7]), "c": np.array([0.1, 0.9, 0.4])}, np.linspace(0, 2, 5)
-    points = {"x": np.linspace(0, 1, 9)}
+    problem = parse_spec(manufactured_rd.PLANE, source="plane.yaml")  # two space coordinates
+    params, times = {"c": np.array([0.05, 0.1, 0.08])}, np.array([0.0, 0.4, 1.0])
+    points = {"x": np.linspace(0, 1, 5), "y": np.linspace(0, 1, 4)}
     started, submit = [], executors.ThreadExecutor.submit
 
     def recorded(self, fn, *args):
@@ -149,3 +149,8 @@ def test_samples_on_threads_are_the_samples_one_after_another(monkeypatch):
         assert found[cores].success.all()
     assert started == [2] * 3  # two cores: the three samples went to the threads
     assert np.array_equal(found[1].values["u"], found[2].values["u"])
+    started.clear()
+    fisher = parse_spec(FISHER_UNIFORM, source="uniform.yaml")  # one space coordinate: its small grids stay here
+    solve_reference_nonlinear_grid(fisher, {"r": np.array([1.0, 5.0]), "c": np.array([0.1, 0.9])},
+                                   {"x": np.linspace(0, 1, 9)}, np.linspace(0, 2, 5))
+    assert started == []
