@@ -14,7 +14,8 @@ reference's chunks of samples, the specs of a family, the partitions of a large 
 :class:`SerialExecutor` runs each task here when its result is asked for (the default: a build in
 one process, as without any executor); :class:`ThreadExecutor` on threads of this process (tasks
 whose time is in code that releases the GIL, such as LAPACK's factorizations, on cores left idle:
-:func:`free_cores`); :class:`ProcessExecutor` in a pool of local processes (``pgd verify --jobs``); :class:`DaskExecutor` on the workers of a Dask cluster (a ``distributed.Client``;
+:func:`free_cores`); :class:`ProcessExecutor` in a pool of local processes (``pgd verify
+--jobs``); :class:`DaskExecutor` on the workers of a Dask cluster (a ``distributed.Client``;
 :mod:`pgdcli.cluster` opens one). The work is cut into the same tasks whatever runs them, and a task
 computes the same floats wherever it runs (one BLAS thread in the workers, as in a build here), so
 results do not depend on the executor.
@@ -51,8 +52,7 @@ from .blas import one_blas_thread
 from .errors import ClusterError
 
 __all__ = ["Executor", "SerialExecutor", "ThreadExecutor", "ProcessExecutor", "DaskExecutor", "current", "using",
-           "as_executor", "free_cores",
-           "pool_context"]
+           "as_executor", "free_cores", "pool_context"]
 
 #: Times a cancelled task is submitted again.
 RESUBMITS = 3
@@ -177,25 +177,33 @@ def pool_context():
     return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
 
 
-class ThreadExecutor(Executor):
-    """``threads`` threads of this process, started at the first task, for tasks whose time is in code
-    that releases the GIL (one BLAS thread each). Each task computes what it would compute alone."""
+class _Pooled(Executor):
+    """An executor over a :mod:`concurrent.futures` pool of ``workers``, ``start()`` at the first task."""
 
-    def __init__(self, threads: int) -> None:
+    def __init__(self, workers: int, description: str, start: Callable) -> None:
         super().__init__()
-        self.workers = max(1, int(threads))
-        self.description = f"{self.workers} threads"
+        self.workers, self.description, self._start = workers, description, start
         self._pool = None
 
     def submit(self, fn: Callable, *args) -> Future:
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="pgdcli")
+            self._pool = self._start()
         return self._pool.submit(fn, *args)
 
     def close(self, wait: bool = True) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=wait, cancel_futures=True)
             self._pool = None
+
+
+class ThreadExecutor(_Pooled):
+    """``threads`` threads of this process, for tasks whose time is in code that releases the GIL (one
+    BLAS thread each). Each task computes what it would compute alone."""
+
+    def __init__(self, threads: int) -> None:
+        workers = max(1, int(threads))
+        super().__init__(workers, f"{workers} threads",
+                         lambda: ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pgdcli"))
 
 
 def free_cores() -> int:
@@ -212,25 +220,17 @@ def free_cores() -> int:
     return max(1, min(cores, int(cores - others + 0.5)))
 
 
-class ProcessExecutor(Executor):
+class ProcessExecutor(_Pooled):
     """A pool of ``jobs`` local worker processes, started at the first task (``fn`` and the items are
     pickled: module-level functions and plain data)."""
 
     def __init__(self, jobs: int | None = None) -> None:
-        super().__init__()
-        self.workers = max(1, int(jobs or os.cpu_count() or 1))
-        self.description = f"{self.workers} local processes"
-        self._pool = None
+        workers = max(1, int(jobs or os.cpu_count() or 1))
+        super().__init__(workers, f"{workers} local processes",
+                         lambda: ProcessPoolExecutor(max_workers=workers, mp_context=pool_context()))
 
     def submit(self, fn: Callable, *args) -> Future:
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=pool_context())
-        return self._pool.submit(_one_blas_thread, fn, *args)
-
-    def close(self, wait: bool = True) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=wait, cancel_futures=True)
-            self._pool = None
+        return super().submit(_one_blas_thread, fn, *args)
 
 
 _WORKER_READY = False

@@ -136,6 +136,7 @@ def test_thread_executor_runs_every_task_and_hands_out_its_failure():
             raise ValueError("three")
         return item * item
 
+    running = threading.active_count()
     with executors.ThreadExecutor(2) as threads:
         assert list(threads.map(task, [0, 1, 2])) == [0, 1, 4]
         outcomes = dict(threads.as_completed(task, range(5)))
@@ -143,7 +144,7 @@ def test_thread_executor_runs_every_task_and_hands_out_its_failure():
         assert [outcomes[i].result() for i in (0, 1, 2, 4)] == [0, 1, 4, 16]
         with pytest.raises(ValueError, match="three"):
             outcomes[3].result()
-    assert threads._pool is None  # closed with the block
+    assert threading.active_count() == running  # its threads ended with the block
 
 
 def test_free_cores_leaves_out_the_other_work_the_load_shows(monkeypatch):
