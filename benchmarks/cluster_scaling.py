@@ -130,7 +130,7 @@ def rounds(calls: list[int], workers: int) -> int:
 
 
 def table(name: str, runs: dict, here_key: str, lines: list[str]) -> None:
-    lines += [f"### {name}", "", "| configuration | wall s | distributed s | serial s | tasks | results GB | vs here |",
+    lines += [f"### {name}", "", "| configuration | wall s | distributed s | serial s | batches | results GB | vs here |",
               "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     here = median(runs[here_key], "wall")
     for label, found in runs.items():
@@ -143,10 +143,11 @@ def table(name: str, runs: dict, here_key: str, lines: list[str]) -> None:
     # each call's tasks spread over N workers; e: the efficiency measured from 1 to 2 workers
     efficiency = min(1.0, d1 * rounds(calls, 2) / (d2 * rounds(calls, 1)))
     lines += ["", f"Distributed part, 1 -> 2 workers: {d1:.1f} s -> {d2:.1f} s, **{d1 / d2:.2f}x**; serial part "
-                  f"{serial:.1f} s. The tasks come in {len(calls)} calls of {min(calls)} to {max(calls)} tasks "
-                  f"(median {statistics.median(calls):.0f}): a worker beyond a call's tasks waits.", "",
+                  f"{serial:.1f} s. The batches come in {len(calls)} calls of {min(calls)} to {max(calls)} "
+                  f"(median {statistics.median(calls):.0f}); on the cluster a call's batches go out as runs of "
+                  f"consecutive batches, two tasks a worker at most: a worker beyond a call's batches waits.", "",
               "Cost model T(N) = S + D(1) rounds(N) / (rounds(1) e), rounds(N) = the sum over the calls of "
-              f"ceil(tasks / N), e = {efficiency:.2f} measured from 1 to 2 workers:", "",
+              f"ceil(batches / N), e = {efficiency:.2f} measured from 1 to 2 workers:", "",
               "| workers | predicted wall s | vs here |", "| ---: | ---: | ---: |"]
     for n in (1, 2, 4, 8, 16, 64, 256):
         wall = serial + d1 * rounds(calls, n) / rounds(calls, 1) / (efficiency if n > 1 else 1.0)

@@ -12,7 +12,7 @@ import logging
 
 import pgdcli  # its __version__ read at call time (a test may stand in another)
 from .errors import ClusterError
-from .executors import DaskExecutor
+from .dask_executor import DaskExecutor
 
 __all__ = ["connect", "local_cluster", "CONNECT_TIMEOUT"]
 

@@ -43,8 +43,11 @@ LEAVES = {
     "progress": (),  # the typed progress events of a solve
     "blas": (),  # BLAS on one thread while a block of work runs: the one limiter
     "tuning": ("pgdcli.errors",),  # the machine-specific tuning constants and their environment overrides
-    "executors": ("pgdcli.errors", "pgdcli.blas", "pgdcli.pages"),  # where independent tasks run: here, a pool, a Dask cluster
-    "cluster": ("pgdcli.errors", "pgdcli.executors"),  # opening a Dask cluster
+    "executor_base": ("pgdcli.blas", "pgdcli.pages"),  # the executor interface; a task in a worker
+    "dask_executor": ("pgdcli.errors", "pgdcli.executor_base"),  # tasks on a Dask cluster
+    # where independent tasks run: here, a pool, a Dask cluster
+    "executors": ("pgdcli.executor_base", "pgdcli.dask_executor"),
+    "cluster": ("pgdcli.errors", "pgdcli.dask_executor"),  # opening a Dask cluster
 }
 
 

@@ -105,7 +105,7 @@ def test_a_cross_march_build_on_the_cluster_is_the_local_codebook_bit_for_bit(cl
     sent, scatter = [], cluster.scatter
 
     def counted(data, **kw):
-        sent.append(type(data[0]).__name__)
+        sent.append(type(data[0].fn).__name__)  # a run of items of the function
         return scatter(data, **kw)
 
     monkeypatch.setattr(cluster, "scatter", counted)
@@ -129,6 +129,27 @@ def _page_faults_of_freed_arrays(_) -> int:
 
 
 @pytest.mark.skipif(not pgdcli.pages.reuse_freed_memory(), reason="not glibc's allocator")
+def test_a_map_on_the_cluster_sends_runs_of_items_in_order(cluster, monkeypatch):
+    executor = executors.as_executor(cluster)
+    submitted, submit = [], cluster.submit
+    monkeypatch.setattr(cluster, "submit", lambda fn, *a, **kw: submitted.append((a[-1], kw)) or submit(fn, *a, **kw))
+    assert list(executor.map(np.square, range(11))) == [i * i for i in range(11)]
+    assert executor.finished == 11  # counted as items
+    # two tasks a worker, of consecutive items: the scheduler pays per task
+    assert [list(run) for run, _ in submitted] == [[0, 1], [2, 3, 4], [5, 6, 7], [8, 9, 10]]
+    # named after the work, distinct: the scheduler's duration estimates and the dashboard go by name
+    keys = [kw["key"] for _, kw in submitted]
+    assert all(key.startswith("pgdcli-square-") for key in keys) and len(set(keys)) == 4
+    # dealt to the workers in turn (each may still go elsewhere: a worker may have left)
+    first, second = sorted(cluster.nthreads())
+    assert [kw["workers"] for _, kw in submitted] == [[first], [second]] * 2
+    assert all(kw["allow_other_workers"] for _, kw in submitted)
+    submitted.clear()  # an iterator's items one a task, taken as they are needed (a file read as it goes)
+    assert list(executor.map(np.square, iter(range(5)))) == [i * i for i in range(5)]
+    assert [run for run, _ in submitted] == list(range(5))
+    assert list(executor.map(np.square, [])) == [] and list(executor.map(np.negative, [3])) == [-3]
+
+
 def test_a_task_on_a_worker_reuses_freed_memory(cluster):
     # Dask starts its workers with MALLOC_TRIM_THRESHOLD_ set: without pgdcli's setting every array
     # above 128 KiB would be a fresh mapping, its 256 pages faulted in again at each of the 100 rounds
@@ -226,11 +247,15 @@ def test_a_cluster_restarted_mid_build_gives_the_same_codebook(cluster, small_ba
     resubmitted, resubmit = [], executor._resubmitted
     monkeypatch.setattr(executor, "_resubmitted", lambda *a: resubmitted.append(a) or resubmit(*a))
 
-    def restart_at_the_10th(finished):  # called as the 10th result is taken, tasks in flight behind it
-        if finished == 10:
-            cluster.restart(timeout=300)  # every task in flight cancelled, the scattered schedule lost
+    taken, take = [], executor._result
 
-    executor.progress = restart_at_the_10th
+    def restart_at_the_10th(fn, item, future):  # the 10th task's result about to be taken: it is in flight
+        taken.append(item)
+        if len(taken) == 10:
+            cluster.restart(timeout=300)  # every task in flight cancelled, the scattered schedule lost
+        return take(fn, item, future)
+
+    monkeypatch.setattr(executor, "_result", restart_at_the_10th)
     result = pgdcli.solve(parse_spec(CROSS, source="predator_prey4.yaml"), executor=executor)
     assert resubmitted and executor.finished > 10 + 10  # restarted mid-build: tasks cancelled and sent again
     assert result.converged, result.message

@@ -310,9 +310,8 @@ class _VectorCross:
         spans = [(u, min(u + step, len(prefixes)), j, min(j + width, len(tail)))
                  for u in range(0, len(prefixes), step) for j in range(0, len(tail), width)]
         prefixes, tail = prefixes.astype(self.index), tail.astype(self.index)
-        items = ((np.hstack([np.repeat(prefixes[u0:u1], j1 - j0, axis=0), np.tile(tail[j0:j1], (u1 - u0, 1))]),
-                  left[order[starts[u0]:starts[u1]], 0], group[order[starts[u0]:starts[u1]]] - u0, j1 - j0)
-                 for u0, u1, j0, j1 in spans)
+        items = [(prefixes[u0:u1], tail[j0:j1], left[order[starts[u0]:starts[u1]], 0],
+                  group[order[starts[u0]:starts[u1]]] - u0) for u0, u1, j0, j1 in spans]  # a list: sent in runs
         out = np.empty((len(left), len(tail)))
         for (u0, u1, j0, j1), values in zip(spans, self.map(self.picker, items)):
             out[order[starts[u0]:starts[u1]], j0:j1] = values
@@ -327,7 +326,7 @@ class _VectorCross:
     def _evaluate(self, points: np.ndarray) -> np.ndarray:
         """All M values at the points, shape (M, P), in calls of at most :data:`BATCH_FLOATS` values."""
         self.evaluations += len(points)
-        batches = ((batch, None, None, None) for batch in _batches(points.astype(self.index), self._batch))
+        batches = [(batch, None, None, None) for batch in _batches(points.astype(self.index), self._batch)]
         return np.concatenate(list(self.map(self.picker, batches)), axis=1)
 
     def _check(self, train: TT, count: int) -> tuple[float, float]:
@@ -359,20 +358,29 @@ def _batches(points: np.ndarray, batch: int):
     return (points[s:s + batch] for s in range(0, len(points), batch))
 
 
+def batch_points(prefixes: np.ndarray, tail: np.ndarray | None) -> np.ndarray:
+    """The points of a batch: each of the prefixes (U, a) followed by each of the J tails (J, b) in turn,
+    shape (U J, a + b); ``prefixes`` themselves when ``tail`` is None."""
+    if tail is None:
+        return prefixes
+    return np.hstack([np.repeat(prefixes, len(tail), axis=0), np.tile(tail, (len(prefixes), 1))])
+
+
 class _Picked:
-    """The task of a batch: ``F(points)`` whole (``outputs`` None), else its values (A, J) at outputs
-    ``outputs`` (A,) of the J points of prefix ``groups`` (A,), the batch's points being its prefixes'
-    J points each in turn. One per cross, so an executor sends ``F`` once."""
+    """The task of a batch ``(prefixes, tail, outputs, groups)``: ``F`` at its points
+    (:func:`batch_points`), whole (``outputs`` None), else its values (A, J) at outputs ``outputs`` (A,)
+    of the J points of prefix ``groups`` (A,). A task forms its points itself: a batch travels as its
+    prefixes and tails, not their product. One per cross, so an executor sends ``F`` once."""
 
     def __init__(self, function: Callable[[np.ndarray], np.ndarray]):
         self.function = function
 
     def __call__(self, item: tuple) -> np.ndarray:
-        points, outputs, groups, width = item
-        values = self.function(points.astype(np.intp))  # sent in the smallest integers that fit
+        prefixes, tail, outputs, groups = item
+        values = self.function(batch_points(prefixes, tail).astype(np.intp))  # sent in the smallest integers
         if outputs is None:
             return values
-        return values.reshape(values.shape[0], -1, width)[outputs, groups]
+        return values.reshape(values.shape[0], -1, len(tail))[outputs, groups]
 
 
 class _Memo:

@@ -119,9 +119,11 @@ class Picks:
         self.picked: list[tuple] = []
 
     def __call__(self, fn, items):
-        for points, outputs, groups, width in items:
-            value = fn((points, outputs, groups, width))
+        for prefixes, tail, outputs, groups in items:
+            value = fn((prefixes, tail, outputs, groups))
+            points = fiber_cross.batch_points(prefixes, tail)
             if outputs is not None:
+                width = len(tail)
                 self.picked += [tuple(points[g * width + j]) + (o,) for g, o in zip(groups, outputs)
                                 for j in range(width)]
                 whole = columns(points.astype(int))  # the task's values are the function's, picked
