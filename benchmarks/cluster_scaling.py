@@ -129,7 +129,7 @@ def rounds(calls: list[int], workers: int) -> int:
     return sum(-(-k // workers) for k in calls)
 
 
-def table(name: str, runs: dict, here_key: str, lines: list[str]) -> None:
+def table(name: str, runs: dict, here_key: str, lines: list[str], in_runs: bool) -> None:
     lines += [f"### {name}", "", "| configuration | wall s | distributed s | serial s | batches | results GB | vs here |",
               "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     here = median(runs[here_key], "wall")
@@ -144,8 +144,10 @@ def table(name: str, runs: dict, here_key: str, lines: list[str]) -> None:
     efficiency = min(1.0, d1 * rounds(calls, 2) / (d2 * rounds(calls, 1)))
     lines += ["", f"Distributed part, 1 -> 2 workers: {d1:.1f} s -> {d2:.1f} s, **{d1 / d2:.2f}x**; serial part "
                   f"{serial:.1f} s. The batches come in {len(calls)} calls of {min(calls)} to {max(calls)} "
-                  f"(median {statistics.median(calls):.0f}); on the cluster a call's batches go out as runs of "
-                  f"consecutive batches, two tasks a worker at most: a worker beyond a call's batches waits.", "",
+                  f"(median {statistics.median(calls):.0f}); on the cluster "
+                  + ("a call's batches go out as runs of consecutive batches, two tasks a worker at most"
+                     if in_runs else "each batch is one task")
+                  + ": a worker beyond a call's batches waits.", "",
               "Cost model T(N) = S + D(1) rounds(N) / (rounds(1) e), rounds(N) = the sum over the calls of "
               f"ceil(batches / N), e = {efficiency:.2f} measured from 1 to 2 workers:", "",
               "| workers | predicted wall s | vs here |", "| ---: | ---: | ---: |"]
@@ -261,9 +263,9 @@ def main() -> None:
     lines = header(args, facts, started)
     result = builds["here"][0]["value"]
     table(f"Build of {problem.name} ({len(problem.coordinates)} coordinates, "
-          f"{result.codebook.report.get('cross_trajectories', 0):,} trajectories)", builds, "here", lines)
+          f"{result.codebook.report.get('cross_trajectories', 0):,} trajectories)", builds, "here", lines, in_runs=True)
     table(f"pgd verify at {args.points:,} parameter points x {len(here_check.times)} times "
-          f"(max error {checks['dask 2'][0]['error']:.2e})", checks, "here, 1 process", lines)
+          f"(max error {checks['dask 2'][0]['error']:.2e})", checks, "here, 1 process", lines, in_runs=False)
     if args.chain:
         lines += chain_lines(executors.as_executor(clusters["dask 2"][1]))
     for local, client in clusters.values():
