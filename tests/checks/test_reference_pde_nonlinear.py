@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from pgdcli.checks.reference import solve_reference_pde
-from pgdcli.checks.reference_pde_nonlinear import solve_reference_nonlinear_pde
+from pgdcli.checks.reference_pde_nonlinear import (GEOMETRIC_RATIO, PREDICTION_SAFETY, grid_error_estimate,
+                                                  solve_reference_nonlinear_pde)
 from pgdcli.errors import SolverError
 from pgdcli.problem.spec import load_spec, parse_spec
 
@@ -51,6 +52,31 @@ def test_burgers_against_cole_hopf(nu):
     error = np.abs(ref.values["u"][0] - cole_hopf(nu, t, x)).max()
     assert error < 1e-9
     assert ref.error_estimate < 1e-9
+
+
+def test_a_geometric_fall_predicts_the_next_difference():
+    assert grid_error_estimate([3e-4]) == 3e-4  # one difference: itself
+    assert grid_error_estimate([1e-3, 1e-4]) == 1e-4  # a slow fall: the last difference
+    ratio = GEOMETRIC_RATIO / 10
+    predicted = PREDICTION_SAFETY * 1e-6 * ratio
+    assert grid_error_estimate([1e-6 / ratio, 1e-6]) == pytest.approx(predicted)
+    assert grid_error_estimate([1e-6 / ratio, 1e-6], floor=1e-7) == 1e-7  # the time integration's error stays
+    assert grid_error_estimate([1e-6 / ratio, 1e-6], floor=1e-5) == 1e-6  # never above the last difference
+    assert grid_error_estimate([0.0, 0.0]) == 0.0
+
+
+def test_a_predicted_error_bounds_the_next_grids_difference():
+    """Burgers at nu = 0.01: 33 -> 65 -> 129 nodes fall spectrally, so 129 nodes are the last solved; the
+    257-node solve the prediction saved differs from them by less than the estimate, and so does the exact
+    solution."""
+    problem = load_spec(BURGERS)
+    x = np.random.default_rng(8).uniform(0, 1, 40)
+    t = np.linspace(0.05, 0.5, 6)
+    ref = solve_reference_nonlinear_pde(problem, {"nu": np.array([0.01])}, t, x)
+    assert ref.nodes == 129 and ref.error_estimate < 1e-9
+    finer = solve_reference_nonlinear_pde(problem, {"nu": np.array([0.01])}, t, x, start_nodes=257, max_nodes=257)
+    assert np.abs(finer.values["u"] - ref.values["u"]).max() <= ref.error_estimate  # measured 4e-12 < 1e-10
+    assert np.abs(ref.values["u"][0] - cole_hopf(0.01, t, x)).max() <= ref.error_estimate
 
 
 FISHER_UNIFORM = """

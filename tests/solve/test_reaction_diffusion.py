@@ -56,7 +56,7 @@ def worst_errors(problem, cb, seed: int = 32) -> dict:
     times = np.concatenate([np.sort(rng.uniform(*t.domain, 5)), t.domain])
     points = _space_points(space, rng)
     tolerance = problem.solver.tolerance
-    # grids agreeing to a thousandth of the tolerance (the default)
+    # an error estimate within a thousandth of the tolerance (the default)
     ref = solve_reference_nonlinear_pde(problem, {c.name: samples[:, k] for k, c in enumerate(params)}, times,
                                         points if len(space) > 1 else points[:, 0])
     assert ref.error_estimate < 1e-2 * tolerance
