@@ -111,7 +111,7 @@ class CodebookAnalysis:
         for c, a in zip(others, arrays):
             k = self._names.index(c.name)
             mats[k] = self._bases[k].interpolation_matrix(self._checked(c, a.reshape(-1)))
-        rows = self._bases[j].interpolation_matrix(self._checked(self.coordinates[j], values.reshape(-1)))
+        rows = self._bases[j].series_rows(self._checked(self.coordinates[j], values.reshape(-1)))
         return evaluate_series(self.fields, mats, j, rows, selected)
 
     def gradient(self, coordinates: Mapping[str, object], wrt: Sequence[str] | None = None,

@@ -29,7 +29,7 @@ from .threads import batch_blas
 __all__ = ["evaluate_series", "series_tt", "series_cp"]
 
 
-def evaluate_series(fields, mats: list, series: int, rows: np.ndarray, selected: Sequence[str]) -> dict:
+def evaluate_series(fields, mats: list, series: int, rows, selected: Sequence[str]) -> dict:
     """The ``selected`` unknowns of ``fields`` at parameter points times series values, each (S, T),
     under the batches' BLAS policy (:func:`~pgdcli.codebook.threads.batch_blas`: threaded BLAS
     makes these small products many times slower on a loaded machine). ``mats``, ``series`` and
@@ -40,7 +40,7 @@ def evaluate_series(fields, mats: list, series: int, rows: np.ndarray, selected:
                 series_cp(fields[u].weights, fields[u].factors, mats, series, rows) for u in selected}
 
 
-def series_tt(fm: TT, mats: list, series: int, rows: np.ndarray) -> np.ndarray:
+def series_tt(fm: TT, mats: list, series: int, rows) -> np.ndarray:
     """Tensor train at parameter points times series values: shape (S, T).
 
     Parameters
@@ -51,8 +51,9 @@ def series_tt(fm: TT, mats: list, series: int, rows: np.ndarray) -> np.ndarray:
         the entry of the series coordinate is not read.
     series : int
         Index of the series coordinate.
-    rows : ndarray
-        Cardinal rows of the series values, shape (T, nodes of the series coordinate).
+    rows : ndarray or SlabRows
+        Cardinal rows of the series values, shape (T, nodes of the series coordinate): dense, or a march's
+        time rows (:meth:`~pgdcli.discretization.basis.Basis1D.series_rows`).
     """
     cores, order = fm.cores, list(fm.mode_order)
     k = order.index(series)
@@ -81,11 +82,11 @@ def series_tt(fm: TT, mats: list, series: int, rows: np.ndarray) -> np.ndarray:
     else:
         partial = (right @ cores[k].transpose(2, 0, 1).reshape(r1, r0 * n)).reshape(points, r0, n)
         nodal = np.matmul(left[:, None, :], partial)[:, 0, :]
-    return nodal @ rows.T
+    return nodal @ rows.T if isinstance(rows, np.ndarray) else rows.apply(nodal.T).T
 
 
 def series_cp(weights: np.ndarray, modes: Sequence[np.ndarray], mats: list, series: int,
-              rows: np.ndarray) -> np.ndarray:
+              rows) -> np.ndarray:
     """CP field ``sum_r weights_r prod_j modes_j[:, r]`` at parameter points times series values: (S, T).
 
     ``mats``, ``series`` and ``rows`` as in :func:`series_tt`.
@@ -95,4 +96,10 @@ def series_cp(weights: np.ndarray, modes: Sequence[np.ndarray], mats: list, seri
     for j, (m, v) in enumerate(zip(mats, modes)):
         if j != series:
             product *= m @ v  # (S, rank)
-    return product @ (rows @ modes[series]).T
+    return product @ _at_series(rows, modes[series]).T
+
+
+def _at_series(rows, values: np.ndarray) -> np.ndarray:
+    """``rows`` (T, n) times ``values`` (n, k): a dense matrix's product, or the few nonzeros of each row of a
+    :class:`~pgdcli.discretization.basis.SlabRows` (a march's time basis)."""
+    return rows @ values if isinstance(rows, np.ndarray) else rows.apply(values)

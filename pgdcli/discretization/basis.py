@@ -37,6 +37,7 @@ __all__ = [
     "ChebyshevBasis",
     "PiecewiseChebyshevBasis",
     "LinearBasis",
+    "SlabRows",
     "make_basis",
     "chebyshev_unit_nodes",
     "barycentric_columns",
@@ -107,6 +108,12 @@ class Basis1D:
         values = np.asarray(values, dtype=float)
         matrix = self.interpolation_matrix(np.atleast_1d(np.asarray(x, dtype=float)))
         return np.tensordot(matrix, values, axes=(1, 0))
+
+    def series_rows(self, x) -> "np.ndarray | SlabRows":
+        """The rows of :meth:`interpolation_matrix` at ``x`` (shape (p,)) in the form cheapest to apply to
+        nodal values of every point of a series: the dense (p, n) matrix here, :class:`SlabRows` where each
+        row has a few nonzeros among many nodes."""
+        return self.interpolation_matrix(x)
 
     # -- time discretization of  c(t) u'(t)  and  c(t) u(t)  (n - 1 test equations) --
     def time_stiffness(self, c) -> np.ndarray:
@@ -345,16 +352,51 @@ class PiecewiseChebyshevBasis(Basis1D):
         Each point's slab only: a march's time basis has a slab per step (~1e4-1e5 nodes), where
         the (p, n) matrix of :meth:`interpolation_matrix` would take gigabytes.
         """
-        values = np.asarray(values, dtype=float)
+        return self.series_rows(x).apply(values)
+
+    def series_rows(self, x) -> "SlabRows":
+        """Each point's row on its slab's nodes only (:class:`SlabRows`): a series of a march's ~1e4 time
+        nodes at as many times is gigabytes as a dense (p, n) matrix, and most of its product zeros."""
         x = np.atleast_1d(np.asarray(x, dtype=float)).reshape(-1)
         idx = (self.slab_of(x) * (self.slab_size - 1))[:, None] + np.arange(self.slab_size)
-        rows = barycentric_rows(x, self.nodes[idx], self.bary)  # (p, m)
-        return np.einsum("pm,pm...->p...", rows, values[idx])
+        return SlabRows(idx, barycentric_rows(x, self.nodes[idx], self.bary), self.nodes.size)
 
     time_stiffness = ChebyshevBasis.time_stiffness
     time_mass = ChebyshevBasis.time_mass
     time_load = ChebyshevBasis.time_load
     time_weights = ChebyshevBasis.time_weights
+
+
+@dataclass(frozen=True)
+class SlabRows:
+    """Interpolation rows with ``m`` nonzeros each, among ``size`` nodes: row ``i`` is ``weights[i]`` at the
+    nodes ``index[i]``.
+
+    Attributes
+    ----------
+    index : ndarray of int, shape (p, m)
+    weights : ndarray, shape (p, m)
+    size : int
+    """
+
+    index: np.ndarray
+    weights: np.ndarray
+    size: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.index.shape[0], self.size)
+
+    def apply(self, values) -> np.ndarray:
+        """The rows times nodal ``values`` (shape (size, ...)): shape (p, ...)."""
+        values = np.asarray(values, dtype=float)
+        return np.einsum("pm,pm...->p...", self.weights, values[self.index])
+
+    def toarray(self) -> np.ndarray:
+        """The dense (p, size) matrix."""
+        out = np.zeros((self.index.shape[0], self.size))
+        out[np.arange(self.index.shape[0])[:, None], self.index] = self.weights
+        return out
 
 
 def make_basis(kind: str, domain, size: int, breakpoints=None) -> Basis1D:
