@@ -8,6 +8,7 @@ names. Never written silently wrong. Slow (each is one to a few minutes): marked
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,8 @@ RHS = {
     "forced_aux": (lambda t, y, p: [y[1], -y[0] - 0.2 * y[1] + np.sin(p["w"] * t), 0.0, 0.0],
                    lambda p: [0.0, 0.0, 0.0, 1.0]),
     "damped4": (lambda t, y, p: [y[1], -p["k"] * y[0] - p["c"] * y[1]], lambda p: [p["x0"], p["v0"]]),
+    "kuramoto": (lambda t, y, p: [w + p["K"] / 3 * sum(np.sin(y[j] - y[i]) for j in range(3) if j != i)
+                                  for i, w in enumerate((1.0, 1.5, 2.0))], lambda p: [0.0, 1.0, 2.0]),
 }
 
 
@@ -78,6 +81,22 @@ def test_accurate_or_honestly_refused(name):
     true = _error_at(name, cb, t, where)
     assert true == pytest.approx(rep["check_error"], rel=1e-3)  # the message's error is the true one
     assert true > tol
+
+
+@pytest.mark.slow
+def test_a_refusal_names_the_node_cap_that_then_meets_the_tolerance():
+    """Kuramoto: the phase locking across K needs more nodes than the default cap; the refusal predicts
+    the ``solver.max_nodes`` that meets the tolerance, and a build with it does, at 300 random points."""
+    text = (HERE / "kuramoto.yaml").read_text()
+    first = pgdcli.solve(pgdcli.parse_spec(text, source="kuramoto.yaml"))
+    assert first.status == INACCURATE
+    hint = re.search(r"solver\.max_nodes: (\d+) is predicted to meet it", first.message)
+    assert hint, first.message
+    result = pgdcli.solve(pgdcli.parse_spec(text + f"  max_nodes: {hint.group(1)}\n", source="kuramoto.yaml"))
+    assert result.accurate, result.message
+    cb, rng = result.codebook, np.random.default_rng(12)
+    worst = max(_error_at("kuramoto", cb, rng.uniform(0.0, 10.0), {"K": rng.uniform(0.0, 2.0)}) for _ in range(300))
+    assert worst <= 1e-6, worst
 
 
 def _seirs(t, y, p):
