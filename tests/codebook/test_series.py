@@ -41,7 +41,16 @@ def _books() -> dict[str, Codebook]:
         "CP only": Codebook(coords, {"p": cp}),
         "linear time": Codebook([b, a, c], {"u": _random_tt(rng, [b, a, c], [7, 5], [0, 1, 2])}),
         "one coordinate": Codebook([t], {"u": TT((rng.standard_normal((1, t.nodes, 1)),), (0,))}),
+        "many time slabs, CP beside": _many_slabs(rng, a, c),
     }
+
+
+def _many_slabs(rng, a: CoordinateInfo, c: CoordinateInfo) -> Codebook:
+    """A march's time basis: 40 slabs of 5 nodes, its series rows applied slab by slab (SlabRows)."""
+    t = CoordinateInfo("t", (0.0, 2.0), 40 * 4 + 1, "chebyshev", "time", tuple(np.linspace(0.0, 2.0, 41)))
+    coords = [t, a, c]
+    cp = CPTensor(rng.standard_normal(3), tuple(rng.standard_normal((ci.nodes, 3)) for ci in coords))
+    return Codebook(coords, {"u": _random_tt(rng, coords, [6, 5], [1, 0, 2]), "p": cp})
 
 
 BOOKS = _books()
@@ -76,6 +85,14 @@ def test_series_equals_evaluate_on_the_flattened_points(name):
     along = cb.coordinate_names[0] if name != "linear time" else "b"
     for samples, times in ((1, 1), (3, 40), (57, 9)):
         _check(cb, along, samples, times, seed=samples)
+
+
+def test_many_time_slabs_take_the_slab_rows():
+    from pgdcli.discretization.basis import SlabRows
+
+    cb = BOOKS["many time slabs, CP beside"]
+    assert isinstance(cb.coordinate("t").basis().series_rows(np.linspace(0.0, 2.0, 7)), SlabRows)
+    assert isinstance(BOOKS["time first"].coordinate("t").basis().series_rows(np.linspace(0.0, 2.0, 7)), np.ndarray)
 
 
 def test_series_along_a_parameter_coordinate():
