@@ -340,12 +340,9 @@ class PiecewiseChebyshevBasis(Basis1D):
         return self.interpolation_rows(x, np.empty((x.size, self.nodes.size)), None)
 
     def interpolation_rows(self, x, out, work=None) -> np.ndarray:
-        m = self.slab_size
-        first = self.slab_of(x) * (m - 1)
-        idx = first[:, None] + np.arange(m)  # (p, m) global node indices of each point's slab
-        c = barycentric_rows(x, self.nodes[idx], self.bary)
+        rows = self._slab_rows(x)
         out.fill(0.0)
-        out[np.arange(x.size)[:, None], idx] = c
+        out[np.arange(rows.index.shape[0])[:, None], rows.index] = rows.weights
         return out
 
     def interpolate(self, values, x) -> np.ndarray:
@@ -368,7 +365,7 @@ class PiecewiseChebyshevBasis(Basis1D):
         return self._slab_rows(x)
 
     def _slab_rows(self, x) -> "SlabRows":
-        """Each point's barycentric weights on its slab's nodes."""
+        """Each point's barycentric weights on its slab's nodes (global indices of the slab's nodes)."""
         x = np.atleast_1d(np.asarray(x, dtype=float)).reshape(-1)
         idx = (self.slab_of(x) * (self.slab_size - 1))[:, None] + np.arange(self.slab_size)
         return SlabRows(idx, barycentric_rows(x, self.nodes[idx], self.bary), self.nodes.size)
