@@ -62,10 +62,12 @@ class CollocatedModel:
         self.shape = (n,) * len(space)
         self.N = n ** len(space)
         D = [chebyshev_differentiation(n, c.domain) for c in space]
-        self.ops = {}  # (axis, order) -> sparse (N, N) on the flattened grid (C order)
+        self.ops = {}  # (axis, order) -> sparse (N, N) on the flattened grid (C order): the Jacobian's
+        self._along = {}  # (axis, order) -> dense (n, n) along its axis: the right-hand side's
         eye = sp.identity(n, format="csr")
         for a, Da in enumerate(D):
             for order, M in ((1, Da), (2, Da @ Da)):
+                self._along[(a, order)] = np.ascontiguousarray(M)
                 factors = [sp.csr_matrix(M) if b == a else eye for b in range(len(space))]
                 op = factors[0]
                 for f in factors[1:]:
@@ -98,7 +100,8 @@ class CollocatedModel:
         self.m = self.interior.size
         axis_of = np.argmax(at_end[boundary], axis=1)  # the first coordinate whose end the node is on
         side_of = (multi[boundary, axis_of] == n - 1).astype(int)
-        self.Z, self.h = [], []
+        self.Z, self.h, self._fill = [], [], []  # _fill: per unknown, the boundary values' (B, b): B y + b
+        self.boundary = boundary
         for unknown in problem.unknowns:
             C = np.zeros((boundary.size, N))
             g = np.zeros(boundary.size)
@@ -123,6 +126,7 @@ class CollocatedModel:
             h[boundary] = inverse @ g
             self.Z.append(sp.csr_matrix(Z))
             self.h.append(h)
+            self._fill.append((-inverse @ C[:, self.interior], inverse @ g))
 
     # -- equations ------------------------------------------------------------------------------
     def _equations(self, problem) -> None:
@@ -159,9 +163,22 @@ class CollocatedModel:
         return np.broadcast_to(coef(t), (self.N,)) if callable(coef) else coef
 
     def full(self, y: np.ndarray) -> np.ndarray:
-        """Full nodal values (q, N) from the interior state (q m,)."""
+        """Full nodal values (q, N) from the interior state (q m,): ``Z y + h`` of each unknown, its
+        boundary rows as one dense product (a sparse product's overhead is most of a small grid's step)."""
         Y = y.reshape(self.q, self.m)
-        return np.stack([Z @ Y[s] + h for s, (Z, h) in enumerate(zip(self.Z, self.h))])
+        U = np.empty((self.q, self.N))
+        U[:, self.interior] = Y
+        for s, (B, b) in enumerate(self._fill):
+            U[s, self.boundary] = B @ Y[s] + b
+        return U
+
+    def derivative(self, axis: int, order: int, u: np.ndarray) -> np.ndarray:
+        """``der(u, x_axis, order)`` at the nodes (N,): the dense 1-D matrix along its axis of the grid."""
+        M = self._along[(axis, order)]
+        if len(self.shape) == 1:
+            return M @ u
+        grid = u.reshape(self.shape)
+        return (M @ grid if axis == 0 else grid @ M.T).ravel()
 
     def _values(self, U: np.ndarray, t: float) -> dict:
         return {**self.sample, **self.grid, self.time: t, **{u: U[i] for u, i in self.index.items()}}
@@ -172,7 +189,7 @@ class CollocatedModel:
         u = U[self.index[atom.unknown]]
         if not atom.order:
             return u
-        return self.ops[(self.space.index(atom.coordinate), atom.order)] @ u
+        return self.derivative(self.space.index(atom.coordinate), atom.order, u)
 
     def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
         check_deadline()
