@@ -42,9 +42,19 @@ class Resolution:
         self.auto = [c.name for c in self.problem.coordinates if c.auto]
         self.rounds: list[list[float]] = []  # per round: the nodes of each coordinate, then the measured ratio
         self.history: dict = {}  # per coordinate: its refinements (Refinement)
+        self.pilot: dict[str, int] = {}  # the first round's nodes chosen by a pilot (start_at)
 
     def _record(self, ratio: float) -> None:
         self.rounds.append([total_nodes(c) for c in self.problem.coordinates] + [ratio])
+
+    def start_at(self, nodes: dict[str, int]) -> None:
+        """The first round at ``nodes`` (coordinate -> nodes) on those automatic coordinates, within
+        ``solver.max_nodes``; before any round."""
+        cap = self.problem.solver.max_nodes
+        coords = tuple(dataclasses.replace(c, nodes=min(int(nodes[c.name]), cap)) if c.name in nodes and c.auto
+                       else c for c in self.problem.coordinates)
+        self.problem = dataclasses.replace(self.problem, coordinates=coords)
+        self.pilot = {c.name: c.nodes for c in coords if c.name in nodes and c.auto}
 
     def more_nodes_for(self, lacking: str | None) -> bool:
         """A solve stopped early for lack of nodes along ``lacking``: refine it, if the rounds and the cap allow."""
@@ -101,5 +111,6 @@ class Resolution:
             "resolution_elements": ",".join(f"{c.name}:{len(c.breakpoints) - 1}" for c in coords
                                             if len(c.breakpoints) > 2),
             "resolution_reason": reason,
+            **({"resolution_pilot": ",".join(f"{k}:{v}" for k, v in self.pilot.items())} if self.pilot else {}),
         }
 

@@ -23,7 +23,8 @@ import numpy as np
 from ..tensors.cp_sweep import orthogonal_sweep
 from ..tensors.tt import TT, tt_centre_cores
 
-__all__ = ["resolution_tails", "chebyshev_decay", "error_estimates", "nodes_for_decay", "MIN_GROWTH"]
+__all__ = ["resolution_tails", "chebyshev_spectra", "chebyshev_decay", "error_estimates", "nodes_for_decay",
+           "MIN_GROWTH"]
 
 #: Fewest new node intervals of a refinement, as a fraction of a coordinate's: a prediction a little short
 #: costs a whole solve, a few nodes more only a part of one.
@@ -111,14 +112,29 @@ def resolution_tails(codebook) -> dict[str, dict[str, float]]:
             for u, per in norms.items()}
 
 
+def chebyshev_spectra(codebook, min_nodes: int = 2) -> dict[str, np.ndarray]:
+    """The Chebyshev coefficients of a codebook along each Chebyshev coordinate of one piece with at least
+    ``min_nodes`` nodes: per degree, the RMS over the other coordinates' nodes, the largest over the unknowns.
+
+    Returns
+    -------
+    dict of str to ndarray (n,)
+        Per coordinate, degree 0 first, ``n`` its nodes.
+    """
+    matrices = [_coefficient_matrix(c.nodes) if c.discretization == "chebyshev" and c.nodes >= min_nodes
+                and not getattr(c, "breakpoints", ()) else None for c in codebook.coordinates]
+    norms = _row_norms(codebook, matrices)
+    return {c.name: np.max([per[c.name] for per in norms.values()], axis=0)
+            for c, m in zip(codebook.coordinates, matrices) if m is not None}
+
+
 def chebyshev_decay(codebook) -> dict[str, float]:
     """Per Chebyshev coordinate of one piece, the geometric decay of its Chebyshev coefficients per node.
 
     The coefficients ``|c_k|`` of an analytic function fall like ``rho**-k``; the
-    slope of ``log |c_k|`` over the upper half of the spectrum (RMS over the
-    other coordinates, the largest over the unknowns), fitted by least squares,
-    is ``log rho``: with it, the nodes that bring an interpolation error down by
-    a factor follow from one solve (chebfun reads the same plateau-free part of
+    slope of ``log |c_k|`` over the upper half of the spectrum (:func:`chebyshev_spectra`),
+    fitted by least squares, is ``log rho``: with it, the nodes that bring an interpolation
+    error down by a factor follow from one solve (chebfun reads the same plateau-free part of
     the series in ``standardChop``). Coordinates with fewer than 8 nodes, with
     elements, linear ones, and spectra already at rounding level are left out.
 
@@ -127,22 +143,17 @@ def chebyshev_decay(codebook) -> dict[str, float]:
     dict
         ``{coordinate: log rho}`` (positive: decaying).
     """
-    matrices = [_coefficient_matrix(c.nodes) if c.discretization == "chebyshev" and c.nodes >= 8
-                and not getattr(c, "breakpoints", ()) else None for c in codebook.coordinates]
-    norms = _row_norms(codebook, matrices)
     out = {}
-    for c, m in zip(codebook.coordinates, matrices):
-        if m is None:
-            continue
-        spectrum = np.max([per[c.name] for per in norms.values()], axis=0)
+    for name, spectrum in chebyshev_spectra(codebook, min_nodes=8).items():
+        nodes = spectrum.size
         # the envelope from the right: an even or odd function has every other coefficient zero
         envelope = np.maximum.accumulate(spectrum[::-1])[::-1]
-        upper = np.arange(c.nodes // 2, c.nodes)
+        upper = np.arange(nodes // 2, nodes)
         s = envelope[upper]
         if not np.all(s > 1e-13 * max(spectrum.max(), 1e-300)):
             continue  # at rounding level: the coordinate is resolved, nothing to extrapolate
         slope = np.polyfit(upper, np.log(s), 1)[0]
-        out[c.name] = float(-slope)
+        out[name] = float(-slope)
     return out
 
 

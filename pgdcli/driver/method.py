@@ -96,6 +96,9 @@ class Method:
     #: resolution would give this method more than :data:`pgdcli.driver.refinement.POLYNOMIAL_TIME_NODES`
     #: time nodes.
     hands_time_over = False
+    #: Its first round's automatic parameter nodes come from a pilot (:mod:`pgdcli.adapt.pilot`): a solve costs
+    #: little more with a few dozen nodes more along one coordinate.
+    pilots = False
 
     @property
     def title(self) -> str:

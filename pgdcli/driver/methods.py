@@ -213,6 +213,7 @@ class OdeMarch(Method):
     marches = True
     plural = "marches"
     target_name = "RMS"
+    pilots = True
 
     def first_target(self, settings, learned) -> float:
         return learned.target if learned.target is not None else CHECK_FIRST * settings.tolerance

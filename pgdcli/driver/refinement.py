@@ -20,6 +20,7 @@ import dataclasses
 import time as _time
 
 from ..adapt import Resolution, total_nodes
+from ..adapt.pilot import LINE_NODES, PILOT_NODES, first_nodes
 from ..algorithms.outcome import Learned
 from ..algorithms.result import SolveResult
 from ..discretization.coefficients import CanonicalTermsError
@@ -102,10 +103,29 @@ class _Loop:
         self.solves = 0
         self.fallbacks: list[str] = []
         self.check_seconds = 0.0  # the error gate's share of the build
+        if self.method.pilots:
+            self.pilot()
 
     @property
     def problem(self):
         return self.resolution.problem
+
+    def pilot(self) -> None:
+        """The first round's automatic parameter nodes from the pilot's marches (:mod:`pgdcli.adapt.pilot`);
+        what they teach (a stiff problem) is learned."""
+        def march(problem):
+            lines = [c.name for c in problem.coordinates if c.nodes == PILOT_NODES and c.auto]
+            emit(self.callback, PhaseStarted("solve", f"pilot {self.method.name} along {', '.join(lines)}: "
+                                                      f"{PILOT_NODES} nodes, {LINE_NODES} along the others", 1))
+            outcome = self.method.solve(problem, self.target, self.settings, self.learned, None)
+            self.learned = self.learned.after(outcome)
+            return outcome.codebook if outcome.converged else None
+
+        nodes = first_nodes(self.problem, self.settings.tolerance, march)
+        if nodes:
+            self.resolution.start_at(nodes)
+            emit(self.callback, PhaseStarted("refine", "first nodes from the pilot: " + ", ".join(
+                f"{name} {n}" for name, n in nodes.items()), 1))
 
     def solve(self) -> Try:
         """One solve at the current nodes and target, measured when the method weighs it."""

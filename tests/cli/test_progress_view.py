@@ -84,6 +84,7 @@ def test_solve_off_a_terminal_prints_its_phases_on_stderr_and_nothing_on_stdout(
     lines = [line for line in res.stderr.splitlines() if line.startswith("pgd solve drag: ")]
     assert lines[0].startswith("pgd solve drag: solving: method march (equations nonlinear")
     assert any(line.startswith("pgd solve drag: checking: error gate against scipy's DOP853") for line in lines)
-    assert any(line.startswith("pgd solve drag: refining: more nodes: k 9 -> ") for line in lines)
+    assert any(line.startswith("pgd solve drag: solving: pilot march along k: 33 nodes") for line in lines)
+    assert any(line.startswith("pgd solve drag: refining: first nodes from the pilot: k ") for line in lines)
     quiet = CliRunner().invoke(cli, ["solve", str(PROBLEMS / "drag.yaml"), "-o", str(tmp_path / "q.h5"), "-q"])
     assert quiet.exit_code == 0 and quiet.stderr == "" and quiet.stdout == ""

@@ -26,9 +26,9 @@ def _phases(seen: list) -> list[str]:
 
 
 def test_a_march_reports_every_phase_and_the_gates_reference():
-    seen, result = _events("drag")  # automatic nodes: two solves
+    seen, result = _events("drag")  # automatic nodes: a pilot march along each parameter, then one solve
     assert result.accurate is True and all(isinstance(e, ProgressEvent) for e in seen)
-    assert _phases(seen) == ["solve", "solve", "check", "refine", "solve", "check"]
+    assert _phases(seen) == ["solve", "solve", "solve", "refine", "solve", "check"]
     assert seen[0].describe().startswith("method march (equations nonlinear")
     steps = [e for e in seen if isinstance(e, MarchStep)]
     assert steps and steps[-1].fraction() == 1.0 and steps[-1].time == steps[-1].end == 2.0
@@ -40,7 +40,7 @@ def test_a_march_reports_every_phase_and_the_gates_reference():
     assert isinstance(seen[first_check + 1], ReferenceProgress)
     k, a = (int(result.codebook.report["resolution_rounds"][-1, i]) for i in (1, 2))  # the nodes it chose
     assert k > 9 and a > 9
-    assert f"more nodes: k 9 -> {k}, a 9 -> {a}" in [e.describe() for e in seen if isinstance(e, PhaseStarted)]
+    assert f"first nodes from the pilot: k {k}, a {a}" in [e.describe() for e in seen if isinstance(e, PhaseStarted)]
 
 
 def test_an_enrichment_with_space_reports_the_method_of_lines_per_parameter_point():
