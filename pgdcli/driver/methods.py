@@ -276,6 +276,9 @@ class PdeMarch(OdeMarch):
     """
 
     name = "pde march"
+    #: No pilot: the space nodes are refined first (a march on too few of them stops), so a pilot along a
+    #: parameter at the first space nodes would march for nothing.
+    pilots = False
 
     def solve(self, problem, target, settings, learned, callback) -> SolverOutcome:
         return solve_pde_march(problem, target, callback=callback, learned=learned)

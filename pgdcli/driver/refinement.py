@@ -239,6 +239,8 @@ class _Loop:
         if other is None or not self.switch(other, f"the {self.method.title} {why}"):
             return False
         self.resolution = Resolution(self.original, other.marches)
+        if other.pilots:
+            self.pilot()
         return True
 
     def more_nodes(self, attempt: Try) -> bool:
