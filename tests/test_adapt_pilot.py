@@ -1,8 +1,9 @@
 """The pilot's first nodes: from the Chebyshev spectrum of lines of marched trajectories, checked against the
 interpolation error of the exact solution along each coordinate."""
 
+from pathlib import Path
+
 import numpy as np
-import pytest
 
 from pgdcli.adapt.pilot import (PILOT_NODES, PILOT_TRAJECTORIES, SPECTRUM_SAFETY, first_nodes, nodes_from_spectrum,
                                 pilot_coordinates, pilot_problem)
@@ -88,3 +89,14 @@ def test_a_march_starts_at_the_pilots_nodes_and_keeps_its_promise():
     t, k, u0 = rng.uniform(0, 2, 300), rng.uniform(0.5, 3, 300), rng.uniform(0.5, 2, 300)
     values = result.codebook.evaluate({"t": t, "k": k, "u0": u0})["u"]
     assert np.abs(values - exact(t, k, u0)).max() <= 1e-6
+
+
+RUNGE = DECAY.replace("  k: {domain: [0.5, 3]}\n  u0: {domain: [0.5, 2]}", "  p: {domain: [0, 1]}").replace(
+    "u: {initial: u0}", 'u: {initial: "1/(1 + 400*(p - 0.3)**2)"}').replace("-k*u**2", "-u**3")
+
+
+def test_an_unresolved_parameter_starts_at_the_pilots_nodes_only_when_its_spectrum_falls_fast():
+    runge = initial_nodes(parse_spec(RUNGE), march=True)  # a sharp feature: the rounds cut elements from 9
+    assert first_nodes(runge, 1e-6, lambda p: solve_march(p, 7e-8).codebook) == {}
+    pendulum = initial_nodes(pgdcli.load_spec(Path(__file__).parents[1] / "problems" / "pendulum.yaml"), march=True)  # needs ~48: geometric
+    assert first_nodes(pendulum, 1e-6, lambda p: solve_march(p, 7e-8).codebook) == {"L": 33, "th0": 33}

@@ -10,8 +10,12 @@ centre: lines through the centre and the corners of the box) measures the spectr
 takes the fewest nodes whose Chebyshev tail, ``2 sum_{k >= n} |c_k|``, is within the coordinate's share
 of the tolerance (:data:`~pgdcli.adapt.resolution.TARGET`, or :data:`~pgdcli.adapt.resolution.ROOM`
 shared) divided by :data:`SPECTRUM_SAFETY` (the RMS over the lines is not their maximum). A
-coordinate the pilot does not resolve starts at :data:`PILOT_NODES`. The pilot only chooses where the
-rounds start: every round's codebook is still measured by the error gate, which refines on.
+coordinate the pilot does not resolve starts at :data:`PILOT_NODES` when its spectrum falls geometrically
+fast enough to need no elements (the extrapolated tail meets the limit within
+:data:`~pgdcli.adapt.resolution.MAX_ELEMENT_NODES` nodes), else at its first nodes: a sharp feature (Runge's
+function, a trajectory leaving an unstable point) is cut into elements by the rounds, which measure how
+its error falls from there. The pilot only chooses where the rounds start: every round's codebook is still
+measured by the error gate, which refines on.
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..checks.resolution import chebyshev_spectra
-from .resolution import ROOM, TARGET
+from ..checks.resolution import chebyshev_spectra, spectrum_decay
+from .resolution import MAX_ELEMENT_NODES, MIN_DECAY, ROOM, TARGET
 
 __all__ = ["PILOT_NODES", "PILOT_TRAJECTORIES", "SPECTRUM_SAFETY", "pilot_coordinates", "pilot_problem",
            "nodes_from_spectrum", "first_nodes"]
@@ -90,7 +94,23 @@ def first_nodes(problem, tolerance: float, march: Callable) -> dict[str, int]:
         if codebook is None:
             continue
         spectrum = chebyshev_spectra(codebook).get(name)
-        needed = None if spectrum is None else nodes_from_spectrum(spectrum, limit)
+        if spectrum is None:
+            continue
         first = problem.coordinate(name).nodes
-        out[name] = PILOT_NODES if needed is None else min(PILOT_NODES, max(first, needed))
+        needed = nodes_from_spectrum(spectrum, limit)
+        if needed is not None:
+            out[name] = min(PILOT_NODES, max(first, needed))
+        elif _geometric_within(spectrum, limit):
+            out[name] = PILOT_NODES
     return out
+
+
+def _geometric_within(spectrum: np.ndarray, limit: float) -> bool:
+    """The spectrum's geometric decay (:func:`~pgdcli.checks.resolution.spectrum_decay`), extrapolated, brings
+    its last coefficients to ``limit`` within :data:`~pgdcli.adapt.resolution.MAX_ELEMENT_NODES` nodes: more
+    nodes will do. A slower decay is a sharp feature whose elements the rounds cut from the first nodes on."""
+    rate = spectrum_decay(spectrum)
+    if rate is None or not rate >= MIN_DECAY:
+        return False
+    last = 2.0 * float(np.abs(spectrum[-2:]).max())
+    return spectrum.size + np.log(last / limit) / rate <= MAX_ELEMENT_NODES

@@ -94,7 +94,7 @@ def _split_samples(blocks: list, shape: tuple[int, int]):
     matrices plus a multiple of the identity, or None."""
     firsts, seconds, shift = [], [], np.empty(len(blocks))
     for s, block in enumerate(blocks):
-        parts = _kronecker_parts(block.toarray(), shape)
+        parts = _kronecker_parts(block, shape)
         if parts is None:
             return None
         A, C = parts
@@ -161,9 +161,18 @@ def _tensor_interior(model) -> tuple[int, int] | None:
     return (xs.size, ys.size) if np.array_equal(interior, expected) else None
 
 
-def _kronecker_parts(B: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(A, C)`` with ``B = A (x) I + I (x) C`` to rounding, else None (``C[0, 0] = 0``: the sum's split)."""
+def _kronecker_parts(B, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(A, C)`` with ``B = A (x) I + I (x) C`` to rounding, else None (``C[0, 0] = 0``: the sum's split).
+    ``B`` dense or sparse (compared sparse: a sample's dense block is the grid's size squared)."""
     nx, ny = shape
+    if sp.issparse(B):
+        B = B.tocsr()
+        first, second = np.arange(nx) * ny, np.arange(ny)  # the nodes (i, 0) and (0, j)
+        A = B[first][:, first].toarray()
+        C = B[second][:, second].toarray()
+        C[np.diag_indices(ny)] -= A[0, 0]
+        rest = B - sp.kron(A, sp.identity(ny)) - sp.kron(sp.identity(nx), C)
+        return (A, C) if _norm(rest) <= _KRONECKER * _norm(B) else None
     B4 = B.reshape(nx, ny, nx, ny)
     A = B4[:, 0, :, 0].copy()
     C = B4[0, :, 0, :].copy()

@@ -23,8 +23,8 @@ import numpy as np
 from ..tensors.cp_sweep import orthogonal_sweep
 from ..tensors.tt import TT, tt_centre_cores
 
-__all__ = ["resolution_tails", "chebyshev_spectra", "chebyshev_decay", "error_estimates", "nodes_for_decay",
-           "MIN_GROWTH"]
+__all__ = ["resolution_tails", "chebyshev_spectra", "chebyshev_decay", "spectrum_decay", "error_estimates",
+           "nodes_for_decay", "MIN_GROWTH"]
 
 #: Fewest new node intervals of a refinement, as a fraction of a coordinate's: a prediction a little short
 #: costs a whole solve, a few nodes more only a part of one.
@@ -143,18 +143,21 @@ def chebyshev_decay(codebook) -> dict[str, float]:
     dict
         ``{coordinate: log rho}`` (positive: decaying).
     """
-    out = {}
-    for name, spectrum in chebyshev_spectra(codebook, min_nodes=8).items():
-        nodes = spectrum.size
-        # the envelope from the right: an even or odd function has every other coefficient zero
-        envelope = np.maximum.accumulate(spectrum[::-1])[::-1]
-        upper = np.arange(nodes // 2, nodes)
-        s = envelope[upper]
-        if not np.all(s > 1e-13 * max(spectrum.max(), 1e-300)):
-            continue  # at rounding level: the coordinate is resolved, nothing to extrapolate
-        slope = np.polyfit(upper, np.log(s), 1)[0]
-        out[name] = float(-slope)
-    return out
+    decays = {name: spectrum_decay(spectrum) for name, spectrum in chebyshev_spectra(codebook, min_nodes=8).items()}
+    return {name: rate for name, rate in decays.items() if rate is not None}
+
+
+def spectrum_decay(spectrum: np.ndarray) -> float | None:
+    """``log rho`` of a Chebyshev spectrum (degree 0 first): the least-squares slope of the log of its envelope
+    from the right over its upper half (see :func:`chebyshev_decay`); None at rounding level."""
+    nodes = spectrum.size
+    # the envelope from the right: an even or odd function has every other coefficient zero
+    envelope = np.maximum.accumulate(spectrum[::-1])[::-1]
+    upper = np.arange(nodes // 2, nodes)
+    s = envelope[upper]
+    if not np.all(s > 1e-13 * max(spectrum.max(), 1e-300)):
+        return None  # at rounding level: the coordinate is resolved, nothing to extrapolate
+    return float(-np.polyfit(upper, np.log(s), 1)[0])
 
 
 def nodes_for_decay(nodes: int, factor: float, per_node: float) -> int:

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from conftest import spec_text
 
 import pgdcli
 from pgdcli.checks.collocation import PdeModel
 from pgdcli.checks.collocation_system import PdeSystem
-from pgdcli.checks.modal_basis import KroneckerModes, Modes, decompose
+from pgdcli.checks.modal_basis import KroneckerModes, Modes, decompose, decompose_samples
 
 PLATE = spec_text(
     coordinates={'x': '{domain: [0, 1]}', 'y': '{domain: [0, 2]}', 't': '{domain: [0, 1]}', 'k': '{domain: [1, 2]}'},
@@ -45,6 +46,20 @@ def test_the_split_has_the_eigenvalues_of_the_whole():
     split = np.sort_complex(decompose(model, B).lam)
     whole = np.sort_complex(np.linalg.eigvals(B))
     assert np.abs(split - whole).max() <= 1e-9 * np.abs(whole).max()
+
+
+@pytest.mark.parametrize("spec, kind", [
+    (PLATE, KroneckerModes),
+    (spec_text(PLATE, equations=['"der(u) = k*((1 + x*y)*der(u, x, 2) + der(u, y, 2))"']), Modes),
+])
+def test_sparse_samples_are_split_as_the_dense_operator_is(spec, kind):
+    model, B = _operator(spec, {"x": 12, "y": 10})
+    blocks = [sp.csr_matrix(c * B) for c in (1.0, 0.5, 2.0)]  # three samples: multiples of one operator
+    modes, lam = decompose_samples(model, blocks)
+    assert type(modes) is kind and type(decompose(model, B)) is kind
+    whole = np.sort_complex(np.linalg.eigvals(B))
+    for c, row in zip((1.0, 0.5, 2.0), lam):
+        assert np.abs(np.sort_complex(row) - c * whole).max() <= 1e-9 * c * np.abs(whole).max()
 
 
 # two parameters scaling the two directions and a rate: no one factor of one matrix, one basis per direction
