@@ -33,6 +33,9 @@ RHS = {
     "damped4": (lambda t, y, p: [y[1], -p["k"] * y[0] - p["c"] * y[1]], lambda p: [p["x0"], p["v0"]]),
     "kuramoto": (lambda t, y, p: [w + p["K"] / 3 * sum(np.sin(y[j] - y[i]) for j in range(3) if j != i)
                                   for i, w in enumerate((1.0, 1.5, 2.0))], lambda p: [0.0, 1.0, 2.0]),
+    "lotka_volterra": (lambda t, y, p: [p["a"] * y[0] - p["b"] * y[0] * y[1], 0.4 * y[0] * y[1] - 0.8 * y[1]],
+                       lambda p: [p["x0"], 0.8]),
+    "duffing_free": (lambda t, y, p: [y[1], -p["c"] * y[1] - y[0] - p["k3"] * y[0] ** 3], lambda p: [1.0, 0.0]),
 }
 
 
