@@ -20,6 +20,7 @@ at the nodes (the diffusion included, as any other monomial): an atom ``u`` is t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -31,12 +32,50 @@ from ..problem.separable import TimeSplit
 from .collocation_grid import chebyshev_differentiation, chebyshev_points
 from .reference_base import check_deadline
 
-__all__ = ["CollocatedModel", "MAX_SPACE"]
+__all__ = ["CollocatedModel", "GridMap", "MAX_SPACE"]
 
 #: Space coordinates the reference takes.
 MAX_SPACE = 2
 #: Relative step of the central difference of a general atom's derivative.
 GENERAL_STEP = 1e-6
+
+
+@dataclass(frozen=True)
+class GridMap:
+    """The grid of a collocated system and its map from interior states to nodal values: what a solution's
+    values need besides the solution (picklable: a worker process sends it back with the solution).
+
+    Attributes
+    ----------
+    n : int
+        Nodes along each space coordinate.
+    axes : list of ndarray (n,)
+        Nodes per space coordinate.
+    shape : tuple of int
+        The grid, ``(n,)`` or ``(n, n)``.
+    interior, boundary : ndarray of int
+        Flattened indices (C order) of the interior and the boundary nodes.
+    fill : list of (ndarray (boundary, interior), ndarray (boundary,))
+        Per unknown, the boundary values ``B y + b`` of its interior values ``y``.
+    """
+
+    n: int
+    axes: list
+    shape: tuple
+    interior: np.ndarray
+    boundary: np.ndarray
+    fill: list
+
+    def full(self, y: np.ndarray) -> np.ndarray:
+        """Full nodal values (q, N) from the interior state (q m,): ``Z y + h`` of each unknown, its
+        boundary rows as one dense product (a sparse product's overhead is most of a small grid's step)."""
+        q, m = len(self.fill), self.interior.size
+        Y = y.reshape(q, m)
+        U = np.empty((q, int(np.prod(self.shape))))
+        U[:, self.interior] = Y
+        for s, (B, b) in enumerate(self.fill):
+            U[s, self.boundary] = B @ Y[s] + b
+        return U
 
 
 class CollocatedModel:
@@ -100,8 +139,7 @@ class CollocatedModel:
         self.m = self.interior.size
         axis_of = np.argmax(at_end[boundary], axis=1)  # the first coordinate whose end the node is on
         side_of = (multi[boundary, axis_of] == n - 1).astype(int)
-        self.Z, self.h, self._fill = [], [], []  # _fill: per unknown, the boundary values' (B, b): B y + b
-        self.boundary = boundary
+        self.Z, self.h, fill = [], [], []  # fill: per unknown, the boundary values' (B, b): B y + b
         for unknown in problem.unknowns:
             C = np.zeros((boundary.size, N))
             g = np.zeros(boundary.size)
@@ -126,7 +164,8 @@ class CollocatedModel:
             h[boundary] = inverse @ g
             self.Z.append(sp.csr_matrix(Z))
             self.h.append(h)
-            self._fill.append((-inverse @ C[:, self.interior], inverse @ g))
+            fill.append((-inverse @ C[:, self.interior], inverse @ g))
+        self.grid_map = GridMap(n, self.axes, self.shape, self.interior, boundary, fill)
 
     # -- equations ------------------------------------------------------------------------------
     def _equations(self, problem) -> None:
@@ -163,14 +202,8 @@ class CollocatedModel:
         return np.broadcast_to(coef(t), (self.N,)) if callable(coef) else coef
 
     def full(self, y: np.ndarray) -> np.ndarray:
-        """Full nodal values (q, N) from the interior state (q m,): ``Z y + h`` of each unknown, its
-        boundary rows as one dense product (a sparse product's overhead is most of a small grid's step)."""
-        Y = y.reshape(self.q, self.m)
-        U = np.empty((self.q, self.N))
-        U[:, self.interior] = Y
-        for s, (B, b) in enumerate(self._fill):
-            U[s, self.boundary] = B @ Y[s] + b
-        return U
+        """Full nodal values (q, N) from the interior state (q m,) (:meth:`GridMap.full`)."""
+        return self.grid_map.full(y)
 
     def derivative(self, axis: int, order: int, u: np.ndarray) -> np.ndarray:
         """``der(u, x_axis, order)`` at the nodes (N,): the dense 1-D matrix along its axis of the grid."""

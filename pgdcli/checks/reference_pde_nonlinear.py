@@ -113,11 +113,25 @@ _SOLUTIONS: dict = {}
 _SOLUTIONS_LOCK = threading.Lock()  # samples may be solved on threads (solve_reference_nonlinear_grid)
 
 
+def _sample_key(sample) -> tuple:
+    """A parameter sample ``{name: value}`` as part of a cache key."""
+    return tuple(sorted((k, float(np.reshape(v, -1)[0])) for k, v in sample.items()))
+
+
+def _remember(key, solution) -> None:
+    """Keep a sample's solution (the oldest goes past :data:`CACHE_SIZE`)."""
+    with _SOLUTIONS_LOCK:
+        while len(_SOLUTIONS) >= CACHE_SIZE:
+            _SOLUTIONS.pop(next(iter(_SOLUTIONS)))
+        _SOLUTIONS[key] = solution
+
+
 def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
-    """``(model, OdeSolution)`` of one sample on an ``n``-node grid over ``[t0, t_end]`` (cached)."""
+    """``(GridMap, OdeSolution)`` of one sample on an ``n``-node grid over ``[t0, t_end]`` (cached; the grid
+    and its map to nodal values: :class:`~pgdcli.checks.reference_pde_collocated.GridMap`)."""
     from scipy.integrate import solve_ivp
 
-    key = (problem.source_text, tuple(sorted((k, float(v)) for k, v in sample.items())), n, float(t_end), rtol, atol)
+    key = (problem.source_text, _sample_key(sample), n, float(t_end), rtol, atol)
     with _SOLUTIONS_LOCK:
         if key in _SOLUTIONS:
             return _SOLUTIONS[key]
@@ -138,30 +152,28 @@ def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
     if sol.status != 0 or not np.isfinite(sol.y).all():
         raise SolverError(f"{problem.source}: the nonlinear method-of-lines reference failed at {dict(sample)} "
                           f"on {n} nodes: {sol.message}")
-    with _SOLUTIONS_LOCK:
-        while len(_SOLUTIONS) >= CACHE_SIZE:
-            _SOLUTIONS.pop(next(iter(_SOLUTIONS)))
-        _SOLUTIONS[key] = (model, sol.sol)
-    return model, sol.sol
+    _remember(key, (model.grid_map, sol.sol))
+    return model.grid_map, sol.sol
 
 
-def _interpolation(model, points, grid: bool) -> list:
-    """Per space axis, the barycentric rows (P_a, n) at the points (grid: per axis; else scattered (P, d))."""
-    weights = chebyshev_weights(model.n)
+def _interpolation(nodes, points, grid: bool) -> list:
+    """Per space axis of the :class:`~pgdcli.checks.reference_pde_collocated.GridMap` ``nodes``, the barycentric rows (P_a, n) at the points (grid: per
+    axis; else scattered (P, d))."""
+    weights = chebyshev_weights(nodes.n)
     if grid:
-        return [barycentric_matrix(axis, weights, np.asarray(p, dtype=float)) for axis, p in zip(model.axes, points)]
-    points = np.asarray(points, dtype=float).reshape(-1, len(model.axes))
-    return [barycentric_matrix(axis, weights, points[:, a]) for a, axis in enumerate(model.axes)]
+        return [barycentric_matrix(axis, weights, np.asarray(p, dtype=float)) for axis, p in zip(nodes.axes, points)]
+    points = np.asarray(points, dtype=float).reshape(-1, len(nodes.axes))
+    return [barycentric_matrix(axis, weights, points[:, a]) for a, axis in enumerate(nodes.axes)]
 
 
 def _solve_sample(problem, n: int, sample, times, points, grid: bool, rtol, atol) -> np.ndarray:
     """Values (q, T, P) or (q, T, P_1, ..., P_d) of one sample on an ``n``-node grid."""
     t_end = float(problem.time_coordinate.domain[1])
-    model, sol = _sample_solution(problem, n, sample, max(t_end, float(np.max(times))), rtol, atol)
-    W = _interpolation(model, points, grid)
+    nodes, sol = _sample_solution(problem, n, sample, max(t_end, float(np.max(times))), rtol, atol)
+    W = _interpolation(nodes, points, grid)
     Y = sol(np.asarray(times, dtype=float))  # (q m, T)
-    full = np.stack([model.full(Y[:, k]) for k in range(Y.shape[1])], axis=1)  # (q, T, N)
-    full = full.reshape(full.shape[:2] + model.shape)
+    full = np.stack([nodes.full(Y[:, k]) for k in range(Y.shape[1])], axis=1)  # (q, T, N)
+    full = full.reshape(full.shape[:2] + nodes.shape)
     if grid:
         for a, Wa in enumerate(W):  # along each space axis in turn
             full = np.moveaxis(np.tensordot(full, Wa, axes=(2 + a, 1)), -1, 2 + a)
@@ -263,19 +275,15 @@ def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], sp
     success, messages = np.zeros(S, dtype=bool), [""] * S
     nodes = _grids(problem, None, None)[0]
     samples = [{k: v[i:i + 1] for k, v in arrays.items()} for i in range(S)]
-    runner = executors.as_executor(executor) if executor is not None else executors.current()
-    if problem.source_text and not isinstance(runner, executors.SerialExecutor):
-        task = under_deadline(partial(_sample_task, problem.source_text, problem.source, times, axes))
-    else:  # here; two space coordinates on the cores left idle: Radau's LU of their grids releases the GIL
-        threads = min(S, executors.free_cores()) if len(space) >= 2 else 1  # 1-D: its Python steps hold it
-        runner = executors.ThreadExecutor(threads) if threads > 1 else executors.SERIAL
-        task = partial(_one_sample, problem, times=times, points=axes)
-    with runner if isinstance(runner, executors.ThreadExecutor) else contextlib.nullcontext():  # threads started here
+    runner, task, own = _runner(problem, executor, samples, len(space), times, axes)
+    with runner if own else contextlib.nullcontext():  # a pool started here is closed here
         for done, (i, outcome) in enumerate(runner.as_completed(task, samples), 1):
             try:
-                found, message = outcome.result()
+                found, message, *solutions = outcome.result()
             except ReferenceTimeUp:  # the samples after it stop at once too
-                found, message = None, TIME_UP
+                found, message, solutions = None, TIME_UP, []
+            for key, value in (solutions[0] if solutions else []):  # a worker's: kept for the next round
+                _remember(key, value)
             messages[i] = message
             if found is not None:
                 success[i] = True
@@ -290,11 +298,35 @@ def solve_reference_nonlinear_grid(problem, params: Mapping[str, np.ndarray], sp
                               rtol=rtol, atol=rtol, times=times)
 
 
+def _runner(problem, executor, samples: list, dims: int, times, axes):
+    """``(executor, task, own)`` for the samples: the executor given or in effect; else, on the cores left
+    idle, threads for two space coordinates (Radau's LU of their grids releases the GIL) and forked
+    processes for one (its Python steps hold the GIL; a fork is cheap and sees this process's solutions),
+    or this process (every sample solved before: from the cache). ``own``: a pool started here, to be closed
+    by the caller."""
+    runner = executors.as_executor(executor) if executor is not None else executors.current()
+    remote = partial(_sample_task, problem.source_text, problem.source, times, axes)
+    if problem.source_text and not isinstance(runner, executors.SerialExecutor):
+        return runner, under_deadline(remote), False
+    here = partial(_one_sample, problem, times=times, points=axes)
+    workers = min(len(samples), executors.free_cores())
+    with _SOLUTIONS_LOCK:
+        solved = {key[1] for key in _SOLUTIONS if key[0] == problem.source_text}
+    if workers < 2 or all(_sample_key(sample) in solved for sample in samples):
+        return runner, here, False
+    if dims >= 2:
+        return executors.ThreadExecutor(workers), here, True
+    if problem.source_text and executors.pool_context().get_start_method() == "fork":
+        return executors.ProcessExecutor(workers), under_deadline(remote), True
+    return runner, here, False
+
+
 def _one_sample(problem, sample, times, points) -> tuple[NonlinearPdeReference | None, str]:
     """One sample's reference on the tensor grid of ``points`` (one array per space coordinate) and ``''``,
     or None and why it failed (ReferenceTimeUp: the time budget)."""
     try:
-        ref = solve_reference_nonlinear_pde(problem, sample, times, points, grid=True)
+        with one_blas_thread():  # as in a worker (pgdcli.executor_base.run_in_worker): the same floats here
+            ref = solve_reference_nonlinear_pde(problem, sample, times, points, grid=True)
     except SolverError as exc:
         return None, " ".join(str(exc).split())
     _, limit, _ = space_tolerances(problem)
@@ -305,5 +337,12 @@ def _one_sample(problem, sample, times, points) -> tuple[NonlinearPdeReference |
 
 
 def _sample_task(spec_text: str, source: str, times, points, sample):
-    """A worker's task: parse the spec again, solve one sample (:func:`_one_sample`)."""
-    return _one_sample(parse_cached(spec_text, source), sample, times, points)
+    """A worker's task: parse the spec again, solve one sample (:func:`_one_sample`); with the sample's
+    solutions (cache entries), which the caller keeps: the next round's gate reuses them."""
+    mine = _sample_key(sample)
+    with _SOLUTIONS_LOCK:  # a forked worker holds the caller's solutions already
+        known = {key for key in _SOLUTIONS if key[1] == mine}
+    found, message = _one_sample(parse_cached(spec_text, source), sample, times, points)
+    with _SOLUTIONS_LOCK:
+        solutions = [(key, value) for key, value in _SOLUTIONS.items() if key[1] == mine and key not in known]
+    return found, message, solutions

@@ -180,3 +180,53 @@ def test_samples_on_threads_are_the_samples_one_after_another(monkeypatch):
     solve_reference_nonlinear_grid(fisher, {"r": np.array([1.0, 5.0]), "c": np.array([0.1, 0.9])},
                                    {"x": np.linspace(0, 1, 9)}, np.linspace(0, 2, 5))
     assert started == []
+
+
+def test_samples_solved_by_worker_processes_are_the_same_and_kept_here(monkeypatch):
+    """A pool's workers solve the samples as this process does, bit for bit, and send their solutions back:
+    the next call (the next round's gate) is served from this process's cache."""
+    from pgdcli import executors
+    from pgdcli.checks import reference_pde_nonlinear as nonlinear
+
+    problem = load_spec("problems/fisher.yaml")
+    params = {"D": np.array([0.02, 0.08]), "r": np.array([1.5, 4.0])}
+    times, space = np.array([0.0, 1.3, 4.0, 10.0]), {"x": np.linspace(0, 1, 7)}
+    monkeypatch.setattr(executors, "free_cores", lambda: 1)
+    nonlinear._SOLUTIONS.clear()
+    here = nonlinear.solve_reference_nonlinear_grid(problem, params, space, times)
+    nonlinear._SOLUTIONS.clear()
+    with executors.ProcessExecutor(2) as pool:
+        there = nonlinear.solve_reference_nonlinear_grid(problem, params, space, times, executor=pool)
+    assert there.success.all() and np.array_equal(there.values["u"], here.values["u"])
+    monkeypatch.setattr(nonlinear, "CollocatedModel", None)  # nothing solved again: the workers' solutions
+    again = nonlinear.solve_reference_nonlinear_grid(problem, params, space, times)
+    assert np.array_equal(again.values["u"], here.values["u"])
+
+
+def test_the_samples_run_where_the_idle_cores_are(monkeypatch):
+    """One space coordinate: forked processes on the idle cores (its Radau steps hold the GIL); none idle, or
+    every sample solved before: here. Two: threads (Radau's LU of the grid releases it)."""
+    from pgdcli import executors
+    from pgdcli.checks import reference_pde_nonlinear as nonlinear
+
+    class Fork:
+        @staticmethod
+        def get_start_method():
+            return "fork"
+
+    monkeypatch.setattr(executors, "pool_context", Fork)
+    fisher = load_spec("problems/fisher.yaml")
+    samples = [{"D": np.array([0.02]), "r": np.array([1.5])}, {"D": np.array([0.03]), "r": np.array([2.0])}]
+    nonlinear._SOLUTIONS.clear()
+    for cores, kind, own in ((2, executors.ProcessExecutor, True), (1, executors.SerialExecutor, False)):
+        monkeypatch.setattr(executors, "free_cores", lambda: cores)
+        runner, _, mine = nonlinear._runner(fisher, None, samples, 1, np.array([0.0, 1.0]), [np.zeros(3)])
+        assert isinstance(runner, kind) and mine is own
+    monkeypatch.setattr(executors, "free_cores", lambda: 2)
+    runner, _, _ = nonlinear._runner(fisher, None, samples, 2, np.array([0.0, 1.0]), [np.zeros(3)])
+    assert isinstance(runner, executors.ThreadExecutor)
+    for sample in samples:
+        nonlinear._remember((fisher.source_text, nonlinear._sample_key(sample), 33, 10.0, 1e-10, 1e-10), None)
+    runner, _, _ = nonlinear._runner(fisher, None, samples, 1, np.array([0.0, 1.0]), [np.zeros(3)])
+    assert isinstance(runner, executors.SerialExecutor)
+    nonlinear._SOLUTIONS.clear()
