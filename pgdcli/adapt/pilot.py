@@ -28,8 +28,8 @@ import numpy as np
 from ..checks.resolution import chebyshev_spectra, spectrum_decay
 from .resolution import MAX_ELEMENT_NODES, MIN_DECAY, ROOM, TARGET
 
-__all__ = ["PILOT_NODES", "PILOT_TRAJECTORIES", "SPECTRUM_SAFETY", "pilot_coordinates", "pilot_problem",
-           "nodes_from_spectrum", "first_nodes"]
+__all__ = ["PILOT_NODES", "PILOT_TRAJECTORIES", "SPECTRUM_SAFETY", "LINE_NODES", "pilot_coordinates",
+           "pilot_problem", "nodes_from_spectrum", "first_nodes"]
 
 #: Nodes along the coordinate a pilot march measures.
 PILOT_NODES = 33
