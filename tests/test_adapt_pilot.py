@@ -69,7 +69,7 @@ def test_the_pilot_measures_automatic_chebyshev_parameters_within_its_budget():
 def test_first_nodes_meet_each_coordinates_share_of_the_tolerance():
     problem = initial_nodes(parse_spec(DECAY), march=True)
     tol = 1e-6
-    nodes = first_nodes(problem, tol, lambda p: solve_march(p, 0.07 * tol).codebook)
+    nodes = first_nodes(problem, tol, lambda p, name: solve_march(p, 0.07 * tol).codebook)
     share = min(TARGET, ROOM / 2) * tol
     for name, n in nodes.items():
         assert 9 <= n < PILOT_NODES
@@ -97,6 +97,6 @@ RUNGE = DECAY.replace("  k: {domain: [0.5, 3]}\n  u0: {domain: [0.5, 2]}", "  p:
 
 def test_an_unresolved_parameter_starts_at_the_pilots_nodes_only_when_its_spectrum_falls_fast():
     runge = initial_nodes(parse_spec(RUNGE), march=True)  # a sharp feature: the rounds cut elements from 9
-    assert first_nodes(runge, 1e-6, lambda p: solve_march(p, 7e-8).codebook) == {}
+    assert first_nodes(runge, 1e-6, lambda p, name: solve_march(p, 7e-8).codebook) == {}
     pendulum = initial_nodes(pgdcli.load_spec(Path(__file__).parents[1] / "problems" / "pendulum.yaml"), march=True)  # needs ~48: geometric
-    assert first_nodes(pendulum, 1e-6, lambda p: solve_march(p, 7e-8).codebook) == {"L": 33, "th0": 33}
+    assert first_nodes(pendulum, 1e-6, lambda p, name: solve_march(p, 7e-8).codebook) == {"L": 33, "th0": 33}

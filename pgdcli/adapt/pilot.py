@@ -78,8 +78,8 @@ def first_nodes(problem, tolerance: float, march: Callable) -> dict[str, int]:
     tolerance : float
         The absolute tolerance of the promise.
     march : callable
-        ``march(problem) -> codebook or None``: a march of the pilot's problem (None: it failed; that
-        coordinate keeps its nodes).
+        ``march(problem, name) -> codebook or None``: a march of the pilot's problem along ``name`` (None:
+        it failed; that coordinate keeps its nodes).
 
     Returns
     -------
@@ -90,7 +90,7 @@ def first_nodes(problem, tolerance: float, march: Callable) -> dict[str, int]:
     limit = min(TARGET, ROOM / max(1, len(names))) * tolerance / SPECTRUM_SAFETY
     out = {}
     for name in names:
-        codebook = march(pilot_problem(problem, name, names))
+        codebook = march(pilot_problem(problem, name, names), name)
         if codebook is None:
             continue
         spectrum = chebyshev_spectra(codebook).get(name)

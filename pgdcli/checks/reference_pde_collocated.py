@@ -126,7 +126,8 @@ class CollocatedModel:
 
     # -- boundary elimination ------------------------------------------------------------------
     def _boundary(self, problem, D: list) -> None:
-        """``Z`` (N, N_interior) sparse and ``h`` (N,) per unknown: ``u = Z y + h``.
+        """Per unknown, ``Z`` (N, N_interior) sparse (the Jacobian's) and the :class:`GridMap`'s boundary
+        values ``B y + b``: ``u = Z y + h``, ``h`` the ``b`` at the boundary nodes.
 
         One condition per boundary node (that of the first space coordinate whose end it is on), the
         system of all boundary nodes solved for their values from the interior ones.
@@ -139,7 +140,7 @@ class CollocatedModel:
         self.m = self.interior.size
         axis_of = np.argmax(at_end[boundary], axis=1)  # the first coordinate whose end the node is on
         side_of = (multi[boundary, axis_of] == n - 1).astype(int)
-        self.Z, self.h, fill = [], [], []  # fill: per unknown, the boundary values' (B, b): B y + b
+        self.Z, fill = [], []  # fill: per unknown, the boundary values' (B, b): B y + b
         for unknown in problem.unknowns:
             C = np.zeros((boundary.size, N))
             g = np.zeros(boundary.size)
@@ -160,10 +161,7 @@ class CollocatedModel:
             Z = sp.lil_matrix((N, self.m))
             Z[self.interior, np.arange(self.m)] = 1.0
             Z[boundary] = -inverse @ C[:, self.interior]
-            h = np.zeros(N)
-            h[boundary] = inverse @ g
             self.Z.append(sp.csr_matrix(Z))
-            self.h.append(h)
             fill.append((-inverse @ C[:, self.interior], inverse @ g))
         self.grid_map = GridMap(n, self.axes, self.shape, self.interior, boundary, fill)
 

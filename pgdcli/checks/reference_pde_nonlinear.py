@@ -157,8 +157,8 @@ def _sample_solution(problem, n: int, sample, t_end: float, rtol, atol):
 
 
 def _interpolation(nodes, points, grid: bool) -> list:
-    """Per space axis of the :class:`~pgdcli.checks.reference_pde_collocated.GridMap` ``nodes``, the barycentric rows (P_a, n) at the points (grid: per
-    axis; else scattered (P, d))."""
+    """Per space axis of the grid ``nodes`` (:class:`~pgdcli.checks.reference_pde_collocated.GridMap`), the
+    barycentric rows (P_a, n) at the points (grid: per axis; else scattered (P, d))."""
     weights = chebyshev_weights(nodes.n)
     if grid:
         return [barycentric_matrix(axis, weights, np.asarray(p, dtype=float)) for axis, p in zip(nodes.axes, points)]

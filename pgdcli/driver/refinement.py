@@ -113,10 +113,9 @@ class _Loop:
     def pilot(self) -> None:
         """The first round's automatic parameter nodes from the pilot's marches (:mod:`pgdcli.adapt.pilot`);
         what they teach (a stiff problem) is learned."""
-        def march(problem):
-            lines = [c.name for c in problem.coordinates if c.nodes == PILOT_NODES and c.auto]
-            emit(self.callback, PhaseStarted("solve", f"pilot {self.method.name} along {', '.join(lines)}: "
-                                                      f"{PILOT_NODES} nodes, {LINE_NODES} along the others", 1))
+        def march(problem, name):
+            emit(self.callback, PhaseStarted("solve", f"pilot {self.method.name} along {name}: {PILOT_NODES} "
+                                                      f"nodes, {LINE_NODES} along the others", 1))
             outcome = self.method.solve(problem, self.target, self.settings, self.learned, None)
             self.learned = self.learned.after(outcome)
             return outcome.codebook if outcome.converged else None
