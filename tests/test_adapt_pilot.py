@@ -4,9 +4,10 @@ interpolation error of the exact solution along each coordinate."""
 from pathlib import Path
 
 import numpy as np
+from scipy.special import ellipj, ellipk
 
-from pgdcli.adapt.pilot import (PILOT_NODES, PILOT_TRAJECTORIES, SPECTRUM_SAFETY, first_nodes, nodes_from_spectrum,
-                                pilot_coordinates, pilot_problem)
+from pgdcli.adapt.pilot import (PILOT_NODES, PILOT_TRAJECTORIES, SPECTRUM_SAFETY, extrapolated_nodes, first_nodes,
+                                nodes_from_spectrum, pilot_coordinates, pilot_problem)
 from pgdcli.adapt.resolution import ROOM, TARGET, initial_nodes
 from pgdcli.algorithms.march import solve_march
 from pgdcli.problem.spec import parse_spec
@@ -31,19 +32,22 @@ def exact(t, k, u0):
     return u0 / (1 + k * u0 * t)
 
 
-def interpolation_error(n: int, name: str) -> float:
-    """Max error of degree n - 1 Chebyshev interpolation of the exact solution along ``name`` (the other
-    parameter and time on a grid), at 400 points."""
-    domains = {"k": (0.5, 3.0), "u0": (0.5, 2.0)}
-    other = "u0" if name == "k" else "k"
-    worst = 0.0
-    x = np.linspace(*domains[name], 400)
-    for t in np.linspace(0, 2, 9):
+def chebyshev_error(solution, domains: dict, t_end: float, n: int, name: str) -> float:
+    """Max error of degree n - 1 Chebyshev interpolation of ``solution(t, p, q)`` along ``name`` (one of the two
+    parameters of ``domains``; the other and time on a grid), at 400 points."""
+    first, other = name == list(domains)[0], [c for c in domains if c != name][0]
+    worst, x = 0.0, np.linspace(*domains[name], 400)
+    for t in np.linspace(0, t_end, 9):
         for v in np.linspace(*domains[other], 7):
-            f = (lambda s: exact(t, s, v)) if name == "k" else (lambda s: exact(t, v, s))
+            f = (lambda s: solution(t, s, v)) if first else (lambda s: solution(t, v, s))
             p = np.polynomial.Chebyshev.interpolate(f, n - 1, domain=domains[name])
             worst = max(worst, float(np.abs(p(x) - f(x)).max()))
     return worst
+
+
+def interpolation_error(n: int, name: str) -> float:
+    """:func:`chebyshev_error` of the exact solution of ``DECAY``."""
+    return chebyshev_error(exact, {"k": (0.5, 3.0), "u0": (0.5, 2.0)}, 2.0, n, name)
 
 
 def test_nodes_from_a_geometric_spectrum():
@@ -95,8 +99,53 @@ RUNGE = DECAY.replace("  k: {domain: [0.5, 3]}\n  u0: {domain: [0.5, 2]}", "  p:
     "u: {initial: u0}", 'u: {initial: "1/(1 + 400*(p - 0.3)**2)"}').replace("-k*u**2", "-u**3")
 
 
-def test_an_unresolved_parameter_starts_at_the_pilots_nodes_only_when_its_spectrum_falls_fast():
+def pendulum_exact(t, L, th0):
+    """th'' = -(9.81 / L) sin(th), th(0) = th0, th'(0) = 0: th = 2 arcsin(k sn(K(k^2) - w t; k^2)), k = sin(th0/2)."""
+    k = np.sin(th0 / 2)
+    sn = ellipj(ellipk(k * k) - np.sqrt(9.81 / L) * t, k * k)[0]
+    return 2 * np.arcsin(k * sn)
+
+
+def pendulum_interpolation_error(n: int, name: str) -> float:
+    """:func:`chebyshev_error` of the pendulum's angle."""
+    return chebyshev_error(pendulum_exact, {"L": (0.5, 2.0), "th0": (0.1, 2.5)}, 3.0, n, name)
+
+
+def test_an_unresolved_parameter_starts_where_its_spectrum_extrapolates_only_when_it_falls_fast():
     runge = initial_nodes(parse_spec(RUNGE), march=True)  # a sharp feature: the rounds cut elements from 9
     assert first_nodes(runge, 1e-6, lambda p, name: solve_march(p, 7e-8).codebook) == {}
-    pendulum = initial_nodes(pgdcli.load_spec(Path(__file__).parents[1] / "problems" / "pendulum.yaml"), march=True)  # needs ~48: geometric
-    assert first_nodes(pendulum, 1e-6, lambda p, name: solve_march(p, 7e-8).codebook) == {"L": 33, "th0": 33}
+    pendulum = initial_nodes(pgdcli.load_spec(Path(__file__).parents[1] / "problems" / "pendulum.yaml"), march=True)
+    nodes = first_nodes(pendulum, 1e-6, lambda p, name: solve_march(p, 7e-8).codebook)
+    assert set(nodes) == {"L", "th0"}
+    share = min(TARGET, ROOM / 2) * 1e-6
+    for name, n in nodes.items():  # geometric decay: past the pilot's nodes, to what the exact solution needs
+        assert PILOT_NODES < n <= 65
+        assert pendulum_interpolation_error(n, name) <= share, name
+        needed = next(m for m in range(20, 80) if pendulum_interpolation_error(m, name) <= share / SPECTRUM_SAFETY)
+        assert n <= 1.2 * needed, (name, n, needed)  # an extrapolation: a little more than it takes
+
+
+def test_extrapolated_nodes_of_a_geometric_spectrum():
+    spectrum = 10.0 ** -np.arange(12.0)  # a decade a node: 2 x 1e-10 (the last two's) to 1e-15 in 5.3 more nodes
+    assert extrapolated_nodes(spectrum, 1e-15) == 18
+    assert extrapolated_nodes(2.0 ** -np.arange(12.0), 1e-30) is None  # slow: beyond MAX_ELEMENT_NODES
+
+
+ONE = DECAY.replace("  u0: {domain: [0.5, 2]}\n", "").replace("u: {initial: u0}", "u: {initial: 1.5}")
+
+
+def test_a_one_parameter_pilot_march_is_the_first_rounds(monkeypatch):
+    import pgdcli.driver.methods as methods
+    calls = []
+
+    def counted(problem, *args, **kwargs):
+        calls.append({c.name: c.nodes for c in problem.parameter_coordinates})
+        return solve_march(problem, *args, **kwargs)
+
+    monkeypatch.setattr(methods, "solve_march", counted)
+    result = pgdcli.solve(parse_spec(ONE))
+    assert calls == [{"k": PILOT_NODES}]  # one march: the pilot's grid is the whole grid
+    assert result.accurate is True and result.codebook.coordinate("k").nodes == PILOT_NODES
+    rng = np.random.default_rng(6)
+    t, k = rng.uniform(0, 2, 300), rng.uniform(0.5, 3, 300)
+    assert np.abs(result.codebook.evaluate({"t": t, "k": k})["u"] - exact(t, k, 1.5)).max() <= 1e-6

@@ -29,7 +29,7 @@ from ..checks.resolution import chebyshev_spectra, spectrum_decay
 from .resolution import MAX_ELEMENT_NODES, MIN_DECAY, ROOM, TARGET
 
 __all__ = ["PILOT_NODES", "PILOT_TRAJECTORIES", "SPECTRUM_SAFETY", "LINE_NODES", "pilot_coordinates",
-           "pilot_problem", "nodes_from_spectrum", "first_nodes"]
+           "pilot_problem", "nodes_from_spectrum", "extrapolated_nodes", "first_nodes"]
 
 #: Nodes along the coordinate a pilot march measures.
 PILOT_NODES = 33
@@ -100,17 +100,21 @@ def first_nodes(problem, tolerance: float, march: Callable) -> dict[str, int]:
         needed = nodes_from_spectrum(spectrum, limit)
         if needed is not None:
             out[name] = min(PILOT_NODES, max(first, needed))
-        elif _geometric_within(spectrum, limit):
-            out[name] = PILOT_NODES
+        else:
+            extrapolated = extrapolated_nodes(spectrum, limit)
+            if extrapolated is not None:
+                out[name] = max(PILOT_NODES, extrapolated)
     return out
 
 
-def _geometric_within(spectrum: np.ndarray, limit: float) -> bool:
-    """The spectrum's geometric decay (:func:`~pgdcli.checks.resolution.spectrum_decay`), extrapolated, brings
-    its last coefficients to ``limit`` within :data:`~pgdcli.adapt.resolution.MAX_ELEMENT_NODES` nodes: more
-    nodes will do. A slower decay is a sharp feature whose elements the rounds cut from the first nodes on."""
+def extrapolated_nodes(spectrum: np.ndarray, limit: float) -> int | None:
+    """The nodes at which the spectrum's geometric decay (:func:`~pgdcli.checks.resolution.spectrum_decay`),
+    extrapolated from its last coefficients, brings them to ``limit``; None when that is beyond
+    :data:`~pgdcli.adapt.resolution.MAX_ELEMENT_NODES` (a slower decay is a sharp feature whose elements the
+    rounds cut from the first nodes on)."""
     rate = spectrum_decay(spectrum)
     if rate is None or not rate >= MIN_DECAY:
-        return False
+        return None
     last = 2.0 * float(np.abs(spectrum[-2:]).max())
-    return spectrum.size + np.log(last / limit) / rate <= MAX_ELEMENT_NODES
+    needed = spectrum.size + np.log(last / limit) / rate
+    return int(np.ceil(needed)) if needed <= MAX_ELEMENT_NODES else None

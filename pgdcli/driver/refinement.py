@@ -103,6 +103,7 @@ class _Loop:
         self.solves = 0
         self.fallbacks: list[str] = []
         self.check_seconds = 0.0  # the error gate's share of the build
+        self.marched = None  # (method, target, nodes, outcome) of a pilot march that is the first round's solve
         if self.method.pilots:
             self.pilot()
 
@@ -112,15 +113,23 @@ class _Loop:
 
     def pilot(self) -> None:
         """The first round's automatic parameter nodes from the pilot's marches (:mod:`pgdcli.adapt.pilot`);
-        what they teach (a stiff problem) is learned."""
+        what they teach (a stiff problem) is learned. A pilot of one parameter marched the whole grid at
+        :data:`~pgdcli.adapt.pilot.PILOT_NODES` nodes: when those suffice, that march is the first round's."""
+        marched = {}
+
         def march(problem, name):
             emit(self.callback, PhaseStarted("solve", f"pilot {self.method.name} along {name}: {PILOT_NODES} "
                                                       f"nodes, {LINE_NODES} along the others", 1))
             outcome = self.method.solve(problem, self.target, self.settings, self.learned, None)
             self.learned = self.learned.after(outcome)
+            marched[name] = (problem, outcome)
             return outcome.codebook if outcome.converged else None
 
         nodes = first_nodes(self.problem, self.settings.tolerance, march)
+        if len(marched) == 1 and all(n <= PILOT_NODES for n in nodes.values()) and nodes:
+            (name, (problem, outcome)), = marched.items()
+            nodes[name] = PILOT_NODES
+            self.marched = (self.method, self.target, _node_key(problem), outcome)
         if nodes:
             self.resolution.start_at(nodes)
             emit(self.callback, PhaseStarted("refine", "first nodes from the pilot: " + ", ".join(
@@ -133,7 +142,8 @@ class _Loop:
         emit(self.callback, PhaseStarted("solve", f"{method.name} to {method.target_name} {self.target:.2g}, "
                                                   f"nodes {_nodes_text(problem)}", self.solves))
         try:
-            outcome = method.solve(problem, self.target, self.settings, self.learned, self.callback)
+            outcome = self.marched_outcome(problem) or method.solve(problem, self.target, self.settings,
+                                                                    self.learned, self.callback)
         except CanonicalTermsError as exc:  # a coefficient the enrichment cannot take: the next method may
             if not self.switch(self.choice.after(method), f"the {method.title} cannot take it ({exc})"):
                 raise
@@ -147,6 +157,13 @@ class _Loop:
             self.check_seconds += _time.perf_counter() - checking
         self.tries.append(attempt)
         return attempt
+
+    def marched_outcome(self, problem):
+        """The pilot's march when it is this solve's (same method, nodes and target), once; else None."""
+        if self.marched is None or self.marched[:3] != (self.method, self.target, _node_key(problem)):
+            return None
+        outcome, self.marched = self.marched[3], None
+        return outcome
 
     def tighten(self) -> bool:
         """Another solve at these nodes to the method's tighter target, if it has one and the tries allow."""
@@ -270,3 +287,8 @@ class _Loop:
 
 def _nodes_text(problem) -> str:
     return ", ".join(f"{c.name}: {total_nodes(c)}" for c in problem.coordinates)
+
+
+def _node_key(problem) -> tuple:
+    """What tells one grid of nodes from another: per coordinate, its nodes and breakpoints."""
+    return tuple((c.name, c.nodes, tuple(getattr(c, "breakpoints", ()))) for c in problem.coordinates)

@@ -36,6 +36,9 @@ RHS = {
     "lotka_volterra": (lambda t, y, p: [p["a"] * y[0] - p["b"] * y[0] * y[1], 0.4 * y[0] * y[1] - 0.8 * y[1]],
                        lambda p: [p["x0"], 0.8]),
     "duffing_free": (lambda t, y, p: [y[1], -p["c"] * y[1] - y[0] - p["k3"] * y[0] ** 3], lambda p: [1.0, 0.0]),
+    "brusselator_b": (lambda t, y, p: [1 - (p["b"] + 1) * y[0] + y[0] ** 2 * y[1], p["b"] * y[0] - y[0] ** 2 * y[1]],
+                      lambda p: [1.2, 2.0]),
+    "duffing_amplitude": (lambda t, y, p: [y[1], -y[0] - p["k3"] * y[0] ** 3], lambda p: [p["x0"], 0.0]),
 }
 
 
