@@ -41,10 +41,12 @@ from .reference import solve_reference, solve_reference_vectorized
 from .reference_base import DEFAULT_SPACE_NODES
 from .resolution import resolution_tails
 from .sampling import BETWEEN, CORNER_LINES, LINE, check_sample, checked_time_nodes, line_sample, nodes_and_midpoints
-from .stiffness import Stiffness, decide_stiffness, forced
+from .stiffness import (STIFF_ATOL, STIFF_METHOD, STIFF_RTOL, STIFF_SHARE, Stiffness, decide_stiffness, forced,
+                        solution_scale, stiff_tolerances)
 from .verify import verify
 
 __all__ = ["CheckResult", "check_codebook", "check_codebook_pde", "check_sample", "line_sample", "on_report_grid",
+           "STIFF_METHOD", "STIFF_RTOL", "STIFF_ATOL", "STIFF_SHARE", "stiff_tolerances", "solution_scale",
            "ordinal", "points_text", "reference_space_nodes", "reference_stiffness", "unchecked"]
 
 @dataclass
@@ -156,10 +158,6 @@ def ordinal(n: int) -> str:
     return f"{n}{suffix}"
 
 
-#: The stiff reference (``check_codebook(stiff=True)``): Radau IIA of order 5 at these tolerances.
-STIFF_METHOD, STIFF_RTOL, STIFF_ATOL = "Radau", 1e-12, 1e-14
-
-
 def reference_stiffness(problem, codebook, seed: int = 0, rtol: float = 1e-13) -> Stiffness:
     """Whether :func:`check_codebook`'s reference at its sample should be :data:`STIFF_METHOD`: the estimate of
     :func:`pgdcli.checks.stiffness.estimate_stiffness`, along the codebook's states at the sample's times.
@@ -217,13 +215,12 @@ def _integrate_reference(problem, points, S: int, times: np.ndarray, rtol: float
     """:func:`_reference`'s integration (not cached)."""
     t0, span = float(times[0]), float(times[-1] - times[0])
     in_time = None if progress is None else (lambda t: progress(ReferenceProgress(t - t0, span, "time")))
-    fast = dict(method=STIFF_METHOD, rtol=STIFF_RTOL, atol=STIFF_ATOL) if stiff else dict(rtol=rtol, atol=atol)
+    fast = dict(method=STIFF_METHOD if stiff else "DOP853", rtol=rtol, atol=atol)
     values = solve_reference_vectorized(problem, points, S, times, progress=in_time, **fast)
     if values is not None:
         return values, np.ones(S, dtype=bool)
     in_points = None if progress is None else (lambda done: progress(ReferenceProgress(done, S)))
-    method, rtol, atol = (STIFF_METHOD, STIFF_RTOL, STIFF_ATOL) if stiff else ("DOP853", max(rtol, 1e-12),
-                                                                                max(atol, 1e-12))
+    method, rtol, atol = (STIFF_METHOD, rtol, atol) if stiff else ("DOP853", max(rtol, 1e-12), max(atol, 1e-12))
     ref = solve_reference(problem, points, times, method=method, rtol=rtol, atol=atol, progress=in_points)
     return ref.values, np.asarray(ref.success, dtype=bool)
 
@@ -246,7 +243,7 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     progress : callable, optional
         Called with :class:`~pgdcli.progress.ReferenceProgress` events as the reference integrates.
     stiff : bool or Stiffness, optional
-        Integrate the reference with :data:`STIFF_METHOD` at :data:`STIFF_RTOL`, :data:`STIFF_ATOL`
+        Integrate the reference with :data:`STIFF_METHOD` at :func:`stiff_tolerances` of the promise
         (True), with DOP853 at ``rtol``, ``atol`` (False), or as :func:`reference_stiffness` decides
         (None, or its result).
 
@@ -261,9 +258,11 @@ def check_codebook(problem, codebook, *, tolerance: float | None = None, relativ
     S = group.size if names else 1
     if not isinstance(stiff, Stiffness):
         stiff = decide_stiffness(problem, codebook, points, S, times, rtol) if stiff is None else forced(bool(stiff))
-    reference, ok = _reference(problem, points, S, times, rtol, atol, progress, stiff.stiff)
     unknowns = [u.name for u in problem.unknowns]
     approx = codebook_at_samples(codebook, points, time, times, unknowns)
+    if stiff.stiff:
+        rtol, atol = stiff_tolerances(tol, relative_tolerance, solution_scale(approx))
+    reference, ok = _reference(problem, points, S, times, rtol, atol, progress, stiff.stiff)
     err, ratio, per_unknown = error_and_ratio(reference, approx, ok, tol, relative_tolerance)
     all_nodes = codebook.coordinate(time).basis().nodes.size
     stride = ordinal(checked_time_nodes(np.empty(all_nodes))[1])
@@ -301,7 +300,7 @@ def _reference_text(stiff: Stiffness, rtol: float, atol: float) -> str:
     why = stiff.text()
     why = f"; {why}" if why else ""
     if stiff.stiff:
-        return f"{STIFF_METHOD} (rtol {STIFF_RTOL:.0e}, atol {STIFF_ATOL:.0e}{why})"
+        return f"{STIFF_METHOD} (rtol {rtol:.0e}, atol {atol:.0e}{why})"
     tolerances = f"rtol = atol = {rtol:.0e}" if rtol == atol else f"rtol {rtol:.0e}, atol {atol:.0e}"
     return f"DOP853 ({tolerances}{why})"
 

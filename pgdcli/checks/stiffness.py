@@ -37,7 +37,35 @@ from .compare import codebook_at_samples
 from .reference_system import CompiledSystem, reference_jacobian
 
 __all__ = ["Stiffness", "decide_stiffness", "estimate_stiffness", "forced", "not_estimated", "probe_times",
-           "EXPLICIT_LIMIT", "STEPS_PER_RADIAN", "RATIO", "MIN_STEPS", "PROBES", "RATE_PROBES"]
+           "EXPLICIT_LIMIT", "STEPS_PER_RADIAN", "RATIO", "MIN_STEPS", "PROBES", "RATE_PROBES", "STIFF_METHOD",
+           "STIFF_RTOL", "STIFF_ATOL", "STIFF_SHARE", "stiff_tolerances", "solution_scale"]
+
+#: The stiff reference (``check_codebook(stiff=True)``): Radau IIA of order 5, at these tolerances at the
+#: tightest (:func:`stiff_tolerances`).
+STIFF_METHOD, STIFF_RTOL, STIFF_ATOL = "Radau", 1e-12, 1e-14
+#: The stiff reference is asked for this share of the promise, as the nonlinear method of lines is: its error
+#: then moves a verdict only for a codebook within a few thousandths of its tolerance.
+STIFF_SHARE = 1e-4
+
+
+def stiff_tolerances(tolerance: float, relative_tolerance: float, scale: float) -> tuple[float, float]:
+    """Radau's ``(rtol, atol)`` for a promise ``|u - u_ref| <= tolerance + relative_tolerance |u_ref|``:
+    :data:`STIFF_SHARE` of it, no tighter than :data:`STIFF_RTOL`, :data:`STIFF_ATOL`.
+
+    Radau controls ``atol + rtol |u|``: its ``atol`` is the share of ``tolerance``, its ``rtol`` the share of
+    ``relative_tolerance`` or, for an absolute promise, of ``tolerance / scale`` (``scale``: the solution's
+    size, a power of ten at least 1, so that the reference and its cache do not depend on the codebook's
+    last digits).
+    """
+    relative = max(relative_tolerance, tolerance / max(1.0, scale))
+    return max(STIFF_RTOL, STIFF_SHARE * relative), max(STIFF_ATOL, STIFF_SHARE * tolerance)
+
+
+def solution_scale(values: dict) -> float:
+    """The power of ten at or above the largest finite ``|value|`` (at least 1)."""
+    largest = max((float(np.max(np.abs(v[np.isfinite(v)]), initial=0.0)) for v in values.values()), default=0.0)
+    return float(10.0 ** np.ceil(np.log10(max(1.0, largest))))
+
 
 #: DOP853's step times the decay rate it is held to (its stability region reaches about 6 on the negative
 #: real axis; at the reference's tolerances scipy's step control holds it well below, so that this
