@@ -80,9 +80,11 @@ def _message(status: Status, history: list, target: float, max_modes: int, rank:
         return f"converged: relative residual {residual:.3g} with {rank} modes"
     if status is Status.MAX_MODES and rank < max_modes:  # stopped early: the cap is out of reach at this rate
         needed = predicted_modes(history, target)
+        advice = ("solver.method: amen (the tensor-train solver) may take it" if needed > 1e4 else
+                  "raise solver.max_modes, or solver.method: amen (the tensor-train solver) may take it")
         return (f"not converged: relative residual {residual:.3g} after {rank} modes, falling as if to need "
-                f"{'more than 10 000' if needed > 1e4 else f'about {needed:.0f}'} modes to reach {target:.3g} "
-                f"(max_modes={max_modes}); solver.method: amen (the tensor-train solver) may take it")
+                f"{'more than 10 000' if needed > 1e4 else f'about {np.ceil(needed):.0f}'} modes to reach {target:.3g} "
+                f"(max_modes={max_modes}); {advice}")
     if status is Status.MAX_MODES:
         return (f"not converged: relative residual {residual:.3g} > {target:.3g} after max_modes={max_modes} modes "
                 f"(raise solver.max_modes, or solver.method: amen)")

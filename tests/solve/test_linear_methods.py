@@ -9,7 +9,7 @@ import pytest
 
 import pgdcli
 from conftest import PROBLEMS
-from pgdcli.algorithms.enrichment import predicted_modes
+from pgdcli.algorithms.enrichment import PREDICTION_AFTER, out_of_reach, predicted_modes
 from pgdcli.errors import SolverError
 
 
@@ -79,6 +79,16 @@ def test_predicted_modes_extrapolates_the_residuals_decay():
     assert predicted_modes(history, 1e-6) == pytest.approx(24.0)
     assert predicted_modes(history, 1e-9) == pytest.approx(36.0)
     assert predicted_modes([1e-3] * 20, 1e-6) == float("inf")  # not falling
+
+
+def test_out_of_reach_needs_its_prediction_past_the_cap_several_modes_in_a_row():
+    falling = [10.0 ** (-k / 10) for k in range(40)]  # a decade every 10 modes: 1e-10 at mode 100
+    assert out_of_reach(falling, 2e-11, 100) and not out_of_reach(falling, 2e-10, 100)
+    assert not out_of_reach(falling[:PREDICTION_AFTER], 1e-30, 100)  # too few modes to read a rate
+    plateau = falling[:30] + [falling[29]] * 12  # flat over the last windows: never, read three times
+    assert out_of_reach(plateau, 1e-6, 100)
+    spike = falling[:38] + [falling[37], falling[39]]  # one flat mode, then falling again: not three in a row
+    assert not out_of_reach(spike, 2e-10, 100)
 
 
 def test_pgd_solve_and_info_say_which_solver_ran_and_why(tmp_path):
