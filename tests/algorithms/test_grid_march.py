@@ -156,6 +156,7 @@ equations:
   - "der(y) = -k*(y - cos(t)) - 0.1*y**3"
 solver:
   tolerance: 1e-6
+  integrator: dop853  # explicit on purpose: thousands of steps (auto switches to RODAS4 here)
 """
 
 

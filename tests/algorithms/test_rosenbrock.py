@@ -191,6 +191,21 @@ def test_auto_integrator_switches_to_rodas4_on_a_stiff_problem_and_says_why():
     assert abs(float(cb(t=t, k=k)["u"]) - exact) <= 1e-6
 
 
+def test_auto_switches_when_a_driven_stiff_mode_holds_the_steps_below_the_stability_limit():
+    """Rates 100 to 1000 hold DOP853 near h x rate = 1, a sixth of its stability limit, by its error
+    estimate (8700 steps to t = 10): the watch switches to RODAS4 all the same."""
+    text = RELAXATION.replace("k: {domain: [1000, 5000]}", "k: {domain: [100, 1000]}").replace(
+        "[0, 5]", "[0, 10]")
+    result = pgdcli.solve(parse_spec(text, source="relaxation.yaml", allow_nonlinear=True))
+    assert result.accurate and result.codebook.report["integrator"] == "rodas4"
+    assert "the explicit DOP853 was held" in result.codebook.report["integrator_reason"]
+    rng = np.random.default_rng(3)
+    for t, k in zip(rng.uniform(0, 10, 6), rng.uniform(100, 1000, 6)):
+        exact = solve_ivp(lambda s, u: -k * (u - np.cos(s)) - u ** 3 + np.cos(s) ** 3, (0, t), [2.0],
+                          method="Radau", rtol=1e-11, atol=1e-13).y[0, -1]
+        assert abs(float(result.codebook(t=t, k=k)["u"]) - exact) <= 1e-6
+
+
 def test_explicit_integrator_stays_explicit_and_names_the_stiff_one():
     text = RELAXATION.replace("tolerance: 1e-6", "tolerance: 1e-6\n  integrator: dop853\n  max_steps: 300")
     result = pgdcli.solve(parse_spec(text, source="relaxation.yaml", allow_nonlinear=True))

@@ -133,11 +133,14 @@ solver:
 
 
 @pytest.mark.slow
-def test_an_explicit_march_at_max_steps_far_from_the_end_switches_to_rodas4():
+def test_an_explicit_march_held_below_its_stability_limit_switches_to_rodas4():
+    """The sine holds DOP853's steps by its error estimate at h x rate 2.3, under half its limit: the watch
+    switches all the same, at its third check (step 60), long before max_steps."""
     result = pgdcli.solve(pgdcli.parse_spec(FILTER, source="filter.yaml"))
     assert result.accurate, result.message
     report = result.codebook.report
-    assert report["integrator"] == "rodas4" and "reached max_steps=1000" in report["integrator_reason"]
+    assert report["integrator"] == "rodas4" and "the explicit DOP853 was held" in report["integrator_reason"]
+    assert "after 60 steps" in report["integrator_reason"]
     rng = np.random.default_rng(11)
     worst = 0.0
     for w in [0.5, 2.0, *rng.uniform(0.5, 2.0, 5)]:
@@ -148,3 +151,17 @@ def test_an_explicit_march_at_max_steps_far_from_the_end_switches_to_rodas4():
         got = result.codebook(t=times, w=w)
         worst = max(worst, float(np.max(np.abs(got["v1"] - ref.y[0]))), float(np.max(np.abs(got["v2"] - ref.y[1]))))
     assert worst <= 1e-5, worst
+
+
+def test_an_explicit_march_at_max_steps_far_from_the_end_switches_to_rodas4():
+    """max_steps before the watch's third check: the cap, far from the end, switches too."""
+    text = FILTER.replace("tolerance: 1e-5", "tolerance: 1e-3").replace("max_steps: 1000", "max_steps: 58")
+    result = pgdcli.solve(pgdcli.parse_spec(text, source="filter.yaml"))
+    assert result.accurate, result.message
+    report = result.codebook.report
+    assert report["integrator"] == "rodas4" and "reached max_steps=58" in report["integrator_reason"]
+    w, times = 1.3, np.linspace(0.0, 2.0, 9)
+    ref = solve_ivp(lambda t, y: [(np.sin(w * t) - y[0]) / 1e-3, 0.5 * (y[0] - y[1])], (0.0, 2.0), [1.0, 0.0],
+                    method="Radau", rtol=1e-12, atol=1e-14, t_eval=times)
+    got = result.codebook(t=times, w=w)
+    assert max(np.abs(got["v1"] - ref.y[0]).max(), np.abs(got["v2"] - ref.y[1]).max()) <= 1e-3
